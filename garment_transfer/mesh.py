@@ -1,0 +1,270 @@
+"""Triangle meshes that remember the polygons they came from.
+
+A mesh is ``V (n,3) float64`` vertices and ``F (m,3) int64`` triangles. Quads and n-gons
+(from Blender or OBJ) are triangulated on the way in; ``tri_to_face`` maps each triangle back
+to its polygon so that results can be written with the input's own faces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import MeshError, TopologyMismatchError
+
+# One place for geometric tolerances: a triangle whose doubled area is below
+# DEGENERATE_AREA * (mean edge length)^2 counts as degenerate.
+DEGENERATE_AREA = 1e-12
+
+
+@dataclass
+class Mesh:
+    """A triangulated mesh with its original polygons.
+
+    Attributes
+    ----------
+    V : (n,3) float64
+        Vertex positions.
+    F : (m,3) int64
+        Triangles (indices into V).
+    face_vertices : (k,) int64
+        Vertex indices of the original polygons, concatenated.
+    face_start : (p+1,) int64
+        Polygon j uses ``face_vertices[face_start[j]:face_start[j+1]]``.
+    tri_to_face : (m,) int64
+        The polygon each triangle comes from.
+    name : str
+        File or object name, used in error messages.
+    obj_lines : list of str or None
+        The OBJ text the mesh was read from (for writing results with the same
+        UVs, groups and materials); None for meshes built in memory.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    face_vertices: np.ndarray
+    face_start: np.ndarray
+    tri_to_face: np.ndarray
+    name: str = "mesh"
+    obj_lines: list | None = field(default=None, repr=False)
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.V.shape[0])
+
+    @property
+    def n_triangles(self) -> int:
+        return int(self.F.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.face_start.shape[0] - 1)
+
+    def polygons(self) -> list:
+        """The original polygons as a list of index arrays."""
+        s = self.face_start
+        return [self.face_vertices[s[j]:s[j + 1]] for j in range(self.n_faces)]
+
+    def with_vertices(self, V, name=None) -> "Mesh":
+        """The same topology with other vertex positions."""
+        V = np.asarray(V, dtype=np.float64)
+        if V.shape != self.V.shape:
+            raise MeshError(name or self.name,
+                            f"expected vertices of shape {self.V.shape}, got {V.shape}")
+        return Mesh(V, self.F, self.face_vertices, self.face_start, self.tri_to_face,
+                    name or self.name, self.obj_lines)
+
+
+def triangulate(V, face_vertices, face_start):
+    """Triangulate polygons: triangles kept, quads split along the shorter diagonal, n-gons fanned.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    face_vertices : (k,) int
+    face_start : (p+1,) int
+
+    Returns
+    -------
+    F : (m,3) int64
+    tri_to_face : (m,) int64
+    """
+    V = np.asarray(V, dtype=np.float64)
+    fv = np.asarray(face_vertices, dtype=np.int64)
+    fs = np.asarray(face_start, dtype=np.int64)
+    sizes = np.diff(fs)
+    faces = np.arange(sizes.shape[0])
+    tris, owners = [], []
+
+    tri = faces[sizes == 3]
+    if tri.size:
+        tris.append(fv[fs[tri][:, None] + np.arange(3)])
+        owners.append(tri)
+
+    quad = faces[sizes == 4]
+    if quad.size:
+        q = fv[fs[quad][:, None] + np.arange(4)]
+        d02 = np.linalg.norm(V[q[:, 0]] - V[q[:, 2]], axis=1)
+        d13 = np.linalg.norm(V[q[:, 1]] - V[q[:, 3]], axis=1)
+        split02 = d02 <= d13
+        a = np.where(split02[:, None], q[:, [0, 1, 2]], q[:, [0, 1, 3]])
+        b = np.where(split02[:, None], q[:, [0, 2, 3]], q[:, [1, 2, 3]])
+        tris += [a, b]
+        owners += [quad, quad]
+
+    for j in faces[sizes > 4]:
+        p = fv[fs[j]:fs[j + 1]]
+        k = p.shape[0]
+        tris.append(np.stack([np.full(k - 2, p[0]), p[1:-1], p[2:]], axis=1))
+        owners.append(np.full(k - 2, j))
+
+    if not tris:
+        return np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+    F = np.concatenate(tris).astype(np.int64)
+    owner = np.concatenate(owners).astype(np.int64)
+    order = np.argsort(owner, kind="stable")
+    return F[order], owner[order]
+
+
+def mesh_from_polygons(V, polygons, name="mesh", obj_lines=None) -> Mesh:
+    """Build a Mesh from vertices and polygons, checking them.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    polygons : (p,3) or (p,4) int array, or a list of index sequences of any length >= 3
+    name : str
+        Used in error messages.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise MeshError(name, f"vertices must have shape (n, 3), got {V.shape}")
+    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
+        P = polygons.astype(np.int64)
+        face_vertices = P.reshape(-1)
+        face_start = np.arange(P.shape[0] + 1, dtype=np.int64) * P.shape[1]
+    else:
+        sizes = np.fromiter((len(p) for p in polygons), dtype=np.int64, count=len(polygons))
+        face_start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        face_vertices = (np.concatenate([np.asarray(p, dtype=np.int64) for p in polygons])
+                         if len(polygons) else np.zeros(0, np.int64))
+    check_polygons(V, face_vertices, face_start, name)
+    F, tri_to_face = triangulate(V, face_vertices, face_start)
+    return Mesh(V, F, face_vertices, face_start, tri_to_face, name, obj_lines)
+
+
+def mesh_from_triangles(V, F, name="mesh") -> Mesh:
+    """A Mesh whose polygons are its triangles."""
+    return mesh_from_polygons(V, np.asarray(F, dtype=np.int64).reshape(-1, 3), name)
+
+
+def check_polygons(V, face_vertices, face_start, name):
+    """Raise MeshError for what no algorithm here can use: no faces, bad indices, NaN/inf."""
+    if V.shape[0] == 0:
+        raise MeshError(name, "the mesh has no vertices")
+    if face_start.shape[0] <= 1:
+        raise MeshError(name, "the mesh has no faces")
+    if not np.all(np.isfinite(V)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(V), axis=1))[0])
+        raise MeshError(name, f"vertex {bad} has a NaN or infinite coordinate")
+    sizes = np.diff(face_start)
+    if np.any(sizes < 3):
+        bad = int(np.flatnonzero(sizes < 3)[0])
+        raise MeshError(name, f"face {bad} has {int(sizes[bad])} vertices (at least 3 needed)")
+    if face_vertices.min() < 0 or face_vertices.max() >= V.shape[0]:
+        raise MeshError(name, f"a face refers to a vertex outside 0..{V.shape[0] - 1}")
+
+
+def edge_lengths_mean(V, F) -> float:
+    """Mean edge length of the triangles F over V (a length scale for tolerances)."""
+    e = np.concatenate([V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 1]], V[F[:, 0]] - V[F[:, 2]]])
+    return float(np.mean(np.linalg.norm(e, axis=1))) if e.size else 0.0
+
+
+def triangle_normals(V, F):
+    """Unit normals and areas of triangles.
+
+    Returns
+    -------
+    N : (m,3) float64
+        Unit normals (zero for degenerate triangles).
+    area : (m,) float64
+    """
+    c = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    dbl = np.linalg.norm(c, axis=1)
+    N = np.divide(c, dbl[:, None], out=np.zeros_like(c), where=dbl[:, None] > 0)
+    return N, 0.5 * dbl
+
+
+def degenerate_triangles(V, F):
+    """(m,) bool: triangles whose area is negligible for the mesh's scale."""
+    _, area = triangle_normals(V, F)
+    h = edge_lengths_mean(V, F)
+    return 2.0 * area <= DEGENERATE_AREA * max(h, 1e-300) ** 2
+
+
+def mesh_report(mesh: Mesh) -> dict:
+    """Counts of the things that are suspicious but usable: degenerate triangles, loose
+    vertices, non-manifold and boundary edges, connected pieces."""
+    V, F = mesh.V, mesh.F
+    used = np.zeros(V.shape[0], bool)
+    used[F.reshape(-1)] = True
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    key = e[:, 0] * V.shape[0] + e[:, 1]
+    _, counts = np.unique(key, return_counts=True)
+    return {
+        "vertices": mesh.n_vertices,
+        "faces": mesh.n_faces,
+        "triangles": mesh.n_triangles,
+        "degenerate_triangles": int(degenerate_triangles(V, F).sum()),
+        "loose_vertices": int((~used).sum()),
+        "boundary_edges": int((counts == 1).sum()),
+        "non_manifold_edges": int((counts > 2).sum()),
+        "pieces": connected_pieces(V.shape[0], F)[0],
+    }
+
+
+def connected_pieces(n, F):
+    """Connected components of the triangles' vertices.
+
+    Returns
+    -------
+    count : int
+        Number of pieces among used vertices.
+    label : (n,) int64
+        Piece of each vertex (loose vertices get their own).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    A = sp.coo_matrix((np.ones(i.shape[0]), (i, j)), shape=(n, n))
+    _, label = connected_components(A, directed=False)
+    used = np.unique(F.reshape(-1))
+    return int(np.unique(label[used]).shape[0]), label.astype(np.int64)
+
+
+def require_same_topology(a: Mesh, b: Mesh):
+    """Raise TopologyMismatchError unless a and b share vertex count and faces."""
+    if a.n_vertices != b.n_vertices:
+        raise TopologyMismatchError(
+            b.name, f"has {b.n_vertices} vertices but {a.name} has {a.n_vertices}; "
+                    "the two must be the same mesh in different shapes")
+    if (a.face_start.shape != b.face_start.shape or a.face_vertices.shape != b.face_vertices.shape
+            or not np.array_equal(a.face_vertices, b.face_vertices)
+            or not np.array_equal(a.face_start, b.face_start)):
+        raise TopologyMismatchError(
+            b.name, f"has other faces than {a.name}; the two must be the same mesh in different shapes")
+
+
+def faces_hash(mesh: Mesh) -> str:
+    """A short hash of the polygons (identifies a body topology, e.g. for a model file)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    h.update(np.int64(mesh.n_vertices).tobytes())
+    h.update(np.ascontiguousarray(mesh.face_start, dtype=np.int64).tobytes())
+    h.update(np.ascontiguousarray(mesh.face_vertices, dtype=np.int64).tobytes())
+    return h.hexdigest()[:16]
