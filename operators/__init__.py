@@ -1,0 +1,17 @@
+"""Operators ``bpy.ops.garment_transfer.*``: read objects, call the core, write a new object."""
+
+import bpy
+
+from . import drape, evaluate, train, transfer
+
+CLASSES = transfer.CLASSES + train.CLASSES + drape.CLASSES + evaluate.CLASSES
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

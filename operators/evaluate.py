@@ -1,0 +1,114 @@
+"""Measure a transferred garment and paint where its design changed."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from . import convert
+from .reporting import missing_choice_message, length_text, report_failure
+from .transfer import format_metrics
+
+HEATMAP_ATTRIBUTE = "design_change"
+
+
+def heatmap_colors(values, scale):
+    """(n,4) RGBA of (n,) non-negative values: blue (0) through green and yellow to red (>= scale)."""
+    t = np.clip(np.asarray(values, dtype=np.float64) / max(scale, 1e-12), 0.0, 1.0)
+    stops = np.array([[0.05, 0.15, 0.8], [0.1, 0.75, 0.3], [0.95, 0.85, 0.1], [0.85, 0.1, 0.05]])
+    x = t * (len(stops) - 1)
+    i = np.minimum(x.astype(np.int64), len(stops) - 2)
+    w = (x - i)[:, None]
+    rgb = stops[i] * (1 - w) + stops[i + 1] * w
+    return np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
+
+
+def evaluate_objects(context, result_obj, garment, target_body, reference=None, evaluated=True):
+    """Metrics of ``result_obj`` against ``garment`` (its source) on ``target_body``, and the per-vertex
+    design change written on the result as the colour attribute ``design_change`` (raw numbers in
+    ``design_change_value``).
+
+    Returns
+    -------
+    metrics : dict
+        The core's ``evaluate`` (MDC, penetration, drape and vertex errors).
+    heatmap : dict
+        ``written`` (bool), ``scale`` (value shown in full red), ``max``.
+    """
+    from ..garment_transfer.errors import MeshError
+    from ..garment_transfer.metrics import evaluate, per_vertex_change
+
+    for role, obj in (("result", result_obj), ("garment", garment), ("target body", target_body)):
+        convert.require_mesh_object(obj, role)
+    if reference is not None:
+        convert.require_mesh_object(reference, "reference")
+    if result_obj in (garment, target_body, reference):
+        raise MeshError(result_obj.name, "is an input; choose the transferred result to evaluate "
+                                         "(a heatmap is written on it)")
+    depsgraph = context.evaluated_depsgraph_get()
+    source = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
+    result = convert.core_mesh_from_object(result_obj, depsgraph, evaluated, "result")
+    body = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
+    ref = (convert.core_mesh_from_object(reference, depsgraph, evaluated, "reference")
+           if reference is not None else None)
+    metrics = evaluate(source, result, body, reference=ref)
+    change = np.asarray(per_vertex_change(source.V, result.V), dtype=np.float64)
+    scale = float(np.percentile(change, 99)) if change.size else 0.0
+    scale = scale if scale > 0 else 1.0
+    heatmap = {"written": False, "scale": scale, "max": float(change.max(initial=0.0))}
+    me = result_obj.data
+    if len(me.vertices) == change.shape[0]:
+        convert.write_vertex_colors(me, heatmap_colors(change, scale), HEATMAP_ATTRIBUTE)
+        convert.write_float_attribute(me, change, HEATMAP_ATTRIBUTE + "_value")
+        heatmap["written"] = True
+    return metrics, heatmap
+
+
+class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
+    """Measure the result against its garment (design change, penetration, fit against the reference
+    if one is chosen) and paint the change per vertex as the colour attribute design_change"""
+
+    bl_idname = "garment_transfer.evaluate"
+    bl_label = "Evaluate Result"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        settings = getattr(context.scene, "garment_transfer", None)
+        if settings is None:
+            return False
+        message = missing_choice_message((("the result", settings.result),
+                                                  ("the garment it came from", settings.garment),
+                                                  ("the target body", settings.target_body)))
+        if message:
+            cls.poll_message_set(message)
+            return False
+        if context.mode != 'OBJECT':
+            cls.poll_message_set("Switch to Object Mode first")
+            return False
+        return True
+
+    def execute(self, context):
+        settings = context.scene.garment_transfer
+        try:
+            metrics, heatmap = evaluate_objects(context, settings.result, settings.garment,
+                                                settings.target_body, settings.reference,
+                                                settings.use_evaluated)
+        except Exception as exc:
+            return report_failure(self, exc)
+        settings.last_metrics = format_metrics(metrics)
+        text = (f"{settings.result.name}: MDC {metrics['mdc']:.4f}, "
+                f"{metrics['penetration_ratio']:.1%} inside "
+                f"(deepest {length_text(context, metrics.get('max_penetration_depth') or 0.0)})")
+        if metrics.get("drape_error_relative") is not None:
+            text += f", drape error {metrics['drape_error_relative']:.2f} of the untransferred garment's"
+        if heatmap["written"]:
+            self.report({'INFO'}, text + f"; heatmap '{HEATMAP_ATTRIBUTE}' (red = change >= "
+                                         f"{heatmap['scale']:.3g})")
+        else:
+            self.report({'WARNING'}, text + "; no heatmap: the result's modifiers change its vertex "
+                                            "count (turn off Use Modifiers and Shape Keys)")
+        return {'FINISHED'}
+
+
+CLASSES = (GARMENT_TRANSFER_OT_evaluate,)

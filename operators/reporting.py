@@ -1,0 +1,60 @@
+"""How operators turn failures and progress into what the user sees."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+
+from ..garment_transfer.errors import GarmentTransferError
+
+log = logging.getLogger(__name__)
+
+
+def report_failure(op, exc):
+    """Report ``exc`` on operator ``op`` as an error and return {'CANCELLED'}.
+
+    Expected failures (GarmentTransferError) carry a message meant for the user. Anything else is a
+    bug: the user gets its type and message, the traceback goes to the log (the system console).
+    """
+    if isinstance(exc, GarmentTransferError):
+        op.report({'ERROR'}, str(exc))
+    else:
+        log.error("%s failed", op.bl_idname, exc_info=exc)
+        op.report({'ERROR'}, f"Unexpected error ({type(exc).__name__}: {exc}); "
+                             "the traceback is in the system console")
+    return {'CANCELLED'}
+
+
+@contextlib.contextmanager
+def window_progress(context):
+    """Yield a progress callback (fraction in [0, 1]) that drives the window manager's progress."""
+    wm = context.window_manager
+    wm.progress_begin(0, 1000)
+
+    def progress(fraction):
+        wm.progress_update(int(1000 * min(max(float(fraction), 0.0), 1.0)))
+        return False
+
+    try:
+        yield progress
+    finally:
+        wm.progress_end()
+
+
+def length_text(context, value):
+    """A length in the scene's units, for messages."""
+    import bpy
+
+    units = context.scene.unit_settings
+    if units.system == 'NONE':
+        return f"{value:.4g}"
+    return bpy.utils.units.to_string(units.system, 'LENGTH', value * units.scale_length, precision=3)
+
+
+def missing_choice_message(choices):
+    """The poll message for (label, object) pairs whose object is None, or None when all are chosen."""
+    missing = [label for label, obj in choices if obj is None]
+    if not missing:
+        return None
+    text = missing[0] if len(missing) == 1 else ", ".join(missing[:-1]) + " and " + missing[-1]
+    return f"Choose {text} in the Garment tab"

@@ -1,0 +1,188 @@
+"""Train a shared deformation model from a dataset folder, without freezing Blender.
+
+``invoke`` runs modally: a timer advances a step generator, the window shows progress, Esc cancels.
+``execute`` drains the same generator, so scripts, tests and background mode take the same path.
+The training itself runs in a worker thread (torch releases the GIL while it computes); the generator
+only reports its progress and passes a cancel request on.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import bpy
+
+from .reporting import report_failure
+
+TORCH_PIN = "torch==2.13.0"
+
+
+def torch_missing_message():
+    """None when torch can be imported; otherwise how to install it."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        return (f"Training needs PyTorch, which this Python does not have. Install it with: "
+                f"\"{sys.executable}\" -m pip install {TORCH_PIN} (transfer works without it)")
+    return None
+
+
+class TrainingRun:
+    """Training in a worker thread; ``steps()`` yields its progress (a fraction) until it ends."""
+
+    def __init__(self, train_call):
+        self._call = train_call
+        self.fraction = 0.0
+        self.cancel_requested = False
+        self.result = None
+        self.error = None
+        self._thread = threading.Thread(target=self._run, name="garment-transfer-training",
+                                        daemon=True)
+
+    def _progress(self, fraction):
+        self.fraction = float(fraction)
+        return self.cancel_requested
+
+    def _run(self):
+        try:
+            self.result = self._call(self._progress)
+        except BaseException as exc:
+            self.error = exc
+
+    def steps(self):
+        """Yield the progress fraction while training runs; then raise its error or return its result."""
+        self._thread.start()
+        try:
+            while self._thread.is_alive():
+                yield self.fraction
+        finally:
+            if self._thread.is_alive():
+                self.cancel_requested = True
+                self._thread.join()
+        if self.error is not None:
+            raise self.error
+        return self.result
+
+
+def training_call(settings):
+    """A function of a progress callback that trains with the panel's settings and saves the model."""
+    from ..garment_transfer.training import train_model
+
+    dataset = bpy.path.abspath(settings.dataset_path)
+    output = bpy.path.abspath(settings.train_output)
+    options = dict(epochs=settings.train_epochs, latent=settings.train_latent,
+                   source=settings.dataset_source or None)
+
+    def call(progress):
+        return train_model(dataset, output, progress=progress, **options)
+
+    return call
+
+
+def drain(steps, pause=0.02):
+    """Run a step generator to its end and return its return value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+        time.sleep(pause)
+
+
+class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
+    """Train a model of how garments deform between the dataset's bodies and save it as a model
+    file (needs PyTorch; Esc cancels without writing a file)"""
+
+    bl_idname = "garment_transfer.train"
+    bl_label = "Train Model"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    _timer = None
+    _run = None
+    _steps = None
+
+    @classmethod
+    def poll(cls, context):
+        settings = getattr(context.scene, "garment_transfer", None)
+        if settings is None:
+            return False
+        if not settings.dataset_path:
+            cls.poll_message_set("Choose a dataset folder in the Training section")
+            return False
+        if not settings.train_output:
+            cls.poll_message_set("Choose where to save the model")
+            return False
+        return True
+
+    def _start(self, context):
+        message = torch_missing_message()
+        if message:
+            self.report({'ERROR'}, message)
+            return False
+        self._run = TrainingRun(training_call(context.scene.garment_transfer))
+        self._steps = self._run.steps()
+        return True
+
+    def _finish(self, context, summary):
+        settings = context.scene.garment_transfer
+        settings.train_progress = 100.0
+        settings.model_path = settings.train_output
+        self.report({'INFO'}, f"Model saved to {bpy.path.abspath(settings.train_output)}"
+                              + (f" ({summary})" if isinstance(summary, str) else ""))
+        return {'FINISHED'}
+
+    def execute(self, context):
+        try:
+            if not self._start(context):
+                return {'CANCELLED'}
+            summary = drain(self._steps)
+        except Exception as exc:
+            return report_failure(self, exc)
+        return self._finish(context, summary)
+
+    def invoke(self, context, event):
+        try:
+            if not self._start(context):
+                return {'CANCELLED'}
+        except Exception as exc:
+            return report_failure(self, exc)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        return {'RUNNING_MODAL'}
+
+    def modal(self, context, event):
+        settings = context.scene.garment_transfer
+        if event.type == 'ESC':
+            self._steps.close()
+            self._end_modal(context)
+            self.report({'WARNING'}, "Training cancelled; no model file was written")
+            return {'CANCELLED'}
+        if event.type != 'TIMER':
+            return {'PASS_THROUGH'}
+        try:
+            fraction = next(self._steps)
+        except StopIteration as stop:
+            self._end_modal(context)
+            return self._finish(context, stop.value)
+        except Exception as exc:
+            self._end_modal(context)
+            return report_failure(self, exc)
+        settings.train_progress = 100.0 * fraction
+        context.window_manager.progress_update(int(100 * fraction))
+        context.workspace.status_text_set(f"Training model: {fraction:.0%} (Esc to cancel)")
+        return {'RUNNING_MODAL'}
+
+    def _end_modal(self, context):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+
+
+CLASSES = (GARMENT_TRANSFER_OT_train,)

@@ -1,0 +1,139 @@
+"""Transfer a garment from the source body to a target body: a new object on the target."""
+
+from __future__ import annotations
+
+import time
+
+import bpy
+
+from . import convert
+from .models import load_model_cached
+from .reporting import missing_choice_message, length_text, report_failure, window_progress
+
+
+def result_name(garment, target_body):
+    return f"{garment.name}_on_{target_body.name}"
+
+
+def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
+                     target_label="", offset=None, fix_penetration=True, evaluated=True,
+                     progress=None):
+    """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
+
+    Reads the three objects (world space; see convert for which state), runs the core, and only
+    then creates ``<garment>_on_<target>``: a failure leaves the scene as it was.
+
+    Returns
+    -------
+    result : bpy.types.Object
+        The new object, linked next to the garment.
+    outcome : TransferResult
+        From the core (positions, per-stage seconds, penetrating vertices).
+    metrics : dict
+        ``evaluate`` of the result against the garment on the target body.
+    """
+    from ..garment_transfer.errors import MeshError, ModelError
+    from ..garment_transfer.metrics import evaluate
+    from ..garment_transfer.transfer import transfer_garment
+
+    roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
+    for role, obj in roles:
+        convert.require_mesh_object(obj, role)
+    if garment == source_body or garment == target_body:
+        raise MeshError(garment.name, "is chosen both as the garment and as a body")
+
+    depsgraph = context.evaluated_depsgraph_get()
+    source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
+    target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
+    cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
+
+    model = None
+    if method == "MODEL":
+        if not model_path:
+            raise ModelError("model file", "none chosen; choose one, or use the Direct method")
+        model = load_model_cached(model_path)
+        model.check_source_body(source)
+
+    outcome = transfer_garment(source, target, cloth, method=method.lower(), model=model,
+                               target=target_label or None, offset=offset,
+                               fix_penetration=fix_penetration, progress=progress)
+    metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
+    result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
+                                       depsgraph, evaluated, scene=context.scene)
+    return result, outcome, metrics
+
+
+class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
+    """Put the garment on the target body, keeping its folds: makes a new object
+    <garment>_on_<target> and leaves the inputs unchanged"""
+
+    bl_idname = "garment_transfer.transfer"
+    bl_label = "Transfer Garment"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        settings = getattr(context.scene, "garment_transfer", None)
+        if settings is None:
+            return False
+        message = missing_choice_message((("the source body", settings.source_body),
+                                                  ("the target body", settings.target_body),
+                                                  ("the garment", settings.garment)))
+        if message:
+            cls.poll_message_set(message)
+            return False
+        if settings.method == 'MODEL' and not settings.model_path:
+            cls.poll_message_set("Choose a model file, or use the Direct method")
+            return False
+        if context.mode != 'OBJECT':
+            cls.poll_message_set("Switch to Object Mode first")
+            return False
+        return True
+
+    def execute(self, context):
+        settings = context.scene.garment_transfer
+        start = time.perf_counter()
+        try:
+            with window_progress(context) as progress:
+                result, outcome, metrics = transfer_objects(
+                    context, settings.source_body, settings.target_body, settings.garment,
+                    method=settings.method, model_path=settings.model_path,
+                    target_label=settings.target_label,
+                    offset=None if settings.auto_offset else settings.offset,
+                    fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
+                    progress=progress)
+        except Exception as exc:
+            return report_failure(self, exc)
+        elapsed = time.perf_counter() - start
+        settings.result = result
+        for obj in context.view_layer.objects:
+            obj.select_set(obj == result)
+        context.view_layer.objects.active = result
+        settings.last_metrics = format_metrics(metrics)
+        self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
+                                               metrics, elapsed))
+        return {'FINISHED'}
+
+
+def transfer_message(context, result, target_body, outcome, metrics, elapsed):
+    n = len(outcome.V)
+    depth = metrics.get("max_penetration_depth") or 0.0
+    return (f"{result.name}: MDC {metrics['mdc']:.4f}, {metrics['penetration_ratio']:.1%} of {n} "
+            f"vertices inside {target_body.name} (deepest {length_text(context, depth)}), "
+            f"{outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
+
+
+def format_metrics(metrics):
+    """Metrics as JSON for the panel (numbers only; None stays null)."""
+    import json
+
+    clean = {}
+    for key, value in metrics.items():
+        try:
+            clean[key] = None if value is None else float(value)
+        except (TypeError, ValueError):
+            continue
+    return json.dumps(clean)
+
+
+CLASSES = (GARMENT_TRANSFER_OT_transfer,)

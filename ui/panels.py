@@ -1,0 +1,129 @@
+"""The "Garment" tab in the 3D viewport's sidebar."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import bpy
+
+METRIC_LABELS = (
+    ("mdc", "Design change (MDC)", "{:.4f}"),
+    ("penetration_ratio", "Vertices inside body", "{:.1%}"),
+    ("max_penetration_depth", "Deepest", "{:.4g}"),
+    ("drape_error", "Drape error", "{:.4g}"),
+    ("drape_error_relative", "Drape error (relative)", "{:.3f}"),
+    ("vertex_error_mean", "Vertex error (mean)", "{:.4g}"),
+    ("vertex_error_max", "Vertex error (max)", "{:.4g}"),
+)
+
+
+class GarmentPanel:
+    bl_space_type = 'VIEW_3D'
+    bl_region_type = 'UI'
+    bl_category = "Garment"
+
+
+class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
+    bl_label = "Garment Transfer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        col = layout.column()
+        col.prop(settings, "source_body")
+        col.prop(settings, "target_body")
+        col.prop(settings, "garment")
+        col.prop(settings, "use_evaluated")
+
+        col = layout.column()
+        col.prop(settings, "method", expand=True)
+        if settings.method == 'MODEL':
+            col.prop(settings, "model_path")
+            if settings.model_status:
+                col.label(text=settings.model_status,
+                          icon='INFO' if settings.model_targets else 'ERROR')
+            if settings.model_targets:
+                col.prop_search(settings, "target_label", settings, "model_targets")
+        col.prop(settings, "fix_penetration")
+        sub = col.column()
+        sub.enabled = settings.fix_penetration
+        sub.prop(settings, "auto_offset")
+        row = sub.row()
+        row.enabled = not settings.auto_offset
+        row.prop(settings, "offset")
+        layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
+
+
+class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):
+    bl_label = "Evaluation"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        layout.prop(settings, "result")
+        layout.prop(settings, "reference")
+        layout.operator("garment_transfer.evaluate", icon='COLOR')
+        try:
+            metrics = json.loads(settings.last_metrics) if settings.last_metrics else {}
+        except ValueError:
+            metrics = {}
+        col = layout.column(align=True)
+        for key, label, fmt in METRIC_LABELS:
+            value = metrics.get(key)
+            if value is not None:
+                row = col.row()
+                row.label(text=label)
+                row.label(text=fmt.format(value))
+
+
+class VIEW3D_PT_garment_transfer_training(GarmentPanel, bpy.types.Panel):
+    bl_label = "Training"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        layout.prop(settings, "dataset_path")
+        layout.prop(settings, "dataset_source")
+        layout.prop(settings, "train_output")
+        layout.prop(settings, "train_epochs")
+        layout.prop(settings, "train_latent")
+        if importlib.util.find_spec("torch") is None:
+            box = layout.box()
+            box.label(text="Training needs PyTorch (not installed)", icon='ERROR')
+            box.label(text="pip install torch==2.13.0")
+        layout.operator("garment_transfer.train", icon='PLAY')
+
+
+class VIEW3D_PT_garment_transfer_drape(GarmentPanel, bpy.types.Panel):
+    bl_label = "Cloth Simulation"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        layout.label(text="Re-drape the garment on the target body with Blender's cloth solver "
+                          "(for comparison)")
+        layout.prop(settings, "drape_frames")
+        layout.operator("garment_transfer.drape", icon='PHYSICS')
+
+
+CLASSES = (
+    VIEW3D_PT_garment_transfer,
+    VIEW3D_PT_garment_transfer_evaluation,
+    VIEW3D_PT_garment_transfer_training,
+    VIEW3D_PT_garment_transfer_drape,
+)

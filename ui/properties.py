@@ -1,0 +1,119 @@
+"""The add-on's settings: one PropertyGroup on each Scene (``scene.garment_transfer``)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
+                       PointerProperty, StringProperty)
+
+
+def is_mesh(_self, obj):
+    return obj.type == 'MESH'
+
+
+def refresh_model_info(settings):
+    """List the targets of the model file in ``settings`` (or say why it cannot be read)."""
+    from ..garment_transfer.errors import GarmentTransferError
+    from ..operators.models import load_model_cached
+
+    settings.model_targets.clear()
+    if not settings.model_path:
+        settings.model_status = ""
+        return
+    try:
+        model = load_model_cached(settings.model_path)
+    except GarmentTransferError as exc:
+        settings.model_status = str(exc)
+        return
+    for label in model.targets:
+        settings.model_targets.add().name = str(label)
+    settings.model_status = f"{len(model.targets)} target(s)"
+    if settings.target_label not in model.targets and len(model.targets):
+        settings.target_label = str(model.targets[0])
+
+
+def _model_path_changed(self, _context):
+    refresh_model_info(self)
+
+
+class GarmentTransferTarget(bpy.types.PropertyGroup):
+    """A target body label of the loaded model (``name`` is the label)."""
+
+
+class GarmentTransferSettings(bpy.types.PropertyGroup):
+    source_body: PointerProperty(
+        name="Source Body", type=bpy.types.Object, poll=is_mesh,
+        description="The body the garment was made (simulated) on")
+    target_body: PointerProperty(
+        name="Target Body", type=bpy.types.Object, poll=is_mesh,
+        description="The body to put the garment on; for the Direct method, the same mesh as the "
+                    "source body in another shape (same vertex order and faces)")
+    garment: PointerProperty(
+        name="Garment", type=bpy.types.Object, poll=is_mesh,
+        description="The garment as it sits on the source body")
+    use_evaluated: BoolProperty(
+        name="Use Modifiers and Shape Keys", default=True,
+        description="Read every object as the viewport shows it (modifiers, shape keys and cloth "
+                    "simulation at the current frame). Off: the base meshes")
+    method: EnumProperty(
+        name="Method",
+        items=(
+            ('DIRECT', "Direct", "Carry the body's own deformation from the source to the target body "
+                                 "onto the garment; needs no model"),
+            ('MODEL', "Model", "Use a trained shared deformation model for the target body"),
+        ),
+        default='DIRECT')
+    model_path: StringProperty(
+        name="Model File", subtype='FILE_PATH', update=_model_path_changed,
+        description="A model file (.npz) trained on this source body")
+    model_targets: CollectionProperty(type=GarmentTransferTarget)
+    model_status: StringProperty(name="Model Status")
+    target_label: StringProperty(
+        name="Target", description="Which of the model's target bodies the target body is")
+    auto_offset: BoolProperty(
+        name="Automatic Offset", default=True,
+        description="Choose the distance kept between garment and body from the meshes' scale")
+    offset: FloatProperty(
+        name="Penetration Offset", subtype='DISTANCE', unit='LENGTH', default=0.002, min=0.0,
+        soft_max=0.05, precision=4,
+        description="Distance the garment keeps from the target body's surface")
+    fix_penetration: BoolProperty(
+        name="Fix Penetration", default=True,
+        description="Push garment vertices out of the target body and spread the fix smoothly")
+
+    result: PointerProperty(
+        name="Result", type=bpy.types.Object, poll=is_mesh,
+        description="A transferred garment to evaluate (set by Transfer)")
+    reference: PointerProperty(
+        name="Reference", type=bpy.types.Object, poll=is_mesh,
+        description="Optional: the same garment simulated or fitted on the target body")
+    last_metrics: StringProperty(name="Last Metrics")
+
+    dataset_path: StringProperty(
+        name="Dataset", subtype='DIR_PATH',
+        description="A dataset folder: bodies/<body>.obj, garments/<garment>/<body>.obj")
+    dataset_source: StringProperty(
+        name="Source Label", default="",
+        description="Which body of the dataset is the source body (empty: the dataset's own choice)")
+    train_output: StringProperty(
+        name="Save Model As", subtype='FILE_PATH', default="//garment_model.npz",
+        description="Where to write the trained model (.npz)")
+    train_epochs: IntProperty(name="Epochs", default=300, min=1, soft_max=5000)
+    train_latent: IntProperty(name="Latent Size", default=30, min=1, soft_max=256,
+                              description="Size of the shared deformation space")
+    train_progress: FloatProperty(name="Training Progress", subtype='PERCENTAGE', min=0, max=100)
+
+    drape_frames: IntProperty(
+        name="Frames", default=40, min=2, soft_max=400,
+        description="Simulation frames for morphing the body and letting the cloth settle")
+
+
+CLASSES = (GarmentTransferTarget, GarmentTransferSettings)
+
+
+def register_settings():
+    bpy.types.Scene.garment_transfer = PointerProperty(type=GarmentTransferSettings)
+
+
+def unregister_settings():
+    del bpy.types.Scene.garment_transfer
