@@ -1,0 +1,1 @@
+"""Procedural demo data: mannequins of one fixed topology and garments built around them."""
