@@ -1,0 +1,102 @@
+"""Deformation gradients between two shapes of one triangle mesh (paper eq. 2-3; Sumner & Popovic 2004)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .mesh import DEGENERATE_AREA
+
+
+def triangle_frames(V, F):
+    """Per-triangle frames ``[e1 e2 n]`` with ``n = e1 x e2 / sqrt(|e1 x e2|)``.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    F : (m,3) int
+
+    Returns
+    -------
+    X : (m,3,3) float64
+        Columns e1 = x2 - x1, e2 = x3 - x1 and the scaled normal n.
+    dbl_area : (m,) float64
+        |e1 x e2| (twice the triangle's area).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    x1 = V[F[:, 0]]
+    e1 = V[F[:, 1]] - x1
+    e2 = V[F[:, 2]] - x1
+    c = np.cross(e1, e2)
+    dbl = np.linalg.norm(c, axis=1)
+    n = np.divide(c, np.sqrt(dbl)[:, None], out=np.zeros_like(c), where=dbl[:, None] > 0)
+    return np.stack([e1, e2, n], axis=2), dbl
+
+
+def inverse_3x3(A):
+    """Closed-form inverses of a stack of 3x3 matrices.
+
+    Parameters
+    ----------
+    A : (m,3,3) float
+
+    Returns
+    -------
+    Ainv : (m,3,3) float64
+        Undefined (inf/nan) where det is 0: callers mask those.
+    det : (m,) float64
+    """
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 0], A[:, 1, 1], A[:, 1, 2]
+    g, h, i = A[:, 2, 0], A[:, 2, 1], A[:, 2, 2]
+    co = np.empty_like(A)
+    co[:, 0, 0] = e * i - f * h
+    co[:, 0, 1] = c * h - b * i
+    co[:, 0, 2] = b * f - c * e
+    co[:, 1, 0] = f * g - d * i
+    co[:, 1, 1] = a * i - c * g
+    co[:, 1, 2] = c * d - a * f
+    co[:, 2, 0] = d * h - e * g
+    co[:, 2, 1] = b * g - a * h
+    co[:, 2, 2] = a * e - b * d
+    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return co / det[:, None, None], det
+
+
+def deformation_gradients(X, Y, F):
+    """Deformation gradients ``Q_t = Y_t X_t^-1`` of every triangle from shape X to shape Y.
+
+    ``Q_t`` maps the triangle's edges exactly (``Q e1 = e1'``, ``Q e2 = e2'``) and its scaled normal
+    to the deformed one. It is the identity on an unchanged mesh and equals ``A`` for a similarity
+    ``x -> A x + b`` (rotation times uniform scale). For a general affine map it equals ``A`` on the
+    triangle's plane; the out-of-plane column is not determined by one triangle.
+
+    Parameters
+    ----------
+    X : (n,3) float
+        Rest shape.
+    Y : (n,3) float
+        Deformed shape (same vertex order).
+    F : (m,3) int
+        Triangles (those of the rest shape).
+
+    Returns
+    -------
+    Q : (m,3,3) float64
+        Never NaN: degenerate triangles get the identity.
+    degenerate : (m,) bool
+        Triangles of (near) zero area in X, flagged; their Q is the identity.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    Xf, dbl_x = triangle_frames(X, F)
+    Yf, _ = triangle_frames(Y, F)
+    Xinv, _ = inverse_3x3(Xf)
+    h2 = np.mean(np.sum((Xf[:, :, 0]) ** 2, axis=1)) if F.shape[0] else 1.0
+    degenerate = ~(dbl_x > DEGENERATE_AREA * h2)
+    Q = np.einsum("mij,mjk->mik", Yf, Xinv)
+    Q[degenerate] = np.eye(3)
+    bad = ~np.all(np.isfinite(Q), axis=(1, 2))
+    if bad.any():
+        Q[bad] = np.eye(3)
+        degenerate |= bad
+    return Q, degenerate

@@ -1,0 +1,106 @@
+"""Rebuilding a mesh from per-triangle deformation gradients (paper eq. 5).
+
+Minimise ``sum_t w_t sum_{k=2,3} |Q_t (x_tk - x_t1) - (y_tk - y_t1)|^2 + lam * sum_i |y_i - p_i|^2``.
+The first term is the paper's; it fixes the shape but not where it is (translation-invariant).
+The second, weak, term ties every vertex to an anchor position ``p_i`` (where the body says the
+garment goes): with a small ``lam`` it only decides the low frequencies, the placement, and leaves
+folds to the gradients. The normal equations ``(G^T W G + lam I) y = G^T W b + lam p`` have a
+matrix that depends only on the garment's topology and source positions: it is factored once and
+reused for every target.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .gradients import deformation_gradients
+from .mesh import edge_lengths_mean
+
+
+def edge_operator(n, F):
+    """The sparse operator G mapping vertex positions to the two edges ``x2-x1, x3-x1`` of every triangle.
+
+    Parameters
+    ----------
+    n : int
+        Vertex count.
+    F : (m,3) int
+
+    Returns
+    -------
+    G : (2m,n) scipy.sparse.csr_matrix
+        Rows 2t and 2t+1 are the two edges of triangle t.
+    """
+    m = F.shape[0]
+    rows = np.repeat(np.arange(2 * m), 2)
+    cols = np.stack([F[:, 1], F[:, 0], F[:, 2], F[:, 0]], axis=1).reshape(-1)
+    vals = np.tile([1.0, -1.0], 2 * m)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(2 * m, n))
+
+
+def anchor_weight_for(V, F, stiffness_length):
+    """The weight ``lam`` at which the anchors decide shape features longer than ``stiffness_length``.
+
+    The gradient term behaves like ``h^-2`` times a Dirichlet energy per unit area for a mesh of edge
+    length ``h``, and the anchor term like ``lam h^-2``; they balance at wavelength ``h / sqrt(lam)``.
+    """
+    h = edge_lengths_mean(V, F)
+    return float((h / stiffness_length) ** 2)
+
+
+class PoissonSolver:
+    """Factor once per garment, solve for any deformation gradient field.
+
+    Parameters
+    ----------
+    V : (n,3) float
+        The garment's source shape.
+    F : (m,3) int
+    anchor_weight : float
+        ``lam`` > 0 (see module doc).
+    triangle_weights : (m,) float, optional
+        ``w_t``; degenerate triangles of the source get 0 by default.
+    """
+
+    def __init__(self, V, F, anchor_weight, triangle_weights=None):
+        if not anchor_weight > 0:
+            raise ValueError(f"anchor_weight must be > 0, got {anchor_weight}")
+        self.V = np.asarray(V, dtype=np.float64)
+        self.F = np.asarray(F, dtype=np.int64)
+        n = self.V.shape[0]
+        if triangle_weights is None:
+            _, degenerate = deformation_gradients(self.V, self.V, self.F)
+            triangle_weights = (~degenerate).astype(np.float64)
+        self.triangle_weights = np.asarray(triangle_weights, dtype=np.float64)
+        self.anchor_weight = float(anchor_weight)
+        G = edge_operator(n, self.F)
+        self.GtW = (G.T @ sp.diags(np.repeat(self.triangle_weights, 2))).tocsr()
+        K = (self.GtW @ G + self.anchor_weight * sp.identity(n, format="csr")).tocsc()
+        # K is symmetric positive definite: no pivoting needed. COLAMD measured fastest here
+        # (SuperLU's MMD_AT_PLUS_A gives less fill but its ordering time explodes past ~100K
+        # vertices: 123 s against 1.7 s at 133K vertices).
+        self.factor = spla.splu(K, permc_spec="COLAMD", diag_pivot_thresh=0.0,
+                                options={"SymmetricMode": True})
+        x1 = self.V[self.F[:, 0]]
+        # Source edges per triangle: (m,3,2), columns e1, e2.
+        self.edges = np.stack([self.V[self.F[:, 1]] - x1, self.V[self.F[:, 2]] - x1], axis=2)
+
+    def solve(self, Q, anchors):
+        """Vertex positions whose triangles follow Q, placed by the anchors.
+
+        Parameters
+        ----------
+        Q : (m,3,3) float
+            Target deformation gradient of every triangle.
+        anchors : (n,3) float
+            Where each vertex should be, weakly.
+
+        Returns
+        -------
+        Y : (n,3) float64
+        """
+        b = np.einsum("mij,mjk->mki", Q, self.edges).reshape(-1, 3)
+        rhs = self.GtW @ b + self.anchor_weight * np.asarray(anchors, dtype=np.float64)
+        return self.factor.solve(rhs)
