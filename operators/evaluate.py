@@ -1,4 +1,4 @@
-"""Measure a transferred garment and paint where its design changed."""
+"""Measure a transferred garment and paint how far each of its vertices moved."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from . import convert
 from .reporting import missing_choice_message, length_text, report_failure
 from .transfer import format_metrics
 
-HEATMAP_ATTRIBUTE = "design_change"
+HEATMAP_ATTRIBUTE = "moved_distance"
 
 
 def heatmap_colors(values, scale):
@@ -23,10 +23,14 @@ def heatmap_colors(values, scale):
     return np.concatenate([rgb, np.ones((rgb.shape[0], 1))], axis=1)
 
 
-def evaluate_objects(context, result_obj, garment, target_body, reference=None, evaluated=True):
-    """Metrics of ``result_obj`` against ``garment`` (its source) on ``target_body``, and the per-vertex
-    design change written on the result as the colour attribute ``design_change`` (raw numbers in
-    ``design_change_value``).
+def evaluate_objects(context, result_obj, garment, target_body, reference=None, source_body=None,
+                     evaluated=True):
+    """Metrics of ``result_obj`` against ``garment`` (its source) on ``target_body``, and how far each
+    vertex moved, written on the result as the colour attribute ``moved_distance`` (raw distances in
+    ``moved_distance_value``).
+
+    The drape error is measured against ``reference`` (the garment simulated or fitted on the target
+    body) when given, else against the garment carried by ``source_body``'s change alone, else not.
 
     Returns
     -------
@@ -40,9 +44,10 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
 
     for role, obj in (("result", result_obj), ("garment", garment), ("target body", target_body)):
         convert.require_mesh_object(obj, role)
-    if reference is not None:
-        convert.require_mesh_object(reference, "reference")
-    if result_obj in (garment, target_body, reference):
+    for role, obj in (("reference", reference), ("source body", source_body)):
+        if obj is not None:
+            convert.require_mesh_object(obj, role)
+    if result_obj in (garment, target_body, reference, source_body):
         raise MeshError(result_obj.name, "is an input; choose the transferred result to evaluate "
                                          "(a heatmap is written on it)")
     depsgraph = context.evaluated_depsgraph_get()
@@ -51,7 +56,9 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
     body = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     ref = (convert.core_mesh_from_object(reference, depsgraph, evaluated, "reference")
            if reference is not None else None)
-    metrics = evaluate(source, result, body, reference=ref)
+    src_body = (convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
+                if source_body is not None and reference is None else None)
+    metrics = evaluate(source, result, body, reference=ref, source_body=src_body)
     change = np.asarray(per_vertex_change(source.V, result.V), dtype=np.float64)
     scale = float(np.percentile(change, 99)) if change.size else 0.0
     scale = scale if scale > 0 else 1.0
@@ -66,7 +73,7 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
 
 class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
     """Measure the result against its garment (design change, penetration, fit against the reference
-    if one is chosen) and paint the change per vertex as the colour attribute design_change"""
+    if one is chosen) and paint how far each vertex moved as the colour attribute moved_distance"""
 
     bl_idname = "garment_transfer.evaluate"
     bl_label = "Evaluate Result"
@@ -93,7 +100,7 @@ class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
         try:
             metrics, heatmap = evaluate_objects(context, settings.result, settings.garment,
                                                 settings.target_body, settings.reference,
-                                                settings.use_evaluated)
+                                                settings.source_body, settings.use_evaluated)
         except Exception as exc:
             return report_failure(self, exc)
         settings.last_metrics = format_metrics(metrics)
@@ -101,10 +108,12 @@ class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
                 f"{metrics['penetration_ratio']:.1%} inside "
                 f"(deepest {length_text(context, metrics.get('max_penetration_depth') or 0.0)})")
         if metrics.get("drape_error_relative") is not None:
-            text += f", drape error {metrics['drape_error_relative']:.2f} of the untransferred garment's"
+            against = "reference" if metrics.get("drape_reference") == "reference" else "body fit"
+            text += (f", drape error against the {against} {metrics['drape_error_relative']:.2f} "
+                     "of the untransferred garment's")
         if heatmap["written"]:
-            self.report({'INFO'}, text + f"; heatmap '{HEATMAP_ATTRIBUTE}' (red = change >= "
-                                         f"{heatmap['scale']:.3g})")
+            self.report({'INFO'}, text + f"; heatmap '{HEATMAP_ATTRIBUTE}' (red = moved >= "
+                                         f"{length_text(context, heatmap['scale'])})")
         else:
             self.report({'WARNING'}, text + "; no heatmap: the result's modifiers change its vertex "
                                             "count (turn off Use Modifiers and Shape Keys)")

@@ -27,11 +27,12 @@ def report_failure(op, exc):
 
 @contextlib.contextmanager
 def window_progress(context):
-    """Yield a progress callback (fraction in [0, 1]) that drives the window manager's progress."""
+    """Yield a progress callback ``progress(fraction, stage=None)`` (the core's signature) that drives
+    the window manager's progress indicator; it never asks to cancel."""
     wm = context.window_manager
     wm.progress_begin(0, 1000)
 
-    def progress(fraction):
+    def progress(fraction, _stage=None):
         wm.progress_update(int(1000 * min(max(float(fraction), 0.0), 1.0)))
         return False
 

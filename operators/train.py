@@ -41,7 +41,7 @@ class TrainingRun:
         self._thread = threading.Thread(target=self._run, name="garment-transfer-training",
                                         daemon=True)
 
-    def _progress(self, fraction):
+    def _progress(self, fraction, _loss=None):
         self.fraction = float(fraction)
         return self.cancel_requested
 
@@ -66,17 +66,39 @@ class TrainingRun:
         return self.result
 
 
-def training_call(settings):
-    """A function of a progress callback that trains with the panel's settings and saves the model."""
-    from ..garment_transfer.training import train_model
+def training_plan(settings):
+    """Dataset, source body, targets and output file from the panel's settings (checked).
 
-    dataset = bpy.path.abspath(settings.dataset_path)
-    output = bpy.path.abspath(settings.train_output)
-    options = dict(epochs=settings.train_epochs, latent=settings.train_latent,
-                   source=settings.dataset_source or None)
+    Returns
+    -------
+    dict
+        Keyword arguments for ``training.train_from_dataset`` (``progress`` excepted).
+    """
+    from ..garment_transfer.dataset import load_dataset
+    from ..garment_transfer.errors import DatasetError
+
+    folder = bpy.path.abspath(settings.dataset_path)
+    dataset = load_dataset(folder)
+    source = settings.dataset_source.strip() or dataset.bodies[0]
+    if source not in dataset.bodies:
+        raise DatasetError(folder, f"has no body {source!r}; it has {', '.join(dataset.bodies)}")
+    targets = [t.strip() for t in settings.dataset_targets.split(",") if t.strip()]
+    targets = targets or [b for b in dataset.bodies if b != source]
+    if not targets:
+        raise DatasetError(folder, f"has no body besides the source body {source!r} to train for")
+    out = bpy.path.abspath(settings.train_output)
+    if not out.lower().endswith(".npz"):
+        out += ".npz"
+    return dict(dataset_dir=folder, source=source, targets=targets, epochs=settings.train_epochs,
+                latent=settings.train_latent, out=out)
+
+
+def training_call(plan):
+    """A function of a progress callback that trains and saves the model of ``plan``."""
+    from ..garment_transfer.training import train_from_dataset
 
     def call(progress):
-        return train_model(dataset, output, progress=progress, **options)
+        return train_from_dataset(progress=progress, **plan)
 
     return call
 
@@ -102,6 +124,7 @@ class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
     _timer = None
     _run = None
     _steps = None
+    _plan = None
 
     @classmethod
     def poll(cls, context):
@@ -121,16 +144,22 @@ class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
         if message:
             self.report({'ERROR'}, message)
             return False
-        self._run = TrainingRun(training_call(context.scene.garment_transfer))
+        self._plan = training_plan(context.scene.garment_transfer)
+        self._run = TrainingRun(training_call(self._plan))
         self._steps = self._run.steps()
         return True
 
-    def _finish(self, context, summary):
+    def _finish(self, context, info):
         settings = context.scene.garment_transfer
         settings.train_progress = 100.0
-        settings.model_path = settings.train_output
-        self.report({'INFO'}, f"Model saved to {bpy.path.abspath(settings.train_output)}"
-                              + (f" ({summary})" if isinstance(summary, str) else ""))
+        settings.model_path = self._plan["out"]
+        settings.method = 'MODEL'
+        loss = info.get("final_loss")
+        loss_text = f", loss {loss:.4g}" if isinstance(loss, (int, float)) else ""
+        self.report({'INFO'}, f"Model for {', '.join(self._plan['targets'])} (source "
+                              f"{self._plan['source']}) saved to {self._plan['out']}: "
+                              f"{info.get('epochs')} epochs{loss_text}, "
+                              f"{info.get('seconds', 0.0):.1f} s")
         return {'FINISHED'}
 
     def execute(self, context):

@@ -5,10 +5,33 @@ from __future__ import annotations
 import time
 
 import bpy
+import numpy as np
 
 from . import convert
 from .models import load_model_cached
 from .reporting import missing_choice_message, length_text, report_failure, window_progress
+
+
+# Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
+OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def model_frame(model):
+    """(3,3) rotation from Blender world space to the frame a model was trained in.
+
+    A model's deformation gradients are directions in its training data's frame, so the bodies and
+    the garment must be expressed in that frame. The dataset's up axis (model metadata) tells which:
+    a Y-up dataset (the OBJ convention, also assumed when unstated) is taken to be imported with the
+    importer's default axes; a Z-up one is used as it is.
+    """
+    from ..garment_transfer.errors import ModelError
+
+    up = str((model.metadata.get("dataset") or {}).get("up_axis") or "Y").upper()
+    if up == "Z":
+        return np.eye(3)
+    if up == "Y":
+        return OBJ_Y_UP_TO_WORLD.T
+    raise ModelError(model.name, f"was trained on data whose up axis is {up!r}; Y or Z is needed")
 
 
 def result_name(garment, target_body):
@@ -48,15 +71,21 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
 
     model = None
+    frame = np.eye(3)
     if method == "MODEL":
         if not model_path:
             raise ModelError("model file", "none chosen; choose one, or use the Direct method")
         model = load_model_cached(model_path)
         model.check_source_body(source)
+        frame = model_frame(model)
 
-    outcome = transfer_garment(source, target, cloth, method=method.lower(), model=model,
-                               target=target_label or None, offset=offset,
+    def framed(mesh):
+        return mesh.with_vertices(mesh.V @ frame.T)
+
+    outcome = transfer_garment(framed(source), framed(target), framed(cloth), method=method.lower(),
+                               model=model, target=target_label or None, offset=offset,
                                fix_penetration=fix_penetration, progress=progress)
+    outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
                                        depsgraph, evaluated, scene=context.scene)

@@ -95,6 +95,7 @@ class VIEW3D_PT_garment_transfer_training(GarmentPanel, bpy.types.Panel):
         settings = context.scene.garment_transfer
         layout.prop(settings, "dataset_path")
         layout.prop(settings, "dataset_source")
+        layout.prop(settings, "dataset_targets")
         layout.prop(settings, "train_output")
         layout.prop(settings, "train_epochs")
         layout.prop(settings, "train_latent")

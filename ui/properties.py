@@ -61,6 +61,8 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
             ('DIRECT', "Direct", "Carry the body's own deformation from the source to the target body "
                                  "onto the garment; needs no model"),
             ('MODEL', "Model", "Use a trained shared deformation model for the target body"),
+            ('SURFACE', "Surface", "Baseline: the garment follows the body surface only, like "
+                                   "Blender's Surface Deform (folds are not rebuilt)"),
         ),
         default='DIRECT')
     model_path: StringProperty(
@@ -93,8 +95,12 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Dataset", subtype='DIR_PATH',
         description="A dataset folder: bodies/<body>.obj, garments/<garment>/<body>.obj")
     dataset_source: StringProperty(
-        name="Source Label", default="",
-        description="Which body of the dataset is the source body (empty: the dataset's own choice)")
+        name="Source Body Name", default="",
+        description="The dataset's source body, bodies/<name>.obj (empty: the first body the "
+                    "dataset lists)")
+    dataset_targets: StringProperty(
+        name="Target Body Names", default="",
+        description="Comma-separated target bodies to train for (empty: every other body)")
     train_output: StringProperty(
         name="Save Model As", subtype='FILE_PATH', default="//garment_model.npz",
         description="Where to write the trained model (.npz)")

@@ -1,0 +1,247 @@
+"""Transfer many garments to many target bodies in one run, headless.
+
+In Blender:
+    blender --background --python-exit-code 1 --python scripts/batch_transfer.py -- \
+        --source-body S.obj --target-body T1.obj --target-body T2.obj --garment G1.obj --garment G2.obj \
+        --out DIR [--blend out.blend]
+With the bpy module (same arguments, ``--`` optional):
+    .venv/bin/python scripts/batch_transfer.py --source-body S.obj ... --out DIR
+
+Every (garment, target) pair goes through the add-on's own operator (bpy.ops.garment_transfer.transfer)
+and is written to DIR/<garment>_on_<target>.obj, in the input files' axes and units. A file that cannot
+be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
+exits with 1 if anything failed (0 otherwise, 2 for bad arguments).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+AXES = ["X", "Y", "Z", "NEGATIVE_X", "NEGATIVE_Y", "NEGATIVE_Z"]
+
+
+class InputError(Exception):
+    pass
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(
+        prog="batch_transfer.py",
+        description="Transfer garments (OBJ) from a source body to target bodies with Garment Transfer.")
+    parser.add_argument("--source-body", type=Path, required=True,
+                        help="the body the garments were made on (OBJ)")
+    parser.add_argument("--target-body", type=Path, action="append", required=True,
+                        help="a body to transfer to (OBJ; repeatable)")
+    parser.add_argument("--garment", type=Path, action="append", required=True,
+                        help="a garment on the source body (OBJ; repeatable)")
+    parser.add_argument("--out", type=Path, required=True, help="folder for the results")
+    parser.add_argument("--blend", type=Path, help="also save every body, garment and result here")
+    parser.add_argument("--method", choices=["direct", "model"], default="direct")
+    parser.add_argument("--model", type=Path, help="model file (.npz) for --method model")
+    parser.add_argument("--target-label", action="append",
+                        help="the model's label of each target body, in order "
+                             "(default: the target file's name)")
+    parser.add_argument("--offset", type=float,
+                        help="distance kept from the body, in the files' units (default: automatic)")
+    parser.add_argument("--no-fix", action="store_true", help="do not fix penetrations")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="scene units per file unit on import (0.1 for decimetre files)")
+    parser.add_argument("--up", choices=AXES, default="Y", help="the files' up axis")
+    parser.add_argument("--forward", choices=AXES, default="NEGATIVE_Z", help="the files' forward axis")
+    args = parser.parse_args(argv)
+    if args.method == "model" and args.model is None:
+        parser.error("--method model needs --model FILE")
+    if args.target_label and len(args.target_label) != len(args.target_body):
+        parser.error("give one --target-label per --target-body")
+    if args.scale <= 0:
+        parser.error("--scale must be positive")
+    return args
+
+
+def script_argv(argv):
+    """The script's own arguments: after ``--`` under Blender, else everything after the script."""
+    return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
+
+
+def ensure_operators():
+    """Register the add-on from this checkout unless Blender already has it enabled."""
+    import bpy
+
+    if hasattr(bpy.types, "GARMENT_TRANSFER_OT_transfer"):
+        return None
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from extension_loader import load_extension
+
+    try:
+        import scipy  # noqa: F401
+    except ImportError:
+        raise InputError("scipy is missing from this Python: install the extension in Blender "
+                         "(it brings scipy), or run this script with the project's .venv/bin/python")
+    ext = load_extension()
+    ext.register()
+    return ext
+
+
+def unique_labels(paths):
+    """A short, distinct label per input file: its name, or folder_name where names repeat."""
+    stems = [p.stem for p in paths]
+    return [s if stems.count(s) == 1 else f"{p.parent.name}_{s}" for p, s in zip(paths, stems)]
+
+
+def import_obj(path, label, args):
+    """Import one OBJ file as one mesh object named ``label``."""
+    import bpy
+
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    before = set(bpy.data.objects)
+    try:
+        bpy.ops.wm.obj_import(filepath=str(path), global_scale=args.scale, up_axis=args.up,
+                              forward_axis=args.forward, use_split_objects=False,
+                              use_split_groups=False)
+    except RuntimeError as exc:
+        raise InputError(f"{path}: cannot be imported ({exc})") from None
+    new = [o for o in bpy.data.objects if o not in before]
+    meshes = [o for o in new if o.type == 'MESH']
+    if len(meshes) != 1:
+        remove_objects(new)
+        raise InputError(f"{path}: expected one mesh, found {len(meshes)} (is it an OBJ file?)")
+    obj = meshes[0]
+    obj.name = label
+    obj.data.name = label
+    return obj
+
+
+def remove_objects(objects):
+    import bpy
+
+    for obj in list(objects):
+        data = obj.data
+        bpy.data.objects.remove(obj)
+        if data is not None and data.users == 0:
+            bpy.data.meshes.remove(data)
+
+
+def export_obj(obj, path, args):
+    import bpy
+
+    for other in bpy.context.view_layer.objects:
+        other.select_set(False)
+    obj.select_set(True)
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.wm.obj_export(filepath=str(path), export_selected_objects=True, apply_modifiers=True,
+                          global_scale=1.0 / args.scale, up_axis=args.up, forward_axis=args.forward,
+                          export_materials=False, export_normals=False, export_uv=True,
+                          export_triangulated_mesh=False)
+
+
+def run(args, log):
+    """Do the whole batch; return one record per (garment, target) pair, or per unreadable file."""
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    ensure_operators()
+    args.out.mkdir(parents=True, exist_ok=True)
+    paths = [args.source_body, *args.target_body, *args.garment]
+    labels = dict(zip(map(str, paths), unique_labels(paths)))
+    records = []
+
+    source = import_obj(args.source_body, labels[str(args.source_body)], args)
+    targets = []
+    for i, path in enumerate(args.target_body):
+        try:
+            obj = import_obj(path, labels[str(path)], args)
+        except InputError as exc:
+            log(f"FAILED {exc}")
+            records.append({"target": str(path), "error": str(exc)})
+            continue
+        label = args.target_label[i] if args.target_label else path.stem
+        targets.append((obj, label))
+
+    settings = bpy.context.scene.garment_transfer
+    settings.source_body = source
+    settings.method = args.method.upper()
+    settings.model_path = str(args.model) if args.model else ""
+    settings.fix_penetration = not args.no_fix
+    settings.auto_offset = args.offset is None
+    if args.offset is not None:
+        settings.offset = args.offset * args.scale
+
+    for path in args.garment:
+        try:
+            garment = import_obj(path, labels[str(path)], args)
+        except InputError as exc:
+            log(f"FAILED {exc}")
+            records.append({"garment": str(path), "error": str(exc)})
+            continue
+        settings.garment = garment
+        results = []
+        for target, label in targets:
+            record, result = transfer_pair(garment, target, label, args, log)
+            records.append(record)
+            results += [result] if result is not None else []
+        if args.blend is None:
+            # Nothing is kept for a .blend: free each garment's objects before the next one.
+            remove_objects(results + [garment])
+    if args.blend is not None:
+        bpy.ops.wm.save_as_mainfile(filepath=str(args.blend.resolve()), check_existing=False)
+        log(f"saved {args.blend}")
+    return records
+
+
+def transfer_pair(garment, target, label, args, log):
+    """Transfer one garment to one target with the operator and export the result.
+
+    Returns
+    -------
+    record : dict
+        Names, output path, metrics and seconds, or ``error``.
+    result : bpy.types.Object or None
+    """
+    import bpy
+
+    settings = bpy.context.scene.garment_transfer
+    settings.target_body = target
+    settings.target_label = label if args.method == "model" else ""
+    record = {"garment": garment.name, "target": target.name}
+    start = time.perf_counter()
+    try:
+        bpy.ops.garment_transfer.transfer()
+    except RuntimeError as exc:
+        record["error"] = str(exc).strip().removeprefix("Error: ")
+        log(f"FAILED {garment.name} -> {target.name}: {record['error']}")
+        return record, None
+    result = settings.result
+    output = args.out / f"{garment.name}_on_{target.name}.obj"
+    export_obj(result, output, args)
+    record.update(json.loads(settings.last_metrics or "{}"))
+    record.update(output=str(output), seconds=round(time.perf_counter() - start, 3))
+    log(f"ok {garment.name} -> {target.name}: {output} (MDC {record.get('mdc', float('nan')):.4f}, "
+        f"{record.get('penetration_ratio', 0.0):.1%} inside, {record['seconds']:.2f} s)")
+    return record, result
+
+
+def main(argv=None):
+    args = parse_args(script_argv(sys.argv if argv is None else argv))
+
+    def log(text):
+        print(f"batch_transfer: {text}", file=sys.stderr, flush=True)
+
+    try:
+        records = run(args, log)
+    except InputError as exc:
+        log(f"FAILED {exc}")
+        return 1
+    failed = [r for r in records if "error" in r]
+    (args.out / "summary.json").write_text(json.dumps(records, indent=1) + "\n", encoding="utf-8")
+    done = len(records) - len(failed)
+    log(f"{done} transferred, {len(failed)} failed; summary in {args.out / 'summary.json'}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,183 @@
+"""bpy.ops.garment_transfer.transfer on real meshes: what it makes, what it keeps, what it leaves alone."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+from conftest import GARMENT, import_obj, scene_state, world_vertices
+
+
+def transfer_result():
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    return bpy.context.scene.garment_transfer.result
+
+
+def core(extension):
+    """The core as the loaded extension sees it (its own module objects)."""
+    import importlib
+
+    name = extension.__name__ + ".garment_transfer"
+    return {m: importlib.import_module(f"{name}.{m}") for m in ("transfer", "metrics", "obj", "mesh")}
+
+
+def test_transfer_makes_a_new_object_next_to_the_garment(dressed, extension):
+    coll = bpy.data.collections.new("Wardrobe")
+    bpy.context.scene.collection.children.link(coll)
+    coll.objects.link(dressed.garment)
+    result = transfer_result()
+
+    assert result.name == "sportsuit_on_pear"
+    assert result is not dressed.garment and result.data is not dressed.garment.data
+    assert {c.name for c in result.users_collection} == {"Wardrobe", "Scene Collection"}
+    assert len(result.data.vertices) == len(dressed.garment.data.vertices)
+    assert len(result.modifiers) == 0 and result.data.shape_keys is None
+
+    # The same as calling the core on the same world-space meshes.
+    convert = extension.operators.convert
+    dg = bpy.context.evaluated_depsgraph_get()
+    meshes = [convert.core_mesh_from_object(o, dg) for o in (dressed.source, dressed.target,
+                                                             dressed.garment)]
+    expected = core(extension)["transfer"].transfer_garment(*meshes).V
+    np.testing.assert_allclose(world_vertices(result), expected, atol=1e-5)
+
+
+def test_transfer_moves_the_garment_towards_its_fit_on_the_target(dressed):
+    reference = import_obj(dressed.makehuman / "garments" / GARMENT / "female_pear.obj", "reference")
+    result = transfer_result()
+    before = np.linalg.norm(world_vertices(dressed.garment) - world_vertices(reference), axis=1).mean()
+    after = np.linalg.norm(world_vertices(result) - world_vertices(reference), axis=1).mean()
+    assert after < 0.5 * before
+
+
+def test_inputs_are_unchanged(dressed):
+    inputs = (dressed.source, dressed.target, dressed.garment)
+    before = {o.name: scene_state()[f"object:{o.name}"] for o in inputs}
+    uv_before = np.empty(2 * len(dressed.garment.data.loops), np.float32)
+    dressed.garment.data.uv_layers["UVMap"].data.foreach_get("uv", uv_before)
+    transfer_result()
+    assert bpy.ops.garment_transfer.evaluate() == {'FINISHED'}
+    after = scene_state()
+    for obj in inputs:
+        assert after[f"object:{obj.name}"] == before[obj.name], obj.name
+    uv_after = np.empty_like(uv_before)
+    dressed.garment.data.uv_layers["UVMap"].data.foreach_get("uv", uv_after)
+    np.testing.assert_array_equal(uv_after, uv_before)
+
+
+def test_result_keeps_uvs_vertex_groups_materials_seams_and_sharp_edges(dressed):
+    garment = dressed.garment
+    result = transfer_result()
+    g, r = garment.data, result.data
+
+    def loop_uvs(me):
+        uv = np.empty(2 * len(me.loops), np.float32)
+        me.uv_layers["UVMap"].data.foreach_get("uv", uv)
+        return uv
+
+    np.testing.assert_array_equal(loop_uvs(r), loop_uvs(g))
+    assert [vg.name for vg in result.vertex_groups] == [vg.name for vg in garment.vertex_groups]
+    for v_g, v_r in zip(g.vertices, r.vertices):
+        assert [(e.group, round(e.weight, 6)) for e in v_g.groups] == \
+               [(e.group, round(e.weight, 6)) for e in v_r.groups]
+    assert [m.name for m in r.materials] == ["fabric", "trim"]
+    for attr in ("material_index",):
+        a = np.empty(len(g.polygons), np.int32)
+        b = np.empty(len(r.polygons), np.int32)
+        g.polygons.foreach_get(attr, a)
+        r.polygons.foreach_get(attr, b)
+        np.testing.assert_array_equal(a, b)
+    for attr in ("use_seam", "use_edge_sharp"):
+        a = np.empty(len(g.edges), bool)
+        b = np.empty(len(r.edges), bool)
+        g.edges.foreach_get(attr, a)
+        r.edges.foreach_get(attr, b)
+        np.testing.assert_array_equal(a, b)
+        assert a.any()
+    fv_g = np.empty(len(g.loops), np.int32)
+    fv_r = np.empty(len(r.loops), np.int32)
+    g.loops.foreach_get("vertex_index", fv_g)
+    r.loops.foreach_get("vertex_index", fv_r)
+    np.testing.assert_array_equal(fv_g, fv_r)
+
+
+def test_transfer_works_in_world_space(dressed):
+    # Without the penetration fix the core is exactly equivariant; with it, float32 rounding of the
+    # moved inputs flips a few push-out decisions (seen: 9 of 1797 vertices by up to 5 mm).
+    dressed.settings.fix_penetration = False
+    first = world_vertices(transfer_result())
+    # Move, turn and scale all three objects alike: the result must follow. The turn is a quarter
+    # turn because the core's length scale (bounding box extent) changes under other rotations.
+    rig = bpy.data.objects.new("rig", None)
+    bpy.context.scene.collection.objects.link(rig)
+    rig.location = (0.4, -1.2, 0.3)
+    rig.rotation_euler = (0.0, 0.0, np.pi / 2)
+    rig.scale = (1.5, 1.5, 1.5)
+    for obj in (dressed.source, dressed.target, dressed.garment):
+        obj.parent = rig
+    bpy.context.view_layer.update()
+    second_obj = transfer_result()
+    M = np.array(rig.matrix_world)
+    np.testing.assert_allclose(world_vertices(second_obj), first @ M[:3, :3].T + M[:3, 3], atol=1e-4)
+    assert second_obj.parent is None
+
+
+def test_shape_keys_and_modifiers_evaluated_or_base(dressed):
+    garment = dressed.garment
+    n = len(garment.data.vertices)
+    garment.shape_key_add(name="Basis")
+    loose = garment.shape_key_add(name="Loose")
+    co = np.empty(3 * n, np.float32)
+    loose.data.foreach_get("co", co)
+    loose.data.foreach_set("co", co * np.float32(1.01))
+    loose.value = 1.0
+    sub = garment.modifiers.new("Subdivision", 'SUBSURF')
+    sub.levels = 1
+    garment.modifiers.new("Displace", 'DISPLACE').strength = 0.0
+
+    settings = dressed.settings
+    settings.use_evaluated = True
+    evaluated = transfer_result()
+    assert len(evaluated.data.vertices) > n                 # subdivided, then transferred
+    assert len(evaluated.modifiers) == 0 and evaluated.data.shape_keys is None
+
+    settings.use_evaluated = False
+    base = transfer_result()
+    assert len(base.data.vertices) == n
+    assert [m.name for m in base.modifiers] == ["Subdivision"]   # refines; Displace would move it
+    assert base.data.shape_keys is None
+    assert garment.data.shape_keys is not None and len(garment.modifiers) == 2
+
+
+def test_model_method_uses_the_loaded_model(dressed, tmp_path, extension):
+    pytest.importorskip("torch", reason="training a model needs torch")
+    training = __import__(extension.__name__ + ".garment_transfer.training", fromlist=["x"])
+    make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01",
+                                                                     "male_casualsuit04"))
+    training.train_from_dataset(tmp_path / "ds", "female_average", ["female_pear"], epochs=30,
+                                latent=2, out=tmp_path / "m.npz")
+    settings = dressed.settings
+    settings.method = 'MODEL'
+    settings.model_path = str(tmp_path / "m.npz")
+    assert [t.name for t in settings.model_targets] == ["female_pear"]
+    assert settings.target_label == "female_pear"
+    result = transfer_result()
+    reference = import_obj(dressed.makehuman / "garments" / GARMENT / "female_pear.obj", "reference")
+    error = np.linalg.norm(world_vertices(result) - world_vertices(reference), axis=1).mean()
+    moved = np.linalg.norm(world_vertices(dressed.garment) - world_vertices(reference), axis=1).mean()
+    # Seen: 0.20 of the untransferred garment's error; 0.55 when the model's frame is ignored.
+    assert error < 0.35 * moved
+
+
+def make_tiny_dataset(makehuman, folder, garments, bodies=("female_average", "female_pear")):
+    """A dataset folder of links to the MakeHuman files."""
+    (folder / "bodies").mkdir(parents=True)
+    for body in bodies:
+        (folder / "bodies" / f"{body}.obj").symlink_to(makehuman / "bodies" / f"{body}.obj")
+    for garment in garments:
+        (folder / "garments" / garment).mkdir(parents=True)
+        for body in bodies:
+            (folder / "garments" / garment / f"{body}.obj").symlink_to(
+                makehuman / "garments" / garment / f"{body}.obj")
+    (folder / "manifest.json").write_text('{"units": "decimetres", "up_axis": "Y"}')
+    return folder
