@@ -130,15 +130,19 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
             break
         target = closest[bad] + offset * normal[bad]
         if done < rounds:
-            V += spread_displacement(A, bad, target - V[bad], decay)
+            D = spread_displacement(A, bad, target - V[bad], decay)
+            moved = np.any(D != 0, axis=1)
+            V[moved] += D[moved]
         else:
+            moved = bad
             V[bad] = target
-        sd, closest, normal, _ = surface.signed_distance(V)
+        # Only what moved needs measuring again.
+        sd[moved], closest[moved], normal[moved], _ = surface.signed_distance(V[moved])
     # Whatever the last projection could not settle (the closest point moved) is projected again.
     bad = sd < 0
     if bad.any():
         V[bad] = closest[bad] + offset * normal[bad]
-        sd = surface.signed_distance(V)[0]
+        sd[bad] = surface.signed_distance(V[bad])[0]
     info["inside_after"] = int((sd < 0).sum())
     info["rounds"] = done
     return V, info

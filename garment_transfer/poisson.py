@@ -15,8 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .gradients import deformation_gradients
-from .mesh import edge_lengths_mean
+from .mesh import degenerate_triangles, edge_lengths_mean
 
 
 def edge_operator(n, F):
@@ -71,8 +70,7 @@ class PoissonSolver:
         self.F = np.asarray(F, dtype=np.int64)
         n = self.V.shape[0]
         if triangle_weights is None:
-            _, degenerate = deformation_gradients(self.V, self.V, self.F)
-            triangle_weights = (~degenerate).astype(np.float64)
+            triangle_weights = (~degenerate_triangles(self.V, self.F)).astype(np.float64)
         self.triangle_weights = np.asarray(triangle_weights, dtype=np.float64)
         self.anchor_weight = float(anchor_weight)
         G = edge_operator(n, self.F)

@@ -28,7 +28,7 @@ from .binding import Binding, bind, carry
 from .embedding import body_scale, cloth_to_body, triangle_centroids, unembed
 from .errors import Cancelled, MeshError, ModelError
 from .gradients import deformation_gradients
-from .mesh import Mesh, mesh_report, require_same_topology
+from .mesh import Mesh, degenerate_triangles, require_same_topology
 from . import penetration
 from .poisson import PoissonSolver, anchor_weight_for
 from .proximity import TriangleSurface
@@ -80,16 +80,13 @@ class PreparedGarment:
     seconds: dict
 
 
-def _check_inputs(source_body: Mesh, garment: Mesh, surface: TriangleSurface):
-    report = mesh_report(garment)
-    if report["degenerate_triangles"] == garment.n_triangles:
-        raise MeshError(garment.name, "every face has zero area")
-    d = surface.closest(garment.V)[1]
+def _check_placement(source_body: Mesh, garment: Mesh, distance):
     scale = body_scale(source_body.V)
-    if np.median(d) > FAR_SHARE * scale:
+    median = float(np.median(distance))
+    if median > FAR_SHARE * scale:
         raise MeshError(garment.name,
                         f"is far from the source body {source_body.name} (median distance "
-                        f"{np.median(d):.3g}, body height {scale:.3g}): is it dressed on that body, "
+                        f"{median:.3g}, body height {scale:.3g}): is it dressed on that body, "
                         "in the same units and space?")
 
 
@@ -111,14 +108,15 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     """
     seconds = {}
     t = time.perf_counter()
-    surface = TriangleSurface(source_body.V, source_body.F)
-    _check_inputs(source_body, garment, surface)
+    if degenerate_triangles(garment.V, garment.F).all():
+        raise MeshError(garment.name, "every face has zero area")
     k = INTERPOLATE_K if interpolate else 1
     tree = cKDTree(triangle_centroids(source_body.V, source_body.F))
     index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=k, tree=tree)
     seconds["embed"] = time.perf_counter() - t
     t = time.perf_counter()
-    binding = bind(garment.V, source_body.V, source_body.F, surface=surface)
+    binding = bind(garment.V, source_body.V, source_body.F)
+    _check_placement(source_body, garment, binding.distance)
     seconds["bind"] = time.perf_counter() - t
     solver = None
     if need_solver:

@@ -1,0 +1,60 @@
+"""Small meshes with known answers, shared by the core tests."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from garment_transfer.mesh import mesh_from_polygons
+
+MAKEHUMAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "makehuman"
+
+
+def require_makehuman():
+    """The MakeHuman fixtures folder; skips the test where a clone has no ../shared."""
+    if not (MAKEHUMAN / "bodies").is_dir():
+        pytest.skip(f"MakeHuman fixtures not found at {MAKEHUMAN}")
+    return MAKEHUMAN
+
+
+def icosphere(subdivisions=2, radius=1.0, centre=(0.0, 0.0, 0.0)):
+    """A closed, outward-oriented sphere: (V (n,3), F (m,3))."""
+    t = (1 + 5 ** 0.5) / 2
+    V = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t],
+                  [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    F = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+                  [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+                  [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    V /= np.linalg.norm(V, axis=1, keepdims=True)
+    for _ in range(subdivisions):
+        n = V.shape[0]
+        e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+        uniq, inv = np.unique(e[:, 0] * n + e[:, 1], return_inverse=True)
+        mids = V[uniq // n] + V[uniq % n]
+        mids /= np.linalg.norm(mids, axis=1, keepdims=True)
+        m = F.shape[0]
+        inv = inv.reshape(3, m).T + n
+        a, b, c = F.T
+        ab, bc, ca = inv.T
+        F = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
+                            np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)])
+        V = np.vstack([V, mids])
+    return V * radius + np.asarray(centre), F
+
+
+def grid(nx=6, ny=5, size=1.0, wave=0.0):
+    """A rectangular sheet of quads in the xy plane (optionally with a z wave): a Mesh."""
+    x, y = np.meshgrid(np.linspace(0, size, nx), np.linspace(0, size * 0.8, ny))
+    z = wave * np.sin(3 * x) * np.cos(2 * y)
+    V = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], axis=-1).reshape(-1, 4)
+    return mesh_from_polygons(V, quads, name="grid")
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    return q

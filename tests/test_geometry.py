@@ -1,0 +1,131 @@
+import numpy as np
+
+from garment_transfer.binding import bind, carry
+from garment_transfer.embedding import body_to_cloth, cloth_to_body, embed, unembed
+from garment_transfer.metrics import discrete_curvature, mdc, per_vertex_change, surface_distance
+from garment_transfer.obj import read_obj
+from garment_transfer.penetration import fix_penetration, penetration
+from garment_transfer.proximity import TriangleSurface, closest_on_triangles
+from meshes import grid, icosphere, require_makehuman
+
+
+def brute_force_distance(P, V, F):
+    out = np.empty(P.shape[0])
+    for i, p in enumerate(P):
+        Q, _ = closest_on_triangles(np.repeat(p[None], F.shape[0], 0), V[F[:, 0]], V[F[:, 1]], V[F[:, 2]])
+        out[i] = np.linalg.norm(Q - p, axis=1).min()
+    return out
+
+
+def test_closest_point_regions_of_one_triangle():
+    A, B, C = np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    P = np.array([[0.2, 0.2, 1.0], [-1, -1, 0], [2, -0.5, 0], [0.5, 0.5, 0.5], [-1, 0.5, 0]])
+    Q, bary = closest_on_triangles(P, *[np.repeat(x[None], 5, 0) for x in (A, B, C)])
+    np.testing.assert_allclose(Q, [[0.2, 0.2, 0], [0, 0, 0], [1, 0, 0], [0.5, 0.5, 0], [0, 0.5, 0]])
+    np.testing.assert_allclose(bary.sum(axis=1), 1.0)
+
+
+def test_closest_matches_brute_force_on_the_makehuman_body():
+    root = require_makehuman()
+    body = read_obj(root / "bodies" / "female_average.obj")
+    garment = read_obj(root / "garments" / "female_casualsuit02" / "female_average.obj")
+    rng = np.random.default_rng(0)
+    P = garment.V[::7] + rng.normal(scale=0.2, size=garment.V[::7].shape)
+    _, d, _, _ = TriangleSurface(body.V, body.F).closest(P)
+    np.testing.assert_allclose(d, brute_force_distance(P, body.V, body.F), atol=1e-12)
+
+
+def test_signed_distance_on_a_closed_sphere():
+    V, F = icosphere(3)
+    s = TriangleSurface(V, F)
+    rng = np.random.default_rng(1)
+    D = rng.normal(size=(500, 3))
+    D /= np.linalg.norm(D, axis=1, keepdims=True)
+    r = rng.uniform(0.2, 1.8, size=500)
+    sd = s.signed_distance(D * r[:, None])[0]
+    far = np.abs(r - 1) > 0.02   # the polyhedron is within 1.2% of the sphere
+    assert np.array_equal(sd[far] < 0, r[far] < 1)
+
+
+def test_penetration_counted_on_closed_and_open_bodies():
+    V, F = icosphere(3)
+    P = np.array([[0, 0, 0.5], [0, 0.3, 0.2], [0, 0, 1.5], [2, 0, 0], [0.9, 0, 0]])
+    ratio, depth, inside = penetration(P, TriangleSurface(V, F))
+    assert inside.tolist() == [True, True, False, False, True]
+    assert abs(ratio - 0.6) < 1e-12
+    assert abs(depth - (1 - np.sqrt(0.13))) < 0.01   # the point at (0, 0.3, 0.2)
+    # Open the sphere at the top (a neck hole): points near the rest of the surface keep their side.
+    keep = V[F].mean(axis=1)[:, 2] < 0.8
+    ratio_open, _, inside_open = penetration(P, TriangleSurface(V, F[keep]))
+    assert inside_open.tolist() == [True, True, False, False, True]
+
+
+def test_fix_penetration_leaves_nothing_inside_and_keeps_folds():
+    body_V, body_F = icosphere(3)
+    sheet = grid(30, 30, size=1.2, wave=0.03)
+    V = sheet.V - [0.6, 0.48, 0.0] + [0, 0, 0.9]    # a wavy sheet cutting through the sphere's cap
+    surface = TriangleSurface(body_V, body_F)
+    assert (surface.signed_distance(V)[0] < 0).sum() > 20
+    out, info = fix_penetration(V, sheet.F, surface, offset=0.01)
+    sd = surface.signed_distance(out)[0]
+    assert info["inside_after"] == 0 and (sd < 0).sum() == 0
+    assert sd.min() > 0.0099 - 1e-9
+    # Vertices far from the sphere do not move.
+    far = np.linalg.norm(V, axis=1) > 1.4
+    np.testing.assert_allclose(out[far], V[far], atol=1e-9)
+
+
+def test_mdc_of_a_mesh_with_itself_is_zero_and_a_hinge_is_hand_computed():
+    sheet = grid(5, 5, wave=0.1)
+    assert mdc(sheet.V, sheet.V, sheet.F) == 0.0
+    # Two triangles sharing edge (0,1); folding the second by 90 degrees.
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0]], float)
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    W = V.copy()
+    W[3] = [0.5, 0, -1]
+    # Flat: r = 1 at all four vertices. Folded: n1 = (0,0,1), n2 = (0,1,0) at 0 and 1 -> r = 0.
+    np.testing.assert_allclose(discrete_curvature(V, F), [1, 1, 1, 1])
+    np.testing.assert_allclose(discrete_curvature(W, F), [0, 0, 1, 1], atol=1e-12)
+    assert abs(mdc(V, W, F) - 0.5) < 1e-12
+
+
+def test_surface_distance_and_change():
+    V, F = icosphere(2)
+    assert surface_distance(V, F, V, F) == 0.0
+    d = surface_distance(V * 1.1, F, V, F)
+    assert 0.09 < d < 0.11
+    np.testing.assert_allclose(per_vertex_change(V, V + [0, 0, 2]), 2.0)
+
+
+def test_embedding_round_trip_of_a_constant_field():
+    body_V, body_F = icosphere(2)
+    cloth_V, cloth_F = icosphere(3, radius=1.05)
+    index, covered = body_to_cloth(body_V, body_F, cloth_V, cloth_F)
+    assert index.shape == (body_F.shape[0],) and covered.all()
+    C = np.broadcast_to(np.diag([1.0, 2.0, 3.0]), (cloth_F.shape[0], 3, 3))
+    B = embed(C, index)
+    for k in (1, 4):
+        idx, w = cloth_to_body(body_V, body_F, cloth_V, cloth_F, k=k)
+        assert idx.shape == (cloth_F.shape[0], k)
+        np.testing.assert_allclose(w.sum(axis=1), 1.0)
+        np.testing.assert_allclose(unembed(B, idx, w), C)
+
+
+def test_coverage_mask_marks_far_body_triangles():
+    body_V, body_F = icosphere(2)
+    cloth = grid(6, 6, size=0.5)
+    cloth_V = cloth.V - [0.25, 0.2, 0] + [0, 0, 1.02]    # a patch over the north pole
+    _, covered = body_to_cloth(body_V, body_F, cloth_V, cloth.F)
+    north = body_V[body_F].mean(axis=1)[:, 2]
+    assert covered[north > 0.97].all()
+    assert not covered[north < 0].any()
+
+
+def test_binding_carries_points_exactly_under_a_similarity():
+    V, F = icosphere(2)
+    rng = np.random.default_rng(4)
+    P = rng.normal(size=(50, 3))
+    P = P / np.linalg.norm(P, axis=1, keepdims=True) * 1.1
+    b = bind(P, V, F)
+    np.testing.assert_allclose(carry(b, V, F), P, atol=1e-12)
+    np.testing.assert_allclose(carry(b, 2.0 * V + 1.0, F), 2.0 * P + 1.0, atol=1e-12)

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+from garment_transfer.gradients import deformation_gradients, triangle_frames
+from garment_transfer.obj import read_obj
+from garment_transfer.poisson import PoissonSolver, edge_operator
+from meshes import grid, icosphere, random_rotation, require_makehuman
+
+
+def test_identity_on_unchanged_mesh():
+    V, F = icosphere(2)
+    Q, degenerate = deformation_gradients(V, V, F)
+    assert not degenerate.any()
+    np.testing.assert_allclose(Q, np.broadcast_to(np.eye(3), Q.shape), atol=1e-12)
+
+
+def test_similarity_gives_exactly_its_matrix():
+    rng = np.random.default_rng(1)
+    V, F = icosphere(1)
+    A = 1.7 * random_rotation(rng)
+    Q, _ = deformation_gradients(V, V @ A.T + [3.0, -1.0, 2.0], F)
+    np.testing.assert_allclose(Q, np.broadcast_to(A, Q.shape), atol=1e-12)
+
+
+def test_affine_map_is_exact_on_every_triangle_plane():
+    # A general affine map (shear, unequal scales) is determined by a triangle only in its plane:
+    # Q maps both edges exactly, and equals A wherever A is a similarity on that plane (here: a
+    # flat sheet in the xy plane under a map that keeps z -> z).
+    rng = np.random.default_rng(2)
+    V, F = icosphere(1)
+    A = np.array([[1.3, 0.4, -0.2], [0.1, 0.8, 0.3], [-0.3, 0.2, 1.5]])
+    assert np.linalg.det(A) > 0
+    Y = V @ A.T + rng.normal(size=3)
+    Q, _ = deformation_gradients(V, Y, F)
+    X, _ = triangle_frames(V, F)
+    np.testing.assert_allclose(np.einsum("mij,mjk->mik", Q, X[:, :, :2]),
+                               np.einsum("ij,mjk->mik", A, X[:, :, :2]), atol=1e-12)
+    sheet = grid(5, 4)
+    B = np.array([[1.3, 0.4, 0.0], [-0.2, 0.8, 0.0], [0.0, 0.0, 1.0]])
+    Qs, _ = deformation_gradients(sheet.V, sheet.V @ B.T, sheet.F)
+    # In-plane block equals B's; the normal column is scaled by sqrt(det) (the frame's normal
+    # is normalised by sqrt of the area): exact known answer.
+    np.testing.assert_allclose(Qs[:, :2, :2], np.broadcast_to(B[:2, :2], (Qs.shape[0], 2, 2)), atol=1e-12)
+    np.testing.assert_allclose(Qs[:, 2, 2], np.sqrt(np.linalg.det(B[:2, :2])), atol=1e-12)
+
+
+def test_degenerate_triangle_is_flagged_and_finite():
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 1, 3]])
+    Q, degenerate = deformation_gradients(V, V * 2, F)
+    assert degenerate.tolist() == [True, False]
+    assert np.all(np.isfinite(Q))
+    np.testing.assert_array_equal(Q[0], np.eye(3))
+
+
+def test_edge_operator_rows_sum_to_zero_and_laplacian_is_psd():
+    V, F = icosphere(1)
+    G = edge_operator(V.shape[0], F)
+    np.testing.assert_allclose(np.asarray(G.sum(axis=1)).ravel(), 0.0)
+    K = (G.T @ G).toarray()
+    np.testing.assert_allclose(K, K.T)
+    assert np.linalg.eigvalsh(K).min() > -1e-9
+
+
+def test_poisson_rebuilds_a_mesh_from_its_own_gradients():
+    rng = np.random.default_rng(3)
+    V, F = icosphere(2)
+    Y = V * [1.0, 1.3, 0.7] + 0.05 * np.sin(4 * V) + rng.normal(size=3)
+    Q, _ = deformation_gradients(V, Y, F)
+    solver = PoissonSolver(V, F, anchor_weight=1e-3)
+    out = solver.solve(Q, Y)
+    assert np.max(np.abs(out - Y)) / np.max(np.abs(Y)) < 1e-9
+
+
+def test_poisson_factor_is_reused_for_many_targets():
+    V, F = icosphere(2)
+    solver = PoissonSolver(V, F, anchor_weight=1e-2)
+    for s in (0.8, 1.2, 1.5):
+        Y = V * s
+        Q, _ = deformation_gradients(V, Y, F)
+        assert np.max(np.abs(solver.solve(Q, Y) - Y)) < 1e-9
+
+
+def test_poisson_rebuilds_a_real_garment_female_average_to_pear():
+    root = require_makehuman()
+    a = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
+    b = read_obj(root / "garments" / "female_casualsuit01" / "female_pear.obj")
+    Q, _ = deformation_gradients(a.V, b.V, a.F)
+    out = PoissonSolver(a.V, a.F, anchor_weight=1e-3).solve(Q, b.V)
+    assert np.max(np.abs(out - b.V)) / np.max(np.abs(b.V)) < 1e-9
+
+
+def test_poisson_anchor_weight_must_be_positive():
+    V, F = icosphere(0)
+    with pytest.raises(ValueError, match="anchor_weight"):
+        PoissonSolver(V, F, anchor_weight=0.0)
