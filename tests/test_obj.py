@@ -1,0 +1,111 @@
+import numpy as np
+import pytest
+
+from garment_transfer.errors import MeshError, TopologyMismatchError
+from garment_transfer.mesh import mesh_from_polygons, require_same_topology
+from garment_transfer.obj import obj_text, read_obj, write_obj
+
+QUAD_OBJ = """# a quad and a pentagon with UVs and a group
+o piece
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 2 0.5 0
+v 1.5 1.5 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+g front
+usemtl cotton
+f 1/1 2/2 3/3 4/4
+f 2/2 5/1 6/3 3/3
+"""
+
+
+def test_read_keeps_polygons_and_triangulates(tmp_path):
+    p = tmp_path / "piece.obj"
+    p.write_text(QUAD_OBJ)
+    m = read_obj(p)
+    assert m.n_vertices == 6 and m.n_faces == 2 and m.n_triangles == 2 + 2
+    assert [list(f) for f in m.polygons()] == [[0, 1, 2, 3], [1, 4, 5, 2]]
+    assert m.tri_to_face.tolist() == [0, 0, 1, 1]
+
+
+def test_write_like_source_changes_only_vertex_lines(tmp_path):
+    p = tmp_path / "piece.obj"
+    p.write_text(QUAD_OBJ)
+    m = read_obj(p)
+    out = tmp_path / "moved.obj"
+    write_obj(out, m, m.V + [0, 0, 1])
+    text = out.read_text().splitlines()
+    src = QUAD_OBJ.splitlines()
+    assert [ln for ln in text if not ln.startswith("v ")] == [ln for ln in src if not ln.startswith("v ")]
+    again = read_obj(out)
+    np.testing.assert_allclose(again.V, m.V + [0, 0, 1])
+    require_same_topology(m, again)
+
+
+def test_in_memory_mesh_writes_its_own_polygons():
+    m = mesh_from_polygons(np.eye(3).tolist() + [[1, 1, 1]], [[0, 1, 2], [0, 2, 3, 1]])
+    text = obj_text(m)
+    assert "f 1 2 3" in text and "f 1 3 4 2" in text
+
+
+@pytest.mark.parametrize("content, problem", [
+    ("", "no vertices"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "no faces"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "vertex"),
+    ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN"),
+    ("v 0 0 x\n", "not a number"),
+    ("v 0 0 0\nv 1 0 0\nf 1 2\n", "at least 3"),
+    ("v 0 0\n", "3 coordinates"),
+])
+def test_bad_files_name_the_file_and_problem(tmp_path, content, problem):
+    p = tmp_path / "bad.obj"
+    p.write_text(content)
+    with pytest.raises(MeshError, match=problem) as exc:
+        read_obj(p)
+    assert str(p) in str(exc.value)
+
+
+def test_missing_file_and_binary_file(tmp_path):
+    with pytest.raises(MeshError, match="not found"):
+        read_obj(tmp_path / "nope.obj")
+    b = tmp_path / "blob.obj"
+    b.write_bytes(b"\x00\x01\x02garbage")
+    with pytest.raises(MeshError, match="binary"):
+        read_obj(b)
+
+
+def test_topology_mismatch_is_named():
+    a = mesh_from_polygons(np.eye(3), [[0, 1, 2]], name="a.obj")
+    b = mesh_from_polygons(np.vstack([np.eye(3), [[1, 1, 1]]]), [[0, 1, 2], [0, 2, 3]], name="b.obj")
+    with pytest.raises(TopologyMismatchError, match="b.obj.*a.obj"):
+        require_same_topology(a, b)
+
+
+def test_write_is_atomic_on_failure(tmp_path):
+    m = mesh_from_polygons(np.eye(3), [[0, 1, 2]])
+    out = tmp_path / "out.obj"
+    with pytest.raises(MeshError):
+        write_obj(out, m, np.zeros((5, 3)))
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch):
+    import garment_transfer.obj as objmod
+
+    m = mesh_from_polygons(np.eye(3), [[0, 1, 2]])
+    out = tmp_path / "out.obj"
+    out.write_text("previous result\n")
+
+    def broken_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(objmod.os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk full"):
+        write_obj(out, m)
+    assert out.read_text() == "previous result\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.obj"]

@@ -1,0 +1,96 @@
+import json
+
+import numpy as np
+import pytest
+
+from garment_transfer.errors import Cancelled, MeshError, TopologyMismatchError
+from garment_transfer.metrics import evaluate
+from garment_transfer.obj import read_obj
+from garment_transfer.proximity import TriangleSurface
+from garment_transfer.transfer import prepare_garment, transfer_garment
+from meshes import grid, icosphere, require_makehuman
+from garment_transfer.mesh import mesh_from_triangles
+
+
+def spheres():
+    V, F = icosphere(3)
+    source = mesh_from_triangles(V, F, name="source")
+    target = mesh_from_triangles(V * [1.3, 1.3, 1.0], F, name="target")
+    GV, GF = icosphere(3, radius=1.05)
+    keep = GV[GF].mean(axis=1)[:, 2] < 0.3      # a skirt-like open band
+    garment = mesh_from_triangles(GV, GF[keep], name="garment")
+    return source, target, garment
+
+
+def test_direct_transfer_follows_a_scaled_body_and_stays_outside():
+    source, target, garment = spheres()
+    r = transfer_garment(source, target, garment)
+    used = np.unique(garment.F)
+    radial = np.linalg.norm(r.V[used][:, :2], axis=1)
+    radial0 = np.linalg.norm(garment.V[used][:, :2], axis=1)
+    assert np.median(radial / np.maximum(radial0, 1e-9)) > 1.2
+    assert r.penetrating_vertices == 0
+    assert (TriangleSurface(target.V, target.F).signed_distance(r.V[used])[0] >= 0).all()
+    assert set(r.seconds) >= {"field", "embed", "bind", "factor", "solve", "fix", "total"}
+
+
+def test_identity_transfer_keeps_the_garment():
+    source, _, garment = spheres()
+    r = transfer_garment(source, source, garment, fix_penetration=False)
+    used = np.unique(garment.F)
+    np.testing.assert_allclose(r.V[used], garment.V[used], atol=1e-9)
+
+
+def test_prepared_garment_gives_the_same_result():
+    source, target, garment = spheres()
+    prepared = prepare_garment(source, garment)
+    a = transfer_garment(source, target, garment, prepared=prepared)
+    b = transfer_garment(source, target, garment)
+    np.testing.assert_allclose(a.V, b.V, atol=1e-12)
+    assert "factor" not in a.seconds
+
+
+def test_bodies_of_different_topology_are_refused():
+    source, _, garment = spheres()
+    V, F = icosphere(2)
+    with pytest.raises(TopologyMismatchError):
+        transfer_garment(source, mesh_from_triangles(V, F, name="other"), garment)
+
+
+def test_garment_far_from_the_body_is_refused():
+    source, target, garment = spheres()
+    far = garment.with_vertices(garment.V + [10.0, 0, 0], name="far.obj")
+    with pytest.raises(MeshError, match="far.obj.*far from the source body"):
+        transfer_garment(source, target, far)
+
+
+def test_progress_can_cancel():
+    source, target, garment = spheres()
+    seen = []
+
+    def progress(fraction, stage):
+        seen.append(stage)
+        return stage == "solve"
+
+    with pytest.raises(Cancelled):
+        transfer_garment(source, target, garment, progress=progress)
+    assert "fix" not in seen
+
+
+def test_makehuman_direct_transfer_average_to_pear_every_garment():
+    root = require_makehuman()
+    manifest = json.loads((root / "manifest.json").read_text())
+    source = read_obj(root / "bodies" / "female_average.obj")
+    target = read_obj(root / "bodies" / "female_pear.obj")
+    surface = TriangleSurface(target.V, target.F)
+    for name in manifest["garments"]:
+        garment = read_obj(root / "garments" / name / "female_average.obj")
+        reference = read_obj(root / "garments" / name / "female_pear.obj")
+        r = transfer_garment(source, target, garment)
+        assert r.penetrating_vertices == 0, name
+        assert (surface.signed_distance(r.V)[0] < 0).sum() == 0, name
+        result = garment.with_vertices(r.V)
+        e = evaluate(garment, result, target, reference=reference)
+        # The garment moved toward its fitted shape on the pear body: closer than the untransferred one.
+        assert e["drape_error_relative"] < 0.5, (name, e)
+        assert e["vertex_error_mean"] < 0.06, (name, e)   # 6 mm (the files are in decimetres)
