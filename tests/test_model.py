@@ -120,7 +120,9 @@ def test_body_field_shape_and_uncovered_triangles_follow_the_body(trained, field
     Qs = model.body_field("similar")
     seen = fields.select(["band", "skirt"]).covered.all(axis=0)
     err = np.abs(Qs[seen] - 1.2 * np.eye(3)).max(axis=(1, 2))
-    assert np.median(err) < 0.02 and err.max() < 0.2
+    assert np.median(err) < 0.05 and err.max() < 0.2
+    np.testing.assert_allclose(model.body_field("similar", how="mean_field")[seen],
+                               np.broadcast_to(1.2 * np.eye(3), (seen.sum(), 3, 3)), atol=1e-5)
 
 
 def test_metadata_describes_the_model(trained):
