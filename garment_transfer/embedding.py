@@ -126,3 +126,57 @@ def unembed(B, index, weights):
     if index.shape[1] == 1:
         return B[index[:, 0]]
     return np.einsum("tk,tkij->tij", weights, B[index])
+
+
+def vertex_field(B, F, n):
+    """Area-weighted average, at each vertex, of a per-triangle field.
+
+    Parameters
+    ----------
+    B : (M,3,3) float
+        Field on the triangles F.
+    F : (M,3) int
+    n : int
+        Vertex count.
+
+    Returns
+    -------
+    Bv : (n,3,3) float64
+    """
+    import scipy.sparse as sp
+
+    M = F.shape[0]
+    incidence = sp.csr_matrix((np.ones(3 * M), (F.reshape(-1), np.repeat(np.arange(M), 3))), shape=(n, M))
+    count = np.asarray(incidence.sum(axis=1)).ravel()
+    Bv = (incidence @ np.asarray(B, dtype=np.float64).reshape(M, 9)) / np.maximum(count, 1)[:, None]
+    return Bv.reshape(n, 3, 3)
+
+
+def unembed_interpolated(B, body_F, n_body, triangle, bary, cloth_F):
+    """The garment field from a body field, interpolated linearly over the body surface.
+
+    Each garment vertex reads the body field at its closest body point (the field averaged to the
+    body's vertices, then interpolated with the point's barycentric coordinates); each garment
+    triangle takes the mean of its three vertices. Unlike the nearest triangle, this is continuous
+    over the body, so a garment finer than the body shows no seams along body edges.
+
+    Parameters
+    ----------
+    B : (M,3,3) float
+        Field on the body triangles.
+    body_F : (M,3) int
+    n_body : int
+        Body vertex count.
+    triangle : (nc,) int
+        Body triangle of each garment vertex's closest point.
+    bary : (nc,3) float
+        Barycentric coordinates of that point.
+    cloth_F : (T,3) int
+
+    Returns
+    -------
+    C : (T,3,3) float64
+    """
+    Bv = vertex_field(B, body_F, n_body)
+    Cv = np.einsum("pk,pkij->pij", bary, Bv[body_F[triangle]])
+    return Cv[cloth_F].mean(axis=1)

@@ -91,6 +91,25 @@ def spread_displacement(A, fixed, displacement, decay_rings):
     return D
 
 
+def signed_distance_near(surface: TriangleSurface, V, band):
+    """Signed distances, searched widely (16 candidates) only where they are below ``band``.
+
+    A first pass with 8 candidate triangles per vertex decides which vertices are clearly away
+    from the body; those within ``band`` of it (or inside) are measured again with 16.
+
+    Returns
+    -------
+    sd : (n,) float64
+    closest : (n,3) float64
+    normal : (n,3) float64
+    """
+    sd, closest, normal, _ = surface.signed_distance(V, k=8)
+    near = sd < band
+    if near.any():
+        sd[near], closest[near], normal[near], _ = surface.signed_distance(V[near], k=16)
+    return sd, closest, normal
+
+
 def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, rounds=4):
     """Move garment vertices out of the body (to at least ``offset`` from it), spreading the move.
 
@@ -121,7 +140,7 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
     h = edge_lengths_mean(V, F)
     decay = (spread_length / h) if spread_length else 10.0
     A = vertex_adjacency(V.shape[0], F)
-    sd, closest, normal, _ = surface.signed_distance(V)
+    sd, closest, normal = signed_distance_near(surface, V, offset + 2 * h)
     info = {"inside_before": int((sd < 0).sum()), "pushed_vertices": int((sd < offset).sum())}
     done = 0
     for done in range(1, rounds + 1):

@@ -152,8 +152,7 @@ class TriangleSurface:
             dc, cand = self.tree.query(P[todo], k=kk, workers=-1)
             dc, cand = dc.reshape(todo.size, kk), cand.reshape(todo.size, kk)
             first = min(4, kk)
-            rows = np.repeat(np.arange(todo.size), first)
-            self._best_of(P, todo, rows, cand[:, :first].reshape(-1), closest, dist, tri, bary)
+            self._best_of_dense(P, todo, cand[:, :first], closest, dist, tri, bary)
             if kk > first:
                 lower = dc[:, first:] - self.radii[cand[:, first:]]
                 r, c = np.nonzero(lower < dist[todo][:, None])
@@ -164,6 +163,24 @@ class TriangleSurface:
             todo = todo[dist[todo] + self.radius >= dc[:, -1]]
             k *= 4
         return closest, dist, tri, bary
+
+    def _best_of_dense(self, P, todo, cand, closest, dist, tri, bary):
+        """Evaluate ``cand[i, :]`` for point ``todo[i]``; keep improvements."""
+        kk = cand.shape[1]
+        T = cand.reshape(-1)
+        Pr = np.repeat(P[todo], kk, axis=0)
+        c = self.V[self.F[T]]
+        Q, B = closest_on_triangles(Pr, c[:, 0], c[:, 1], c[:, 2])
+        d = np.linalg.norm(Pr - Q, axis=1).reshape(-1, kk)
+        j = np.argmin(d, axis=1)
+        sel = np.arange(todo.size) * kk + j
+        dj = d[np.arange(todo.size), j]
+        better = dj < dist[todo]
+        r, sel = todo[better], sel[better]
+        closest[r] = Q[sel]
+        dist[r] = dj[better]
+        tri[r] = T[sel]
+        bary[r] = B[sel]
 
     def _best_of(self, P, todo, rows, tris, closest, dist, tri, bary):
         """Evaluate candidate pairs (point ``todo[rows[i]]``, triangle ``tris[i]``); keep improvements."""

@@ -5,9 +5,10 @@ Stages (timed one by one):
 1. ``field``: a deformation gradient field on the source body's triangles: the body's own
    source-to-target gradients (``direct``), or the shared model's prediction for the target
    (``model``).
-2. ``embed``: the field carried onto the garment's triangles (ClothToBody, interpolating).
-3. ``bind``: each garment vertex bound to the source body and carried to the target body: where
-   the garment must land (the anchors).
+2. ``bind``: each garment vertex bound to its closest point on the source body and carried to the
+   target body: where the garment must land (the anchors).
+3. ``embed``: the field carried onto the garment's triangles: interpolated over the body surface
+   at the bound points, or (the paper's ClothToBody) from the nearest body triangle.
 4. ``factor``: the Poisson matrix of the garment, factored (once per garment; reused).
 5. ``solve``: the garment rebuilt from its new gradients, placed by the anchors.
 6. ``fix``: penetration removal against the target body.
@@ -22,10 +23,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from .binding import Binding, bind, carry
-from .embedding import body_scale, cloth_to_body, triangle_centroids, unembed
+from .embedding import body_scale, cloth_to_body, unembed, unembed_interpolated
 from .errors import Cancelled, MeshError, ModelError
 from .gradients import deformation_gradients
 from .mesh import Mesh, degenerate_triangles, require_same_topology
@@ -39,7 +38,6 @@ METHODS = ("direct", "model", "surface")
 OFFSET_SHARE = 0.003          # cloth thickness kept from the skin: ~5 mm on a 1.7 m body
 STIFFNESS_SHARE = 0.05        # shape features longer than this follow the body: ~8.5 cm
 FAR_SHARE = 0.25              # a garment whose median distance to the body exceeds this is misplaced
-INTERPOLATE_K = 4             # body triangles blended per garment triangle
 
 
 @dataclass
@@ -73,8 +71,8 @@ class PreparedGarment:
 
     garment: Mesh
     source_body: Mesh
-    embed_index: np.ndarray
-    embed_weights: np.ndarray
+    embed_index: np.ndarray | None
+    embed_weights: np.ndarray | None
     binding: Binding
     solver: PoissonSolver | None
     seconds: dict
@@ -100,7 +98,8 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     garment : Mesh
         Dressed on the source body (same space and units).
     interpolate : bool
-        Blend the nearest body triangles (True) or take the nearest one only (the paper).
+        Interpolate the field over the body at each garment vertex's closest point (True), or
+        take the body triangle nearest to each garment triangle (False, the paper).
     stiffness : float, optional
         Length above which the garment's shape follows the body (default 5% of body height).
     need_solver : bool
@@ -110,14 +109,14 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     t = time.perf_counter()
     if degenerate_triangles(garment.V, garment.F).all():
         raise MeshError(garment.name, "every face has zero area")
-    k = INTERPOLATE_K if interpolate else 1
-    tree = cKDTree(triangle_centroids(source_body.V, source_body.F))
-    index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=k, tree=tree)
-    seconds["embed"] = time.perf_counter() - t
-    t = time.perf_counter()
     binding = bind(garment.V, source_body.V, source_body.F)
     _check_placement(source_body, garment, binding.distance)
     seconds["bind"] = time.perf_counter() - t
+    index = weights = None
+    if not interpolate:
+        t = time.perf_counter()
+        index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=1)
+        seconds["embed"] = time.perf_counter() - t
     solver = None
     if need_solver:
         t = time.perf_counter()
@@ -207,7 +206,11 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         V = anchors
     else:
         t = time.perf_counter()
-        Q = unembed(B, prepared.embed_index, prepared.embed_weights)
+        if prepared.embed_index is None:
+            b = prepared.binding
+            Q = unembed_interpolated(B, source_body.F, source_body.n_vertices, b.triangle, b.bary, garment.F)
+        else:
+            Q = unembed(B, prepared.embed_index, prepared.embed_weights)
         seconds["embed"] = seconds.get("embed", 0.0) + time.perf_counter() - t
         step(0.6, "solve")
         t = time.perf_counter()
