@@ -96,7 +96,9 @@ def mesh_arrays_from_object(obj, depsgraph, evaluated=True):
     else:
         V, fv, fs = _read_mesh_data(obj.data)
         M = matrix_array(obj.matrix_world)
-    return V @ M[:3, :3].T + M[:3, 3], fv, fs
+    with np.errstate(invalid="ignore", over="ignore"):
+        # NaN/inf coordinates pass through; core_mesh_from_object reports them.
+        return V @ M[:3, :3].T + M[:3, 3], fv, fs
 
 
 def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh") -> Mesh:

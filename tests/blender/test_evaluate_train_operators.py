@@ -1,0 +1,88 @@
+"""bpy.ops.garment_transfer.evaluate and .train on real meshes and a small real dataset."""
+
+from __future__ import annotations
+
+import time
+
+import bpy
+import numpy as np
+import pytest
+from conftest import GARMENT, import_obj, world_vertices
+from test_transfer_operator import make_tiny_dataset
+
+
+def test_evaluate_writes_metrics_and_a_heatmap(dressed, extension):
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    settings = dressed.settings
+    result = settings.result
+    settings.reference = import_obj(dressed.makehuman / "garments" / GARMENT / "female_pear.obj",
+                                    "reference")
+    assert bpy.ops.garment_transfer.evaluate() == {'FINISHED'}
+
+    import json
+
+    metrics = json.loads(settings.last_metrics)
+    for key in ("mdc", "penetration_ratio", "max_penetration_depth", "drape_error",
+                "drape_error_relative", "vertex_error_mean", "vertex_error_max"):
+        assert metrics[key] is not None and np.isfinite(metrics[key]), key
+    assert 0 < metrics["mdc"] < 0.2 and metrics["drape_error_relative"] < 1.0
+    moved = np.linalg.norm(world_vertices(result) - world_vertices(dressed.garment), axis=1)
+    assert metrics["vertex_error_mean"] < moved.mean()
+
+    me = result.data
+    colors = me.color_attributes["moved_distance"]
+    assert colors.domain == 'POINT' and me.color_attributes.active_color.name == "moved_distance"
+    rgba = np.empty(4 * len(me.vertices), np.float32)
+    colors.data.foreach_get("color", rgba)
+    assert np.all((rgba >= 0) & (rgba <= 1)) and np.ptp(rgba.reshape(-1, 4)[:, 0]) > 0.5
+    values = np.empty(len(me.vertices), np.float32)
+    me.attributes["moved_distance_value"].data.foreach_get("value", values)
+    np.testing.assert_allclose(values, moved, rtol=1e-4, atol=1e-6)
+
+
+def test_evaluate_without_reference_measures_against_the_body_fit(dressed):
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert bpy.ops.garment_transfer.evaluate() == {'FINISHED'}
+    import json
+
+    metrics = json.loads(dressed.settings.last_metrics)
+    assert metrics["drape_error"] is not None and "vertex_error_mean" not in metrics
+
+
+def test_train_writes_a_model_the_transfer_then_uses(dressed, tmp_path):
+    pytest.importorskip("torch")
+    settings = dressed.settings
+    settings.dataset_path = str(make_tiny_dataset(dressed.makehuman, tmp_path / "ds",
+                                                  garments=("female_casualsuit01", "male_casualsuit04")))
+    settings.dataset_source = "female_average"
+    settings.train_output = str(tmp_path / "out" / "shared")
+    (tmp_path / "out").mkdir()
+    settings.train_epochs = 20
+    settings.train_latent = 2
+    assert bpy.ops.garment_transfer.train() == {'FINISHED'}
+    assert (tmp_path / "out" / "shared.npz").is_file()
+    assert settings.method == 'MODEL' and settings.model_path.endswith("shared.npz")
+    assert [t.name for t in settings.model_targets] == ["female_pear"]
+    assert settings.train_progress == 100.0
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+
+
+def test_cancelled_training_writes_nothing(dressed, tmp_path, extension):
+    pytest.importorskip("torch")
+    train = extension.operators.train
+    settings = dressed.settings
+    settings.dataset_path = str(make_tiny_dataset(dressed.makehuman, tmp_path / "ds",
+                                                  garments=("female_casualsuit01",)))
+    settings.train_output = str(tmp_path / "never.npz")
+    settings.train_epochs = 5000
+    run = train.TrainingRun(train.training_call(train.training_plan(settings)))
+    steps = run.steps()
+    for fraction in steps:
+        if fraction > 0.1:          # reading done, training started
+            break
+        time.sleep(0.01)
+    steps.close()                   # what Esc does
+    assert not run._thread.is_alive()
+    assert type(run.error).__name__ == "Cancelled"
+    assert not (tmp_path / "never.npz").exists()
+    assert not list(tmp_path.glob("*.npz*")) and not list(tmp_path.glob(".*"))
