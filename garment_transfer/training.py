@@ -82,67 +82,142 @@ def _uniform(gen, shape, fan_in):
 
 
 class _Net:
-    """The encoder-decoder as plain torch tensors (the first layer in the span of the data)."""
+    """The encoder-decoder, with its gradient written by hand into persistent buffers.
+
+    Every parameter is a view into one flat vector, and every gradient a view into another, so that
+    Adam, L-BFGS and SCG share them and an epoch allocates nothing of the decoder's size: at the
+    paper's scale the decoder's last layer (|M|*9 x latent) is nearly all the work, and fresh
+    buffers of that size cost as much as the arithmetic.
+
+    Parameters
+    ----------
+    basis : (D,r) tensor
+        Orthonormal basis of the training rows (the encoder's first layer is ``A basis^T``).
+    D, K, latent : int
+    hidden : list of int
+    out_bias : (D,) tensor
+        Initial bias of the last layer.
+    gen : torch.Generator
+    """
 
     def __init__(self, basis, D, K, latent, hidden, out_bias, gen):
         import torch
 
-        r = basis.shape[1]
         enc_sizes = [*hidden, latent]
-        self.D, self.K = D, K
+        dec_sizes = [latent + K, *reversed(hidden), D]
         W0 = _uniform(gen, (enc_sizes[0], D + K), D + K)
-        self.A = (W0[:, :D] @ basis).requires_grad_()
-        self.Wc = W0[:, D:].clone().requires_grad_()
-        self.b0 = _uniform(gen, (enc_sizes[0],), D + K).requires_grad_()
-        self.enc = []
+        init = [W0[:, :D] @ basis, W0[:, D:].clone(), _uniform(gen, (enc_sizes[0],), D + K)]
         for i in range(1, len(enc_sizes)):
             fan = enc_sizes[i - 1]
-            self.enc.append((_uniform(gen, (enc_sizes[i], fan), fan).requires_grad_(),
-                             _uniform(gen, (enc_sizes[i],), fan).requires_grad_()))
-        dec_sizes = [latent + K, *reversed(hidden), D]
-        self.dec = []
+            init += [_uniform(gen, (enc_sizes[i], fan), fan), _uniform(gen, (enc_sizes[i],), fan)]
         for i in range(1, len(dec_sizes)):
             fan = dec_sizes[i - 1]
-            self.dec.append((_uniform(gen, (dec_sizes[i], fan), fan).requires_grad_(),
-                             _uniform(gen, (dec_sizes[i],), fan).requires_grad_()))
-        # Starting from the mean field lets the optimiser spend its epochs on what varies.
-        with torch.no_grad():
-            self.dec[-1][1].copy_(out_bias)
-        assert r == self.A.shape[1]
+            init += [_uniform(gen, (dec_sizes[i], fan), fan), _uniform(gen, (dec_sizes[i],), fan)]
+        init[-1] = out_bias.clone()
+        total = sum(t.numel() for t in init)
+        self.flat = torch.empty(total)
+        self.grad_flat = torch.zeros(total)
+        self.params, self.grads, o = [], [], 0
+        for t in init:
+            n = t.numel()
+            p = self.flat[o:o + n].view(t.shape)
+            p.copy_(t)
+            g = self.grad_flat[o:o + n].view(t.shape)
+            p.grad = g
+            self.params.append(p)
+            self.grads.append(g)
+            o += n
+        self.A, self.Wc, self.b0 = self.params[:3]
+        ne = 2 * (len(enc_sizes) - 1)
+        self.enc = [tuple(self.params[3 + 2 * i:5 + 2 * i]) for i in range(ne // 2)]
+        self.dec = [tuple(self.params[3 + ne + 2 * i:5 + ne + 2 * i]) for i in range(len(dec_sizes) - 1)]
+        self._y = None
 
     def parameters(self):
-        ps = [self.A, self.Wc, self.b0]
-        for W, b in self.enc + self.dec:
-            ps += [W, b]
-        return ps
+        return list(self.params)
 
-    def encode(self, coords, onehot):
+    def encode(self, coords, onehot, keep=None):
         import torch
 
-        h = torch.sigmoid(coords @ self.A.T + onehot @ self.Wc.T + self.b0)
+        h = torch.sigmoid(torch.addmm(self.b0, coords, self.A.T).addmm_(onehot, self.Wc.T))
+        if keep is not None:
+            keep.append(h)
         for W, b in self.enc:
-            h = torch.sigmoid(h @ W.T + b)
+            h = torch.sigmoid(torch.addmm(b, h, W.T))
+            if keep is not None:
+                keep.append(h)
         return h
 
-    def decode(self, z, onehot):
+    def decode(self, z, onehot, keep=None, out=None):
         import torch
 
         h = torch.cat([z, onehot], dim=1)
         for i, (W, b) in enumerate(self.dec):
-            h = torch.addmm(b, h, W.T)
+            if keep is not None:
+                keep.append(h)
             if i < len(self.dec) - 1:
-                h = torch.sigmoid(h)
+                h = torch.sigmoid(torch.addmm(b, h, W.T))
+            else:
+                h = torch.addmm(b, h, W.T, out=out) if out is not None else torch.addmm(b, h, W.T)
         return h
 
-    def state(self):
-        return [p.detach().clone() for p in self.parameters()]
+    def loss_and_grad(self, coords, onehot, X, mask, n):
+        """Loss ``sum(mask * (y - X)^2) / n`` and its gradient, written into ``grad_flat``.
 
-    def load(self, state):
+        Returns
+        -------
+        loss : float
+        """
         import torch
 
         with torch.no_grad():
-            for p, s in zip(self.parameters(), state):
-                p.copy_(s)
+            enc_h, dec_in = [], []
+            z = self.encode(coords, onehot, keep=enc_h)
+            if self._y is None:
+                self._y = torch.empty(X.shape)
+            r = self.decode(z, onehot, keep=dec_in, out=self._y)
+            r.sub_(X)
+            if mask is not None:
+                r.mul_(mask)
+            flat = r.view(-1)
+            loss = float(torch.dot(flat, flat)) / n
+            scale = 2.0 / n
+            # Backward through the decoder; delta is the gradient w.r.t. each layer's output,
+            # carried unscaled and multiplied by 2/n where it is written.
+            delta, s = r, scale
+            gi = 3 + 2 * len(self.enc)
+            for i in reversed(range(len(self.dec))):
+                W, _ = self.dec[i]
+                gW, gb = self.grads[gi + 2 * i], self.grads[gi + 2 * i + 1]
+                u = dec_in[i]
+                torch.addmm(gW, delta.T, u, beta=0.0, alpha=s, out=gW)
+                torch.sum(delta, dim=0, out=gb)
+                gb.mul_(s)
+                delta = (delta @ W) * s
+                s = 1.0
+                if i > 0:
+                    delta = delta * u * (1.0 - u)
+            L = z.shape[1]
+            delta = delta[:, :L]
+            for j in reversed(range(len(enc_h))):
+                h = enc_h[j]
+                delta = delta * h * (1.0 - h)
+                if j > 0:
+                    W, _ = self.enc[j - 1]
+                    gW, gb = self.grads[3 + 2 * (j - 1)], self.grads[4 + 2 * (j - 1)]
+                    torch.mm(delta.T, enc_h[j - 1], out=gW)
+                    torch.sum(delta, dim=0, out=gb)
+                    delta = delta @ W
+            torch.mm(delta.T, coords, out=self.grads[0])
+            torch.mm(delta.T, onehot, out=self.grads[1])
+            torch.sum(delta, dim=0, out=self.grads[2])
+        return loss
+
+    def state(self):
+        return self.flat.clone()
+
+    def load(self, state):
+        self.flat.copy_(state)
 
     def export(self, basis):
         """Layer arrays for the model file: (out, in) float32 weights and biases."""
@@ -319,11 +394,7 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         params = net.parameters()
 
         def objective():
-            y = net.decode(net.encode(coords, onehot), onehot)
-            r = y - X
-            if mask is not None:
-                r = r * mask
-            return (r * r).sum() / n_mask
+            return net.loss_and_grad(coords, onehot, X, mask, n_mask)
 
         val = _holdout_tensors(holdout, fields, active, scale, masked) if holdout is not None else None
         history, best = [], {"loss": math.inf, "epoch": -1, "state": None}
@@ -348,11 +419,11 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
                 raise Cancelled("training was cancelled")
             return False
 
-        _optimise(optimizer, params, objective, epochs, lr, on_epoch)
+        _optimise(optimizer, net, objective, epochs, lr, on_epoch)
         if best["state"] is not None:
             net.load(best["state"])
         with torch.no_grad():
-            final = float(objective())
+            final = objective()
             y = net.decode(net.encode(coords, onehot), onehot)
             m = torch.from_numpy(np.repeat(np.repeat(fields.covered[:, active], 9, axis=1), K, axis=0)
                                  .astype(np.float32))
@@ -405,46 +476,37 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     return model, info
 
 
-def _optimise(optimizer, params, objective, epochs, lr, on_epoch):
+def _optimise(optimizer, net, objective, epochs, lr, on_epoch):
+    """Run ``epochs`` full-batch steps; ``objective()`` returns the loss and fills the gradients."""
     import torch
 
+    params = net.parameters()
     if optimizer == "adam":
         opt = torch.optim.Adam(params, lr=lr, fused=True)
         for ep in range(epochs):
-            opt.zero_grad(set_to_none=True)
             loss = objective()
-            loss.backward()
             opt.step()
-            if on_epoch(ep, float(loss.detach())):
+            if on_epoch(ep, loss):
                 return
     elif optimizer == "lbfgs":
         opt = torch.optim.LBFGS(params, lr=lr, max_iter=1, history_size=10, line_search_fn="strong_wolfe")
 
         def closure():
-            opt.zero_grad(set_to_none=True)
-            loss = objective()
-            loss.backward()
-            return loss
+            return torch.tensor(objective())
 
         for ep in range(epochs):
-            loss = opt.step(closure)
-            if on_epoch(ep, float(loss.detach())):
+            loss = float(opt.step(closure))
+            if on_epoch(ep, loss):
                 return
     else:
-        from torch.nn.utils import parameters_to_vector, vector_to_parameters
-
         def fg(w):
-            vector_to_parameters(w, params)
-            for p in params:
-                p.grad = None
+            net.flat.copy_(w)
             loss = objective()
-            grads = torch.autograd.grad(loss, params)
-            return float(loss.detach()), torch.cat([g.reshape(-1) for g in grads])
+            return loss, net.grad_flat.clone()
 
-        w = parameters_to_vector(params).detach().clone()
+        w = net.flat.clone()
         _scg(fg, w, epochs, on_epoch)
-        with torch.no_grad():
-            vector_to_parameters(w, params)
+        net.flat.copy_(w)
 
 
 def _holdout_tensors(holdout, fields, active, scale, masked):

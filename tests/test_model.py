@@ -242,3 +242,38 @@ def test_model_module_does_not_import_torch():
     code = ("import sys; import garment_transfer.model, garment_transfer.dataset; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+@pytest.mark.parametrize("hidden", [(), (5,), (6, 4)])
+def test_hand_written_gradient_matches_autograd(hidden):
+    from garment_transfer.training import _Net
+
+    gen = torch.Generator().manual_seed(0)
+    S, D, K, L = 6, 27, 2, 3
+    X = torch.randn(S, D, generator=gen)
+    mask = (torch.rand(S, D, generator=gen) > 0.3).float()
+    onehot = torch.eye(K)[torch.arange(S) % K]
+    basis, _ = torch.linalg.qr(X.T)
+    coords = X @ basis
+    net = _Net(basis, D, K, L, list(hidden), X.mean(0), gen)
+    n = float(mask.sum())
+    loss = net.loss_and_grad(coords, onehot, X, mask, n)
+
+    ps = [p.detach().clone().requires_grad_() for p in net.parameters()]
+    A, Wc, b0 = ps[:3]
+    h = torch.sigmoid(coords @ A.T + onehot @ Wc.T + b0)
+    rest = ps[3:]
+    n_enc = len(hidden)
+    for i in range(n_enc):
+        h = torch.sigmoid(h @ rest[2 * i].T + rest[2 * i + 1])
+    h = torch.cat([h, onehot], 1)
+    dec = rest[2 * n_enc:]
+    for i in range(len(dec) // 2):
+        h = h @ dec[2 * i].T + dec[2 * i + 1]
+        if i < len(dec) // 2 - 1:
+            h = torch.sigmoid(h)
+    ref = (((h - X) * mask) ** 2).sum() / n
+    ref.backward()
+    assert loss == pytest.approx(float(ref.detach()), rel=1e-5)
+    for p, g in zip(ps, net.grads):
+        torch.testing.assert_close(g, p.grad, rtol=1e-4, atol=1e-6)

@@ -1,0 +1,123 @@
+"""Training time of the shared deformation model at the paper's scale.
+
+The paper (sect. 6.1): a body of |M| = 37,744 triangles, 15 training garments, latent 30, 1000 epochs of
+scaled conjugate gradient: about 35 minutes (laptop i7-8750H + RTX 2070).
+
+No real dataset of that size is at hand, so the fields are synthetic: on a grid body of exactly
+37,744 triangles, each of the 15 garments covers a band of the body (40-80% of it) and its field is a
+shared smooth "shape" part plus a garment-specific high-frequency "style" part. That is enough for
+timing (the cost does not depend on the values), and the output says so.
+
+Usage::
+
+    nice .venv/bin/python benchmarks/bench_training.py [--epochs 1000] [--threads N] [--optimizer adam]
+        [--unmasked] [--json]
+
+``--unmasked`` is the paper's network: every body triangle is an input and output (|M| * 9 = 339,696
+values). The default (masked) leaves out triangles that no garment covers, as training does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from garment_transfer.dataset import TrainingFields  # noqa: E402
+from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
+
+PAPER = {"triangles": 37744, "garments": 15, "epochs": 1000, "latent": 30, "seconds": 35 * 60}
+
+
+def grid_body(nx=57, ny=338):
+    """A quad grid of (nx-1)*(ny-1)*2 triangles (37,744 by default), bent into a half cylinder."""
+    u, v = np.meshgrid(np.linspace(0, np.pi, nx), np.linspace(0, 1.7, ny))
+    V = np.stack([0.15 * np.cos(u), v, 0.15 * np.sin(u)], axis=-1).reshape(-1, 3)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], axis=-1).reshape(-1, 4)
+    return mesh_from_polygons(V, quads, name="grid_body")
+
+
+def synthetic_fields(n_garments=15, n_targets=1, seed=0):
+    """Synthetic training fields on the grid body (see the module docstring).
+
+    Returns
+    -------
+    TrainingFields
+    """
+    rng = np.random.default_rng(seed)
+    body = grid_body()
+    M = body.n_triangles
+    c = body.V[body.F].mean(axis=1)
+    height = c[:, 1] / 1.7
+    shape = np.stack([np.sin(np.pi * (j + 1) * height + j) for j in range(9)], axis=1) * 0.15
+    dev = np.zeros((n_garments, n_targets, M, 9), np.float32)
+    covered = np.zeros((n_garments, M), bool)
+    for g in range(n_garments):
+        lo = rng.uniform(0.0, 0.5)
+        covered[g] = (height > lo) & (height < lo + rng.uniform(0.4, 0.8))
+        style = rng.normal(0.0, 0.05, (M, 9)) * np.sin(40 * np.pi * height * (1 + g / 7))[:, None]
+        for k in range(n_targets):
+            d = shape * (1 + 0.3 * k) + style
+            dev[g, k] = np.where(covered[g][:, None], d, 0.0)
+    body_dev = np.repeat(shape[None].astype(np.float32), n_targets, axis=0)
+    return TrainingFields(dev, covered, body_dev, [f"g{g}" for g in range(n_garments)],
+                          [f"t{k}" for k in range(n_targets)], "grid_body", body,
+                          raw_deviation=dev.copy())
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--epochs", type=int, default=PAPER["epochs"])
+    ap.add_argument("--garments", type=int, default=PAPER["garments"])
+    ap.add_argument("--targets", type=int, default=1)
+    ap.add_argument("--latent", type=int, default=PAPER["latent"])
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--optimizer", default="adam")
+    ap.add_argument("--unmasked", action="store_true", help="the paper's network over every triangle")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+
+    from garment_transfer.training import default_threads, train_model
+
+    fields = synthetic_fields(args.garments, args.targets)
+    t0, c0 = time.perf_counter(), time.process_time()
+    model, info = train_model(fields, latent=args.latent, epochs=args.epochs, optimizer=args.optimizer,
+                              masked=not args.unmasked, threads=args.threads)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    out = {
+        "data": "synthetic fields (no real dataset of the paper's size here): timing only",
+        "body_triangles": fields.body.n_triangles, "garments": args.garments, "targets": args.targets,
+        "active_triangles": info["active_triangles"], "network_values": 9 * info["active_triangles"],
+        "latent": args.latent, "epochs": info["epochs"], "optimizer": info["optimizer"],
+        "masked": not args.unmasked, "threads": info["threads"],
+        "train_seconds": info["seconds"], "wall_seconds_with_export": round(wall, 2),
+        "cpu_seconds": round(cpu, 2), "ms_per_epoch": round(1000 * info["seconds"] / max(info["epochs"], 1), 2),
+        "final_loss": info["final_loss"], "paper_seconds": PAPER["seconds"],
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores "
+                   f"(default threads {default_threads()})",
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
+    if args.json:
+        print(json.dumps(out, indent=1))
+    else:
+        print(f"{out['data']}")
+        print(f"body {out['body_triangles']} triangles ({out['active_triangles']} in the network, "
+              f"{out['network_values']} values), {args.garments} garments x {args.targets} target(s), "
+              f"latent {args.latent}, {out['optimizer']}, {'masked' if out['masked'] else 'unmasked (paper)'}")
+        print(f"{out['epochs']} epochs: {out['train_seconds']:.1f} s ({out['ms_per_epoch']} ms/epoch, "
+              f"{out['cpu_seconds']:.1f} s CPU, {out['threads']} threads; load average "
+              f"{out['load_average_1min']})  paper: {PAPER['seconds']} s")
+        print(f"final loss {out['final_loss']:.4g}  on {out['machine']}")
+
+
+if __name__ == "__main__":
+    main()
