@@ -153,15 +153,18 @@ def transfer_message(context, result, target_body, outcome, metrics, elapsed):
 
 
 def format_metrics(metrics):
-    """Metrics as JSON for the panel (numbers only; None stays null)."""
+    """Metrics as JSON for the panel and scripts (numbers and None only)."""
     import json
+    import numbers
 
     clean = {}
     for key, value in metrics.items():
-        try:
-            clean[key] = None if value is None else float(value)
-        except (TypeError, ValueError):
-            continue
+        if value is None or isinstance(value, bool):
+            clean[key] = value
+        elif isinstance(value, numbers.Integral):
+            clean[key] = int(value)
+        elif isinstance(value, numbers.Real):
+            clean[key] = float(value)
     return json.dumps(clean)
 
 

@@ -119,6 +119,8 @@ class VIEW3D_PT_garment_transfer_drape(GarmentPanel, bpy.types.Panel):
         layout.label(text="Re-drape the garment on the target body with Blender's cloth solver "
                           "(for comparison)")
         layout.prop(settings, "drape_frames")
+        if settings.garment is not None:
+            layout.prop_search(settings, "drape_pin_group", settings.garment, "vertex_groups")
         layout.operator("garment_transfer.drape", icon='PHYSICS')
 
 

@@ -110,8 +110,13 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     train_progress: FloatProperty(name="Training Progress", subtype='PERCENTAGE', min=0, max=100)
 
     drape_frames: IntProperty(
-        name="Frames", default=40, min=2, soft_max=400,
-        description="Simulation frames for morphing the body and letting the cloth settle")
+        name="Frames", default=30, min=1, soft_max=400,
+        description="Frames to let the cloth settle after the body has morphed (the morph takes as "
+                    "many, settling on the source body twice as many)")
+    drape_pin_group: StringProperty(
+        name="Pin Group",
+        description="Vertex group of the garment held in place while the body morphs (waistband, "
+                    "shoulders); without one a close-fitting garment can slide down")
 
 
 CLASSES = (GarmentTransferTarget, GarmentTransferSettings)

@@ -1,0 +1,62 @@
+"""scripts/batch_transfer.py with the bpy module: many garments to many targets in one run, past bad files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from conftest import GARMENT, ROOT
+
+
+def read_obj_vertices(path):
+    return np.array([[float(x) for x in ln.split()[1:4]] for ln in path.read_text().splitlines()
+                     if ln.startswith("v ")])
+
+
+def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_path):
+    garment = makehuman / "garments" / GARMENT / "female_average.obj"
+    far = tmp_path / "far.obj"
+    far.write_text("v 1000 0 0\nv 1001 0 0\nv 1000 1 0\nf 1 2 3\n")
+    garbage = tmp_path / "garbage.obj"
+    garbage.write_bytes(bytes(range(256)) * 8)
+    out = tmp_path / "out"
+    cmd = [sys.executable, str(ROOT / "scripts" / "batch_transfer.py"), "--",
+           "--source-body", str(makehuman / "bodies" / "female_average.obj"),
+           "--target-body", str(makehuman / "bodies" / "female_pear.obj"),
+           "--target-body", str(makehuman / "bodies" / "female_slim_banana.obj"),
+           "--garment", str(garment), "--garment", str(tmp_path / "missing.obj"),
+           "--garment", str(far), "--garment", str(garbage),
+           "--out", str(out), "--scale", "0.1", "--blend", str(tmp_path / "all.blend")]
+    proc = subprocess.run(cmd, capture_output=True, encoding="utf-8", errors="replace", timeout=300,
+                          cwd=tmp_path)
+    assert proc.returncode == 1, proc.stderr
+
+    records = json.loads((out / "summary.json").read_text())
+    done = [r for r in records if "error" not in r]
+    failed = [r for r in records if "error" in r]
+    label = f"{GARMENT}_female_average"
+    assert sorted(r["target"] for r in done) == ["female_pear", "female_slim_banana"]
+    assert all(r["garment"] == label for r in done)
+    assert any("missing.obj" in r["garment"] and "not found" in r["error"] for r in failed)
+    assert any("garbage.obj" in r["garment"] and "found 0" in r["error"] for r in failed)
+    assert [r["target"] for r in failed if r["garment"] == "far"] == ["female_pear", "female_slim_banana"]
+    assert all("is far from the source body" in r["error"] for r in failed if r["garment"] == "far")
+    assert len(failed) == 4
+    assert (tmp_path / "all.blend").is_file()
+
+    # Written in the input files' units and axes and the garment's vertex order: what the core makes
+    # of the files themselves, up to float32 rounding (which flips a few penetration push-outs).
+    from garment_transfer.obj import read_obj
+    from garment_transfer.transfer import transfer_garment
+
+    source_body = read_obj(makehuman / "bodies" / "female_average.obj")
+    cloth = read_obj(garment)
+    for target in ("female_pear", "female_slim_banana"):
+        result = read_obj_vertices(out / f"{label}_on_{target}.obj")
+        expected = transfer_garment(source_body, read_obj(makehuman / "bodies" / f"{target}.obj"),
+                                    cloth).V
+        gap = np.linalg.norm(result - expected, axis=1)
+        assert np.percentile(gap, 99) < 1e-3 and gap.max() < 0.1, (target, gap.max())
+    assert "2 transferred, 4 failed" in proc.stderr
