@@ -40,7 +40,9 @@ def parse_args(argv):
                         help="a garment on the source body (OBJ; repeatable)")
     parser.add_argument("--out", type=Path, required=True, help="folder for the results")
     parser.add_argument("--blend", type=Path, help="also save every body, garment and result here")
-    parser.add_argument("--method", choices=["direct", "model"], default="direct")
+    parser.add_argument("--method", choices=["direct", "model", "surface"], default="direct",
+                        help="direct: the body's own deformation; model: a trained model (--model); "
+                             "surface: baseline, the garment follows the body surface only")
     parser.add_argument("--model", type=Path, help="model file (.npz) for --method model")
     parser.add_argument("--target-label", action="append",
                         help="the model's label of each target body, in order "

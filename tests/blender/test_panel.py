@@ -1,0 +1,57 @@
+"""The Garment tab: registered in the sidebar, and every property and operator it draws exists.
+
+Panels only draw with a window; here each draw function runs on a recording layout instead."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import bpy
+import pytest
+
+
+class RecordingLayout:
+    def __init__(self, calls):
+        self.calls = calls
+
+    def __getattr__(self, name):
+        if name in ("column", "row", "box", "split"):
+            return lambda *a, **k: RecordingLayout(self.calls)
+        return lambda *a, **k: self.calls.append((name, a, k))
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+
+
+PANELS = ("VIEW3D_PT_garment_transfer", "VIEW3D_PT_garment_transfer_evaluation",
+          "VIEW3D_PT_garment_transfer_training", "VIEW3D_PT_garment_transfer_drape")
+
+
+@pytest.mark.parametrize("method", ["DIRECT", "MODEL"])
+def test_panels_draw_existing_properties_and_operators(extension, method):
+    settings = bpy.context.scene.garment_transfer
+    settings.method = method
+    settings.last_metrics = '{"mdc": 0.02, "penetration_ratio": 0.0}'
+    me = bpy.data.meshes.new("g")
+    settings.garment = bpy.data.objects.new("g", me)
+    names = {p.identifier for p in settings.bl_rna.properties}
+    for panel_name in PANELS:
+        panel = getattr(bpy.types, panel_name)
+        assert panel.bl_category == "Garment" and panel.bl_space_type == 'VIEW_3D'
+        calls = []
+        panel.draw(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+        for kind, args, _ in calls:
+            if kind in ("prop", "prop_search") and args[0] == settings:
+                assert args[1] in names, args[1]
+            if kind == "operator":
+                module, op = args[0].split(".")
+                assert hasattr(getattr(bpy.ops, module), op)
+                assert getattr(bpy.types, f"{module.upper()}_OT_{op}", None) is not None, args[0]
+    settings.garment = None
+
+
+def test_operators_have_tooltips_and_undo(extension):
+    for op in ("transfer", "evaluate", "train", "drape"):
+        cls = getattr(bpy.types, f"GARMENT_TRANSFER_OT_{op}")
+        assert {'REGISTER', 'UNDO'} <= set(cls.bl_options)
+        assert cls.__doc__ and len(cls.__doc__.split()) > 8
