@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 
 import bpy
 
@@ -16,6 +17,16 @@ METRIC_LABELS = (
     ("vertex_error_mean", "Vertex error (mean)", "{:.4g}"),
     ("vertex_error_max", "Vertex error (max)", "{:.4g}"),
 )
+
+
+def torch_available():
+    """Whether torch can be imported, without importing it (draw code must stay fast)."""
+    if "torch" in sys.modules:
+        return sys.modules["torch"] is not None
+    try:
+        return importlib.util.find_spec("torch") is not None
+    except (ImportError, ValueError):
+        return False
 
 
 class GarmentPanel:
@@ -99,7 +110,7 @@ class VIEW3D_PT_garment_transfer_training(GarmentPanel, bpy.types.Panel):
         layout.prop(settings, "train_output")
         layout.prop(settings, "train_epochs")
         layout.prop(settings, "train_latent")
-        if importlib.util.find_spec("torch") is None:
+        if not torch_available():
             box = layout.box()
             box.label(text="Training needs PyTorch (not installed)", icon='ERROR')
             box.label(text="pip install torch==2.13.0")

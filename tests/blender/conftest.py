@@ -22,6 +22,13 @@ GARMENT = "female_sportsuit01"
 sys.path.insert(0, str(ROOT / "scripts"))
 
 
+def pytest_collection_modifyitems(config, items):
+    here = Path(__file__).resolve().parent
+    for item in items:
+        if here in Path(item.path).resolve().parents:
+            item.add_marker(pytest.mark.blender)
+
+
 @pytest.fixture(scope="session")
 def extension():
     from extension_loader import load_extension

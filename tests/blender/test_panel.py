@@ -50,6 +50,15 @@ def test_panels_draw_existing_properties_and_operators(extension, method):
     settings.garment = None
 
 
+def test_training_panel_says_when_torch_is_missing(extension, monkeypatch):
+    monkeypatch.setitem(__import__("sys").modules, "torch", None)
+    calls = []
+    bpy.types.VIEW3D_PT_garment_transfer_training.draw(
+        SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    texts = [k.get("text", "") for kind, _, k in calls if kind == "label"]
+    assert "pip install torch==2.13.0" in texts
+
+
 def test_operators_have_tooltips_and_undo(extension):
     for op in ("transfer", "evaluate", "train", "drape"):
         cls = getattr(bpy.types, f"GARMENT_TRANSFER_OT_{op}")
