@@ -14,6 +14,9 @@ from scipy.spatial import cKDTree
 
 from .mesh import triangle_normals
 
+#: Points per batch in closest-point queries (memory stays bounded for any mesh size).
+CHUNK = 65536
+
 
 def closest_on_triangles(P, A, B, C):
     """Closest points of P on triangles ABC, pairwise (Ericson, Real-Time Collision Detection 5.1.5).
@@ -140,6 +143,10 @@ class TriangleSurface:
         bary : (p,3) float64
         """
         P = np.asarray(P, dtype=np.float64)
+        if P.shape[0] > CHUNK:
+            # Bounded memory for huge meshes: the candidate arrays grow with points x k.
+            parts = [self.closest(P[i:i + CHUNK], k, verify) for i in range(0, P.shape[0], CHUNK)]
+            return tuple(np.concatenate(x) for x in zip(*parts))
         p = P.shape[0]
         closest = np.zeros((p, 3))
         dist = np.full(p, np.inf)
