@@ -6,7 +6,7 @@
 Blender bundles numpy but not scipy, so each platform's zip carries that platform's scipy wheel
 (downloaded with pip into build/wheels/, reused on later runs). Torch is not bundled: training asks
 the user to install it. The repository's blender_manifest.toml stays as it is: the wheels and platforms
-are written into a build copy of the sources (build/extension/), which Blender's own extension tool
+are written into a temporary build copy of the sources, which Blender's own extension tool
 (blender_ext.py, shipped inside the bpy module) then validates and builds with --split-platforms.
 """
 
@@ -15,10 +15,12 @@ from __future__ import annotations
 import argparse
 import importlib.metadata
 import importlib.util
+import os
 import platform as host_platform
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,19 +73,22 @@ def download_wheel(package, version, platform, cache):
     if found:
         return found[0]
     folder.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
-           "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION,
-           "--dest", str(folder)]
-    for tag in PLATFORM_TAGS[platform]:
-        cmd += ["--platform", tag]
-    cmd.append(f"{package}=={version}")
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    found = sorted(folder.glob(pattern))
-    if proc.returncode != 0 or not found:
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-        raise BuildError(f"could not download the {package} {version} wheel for {platform} "
-                         f"(pip download needs access to PyPI): " + " | ".join(tail))
-    return found[0]
+    # Download beside the cache and move in when complete: builds running at the same time never
+    # see a partial wheel.
+    with tempfile.TemporaryDirectory(dir=folder, prefix=".download-") as tmp:
+        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
+               "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION, "--dest", tmp]
+        for tag in PLATFORM_TAGS[platform]:
+            cmd += ["--platform", tag]
+        cmd.append(f"{package}=={version}")
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        got = sorted(Path(tmp).glob(pattern))
+        if proc.returncode != 0 or not got:
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+            raise BuildError(f"could not download the {package} {version} wheel for {platform} "
+                             f"(pip download needs access to PyPI): " + " | ".join(tail))
+        os.replace(got[0], folder / got[0].name)
+    return folder / got[0].name
 
 
 def manifest_with_wheels(text, wheels, platforms):
@@ -96,11 +101,8 @@ def manifest_with_wheels(text, wheels, platforms):
 
 
 def stage_sources(stage, wheels, platforms):
-    """Copy the add-on into ``stage`` with the wheels and a manifest that lists them."""
-    if stage.exists():
-        shutil.rmtree(stage)
+    """Copy the add-on into the empty folder ``stage`` with the wheels and a manifest listing them."""
     ignore_top = shutil.ignore_patterns(*NOT_COPIED)
-    stage.mkdir(parents=True)
     for entry in ROOT.iterdir():
         if entry.name in NOT_COPIED:
             continue
@@ -135,13 +137,13 @@ def build(platforms, output_dir, cache, scipy_version=None, log=print):
         wheel = download_wheel("scipy", version, platform, cache)
         log(f"{platform}: {wheel.name}")
         wheels.append(wheel)
-    stage = cache.parent / "extension"
-    stage_sources(stage, wheels, platforms)
-    run_blender_ext(blender_ext, "validate", str(stage))
     output_dir.mkdir(parents=True, exist_ok=True)
     before = {p: p.stat().st_mtime_ns for p in output_dir.glob("*.zip")}
-    run_blender_ext(blender_ext, "build", "--source-dir", str(stage), "--output-dir", str(output_dir),
-                    "--split-platforms")
+    with tempfile.TemporaryDirectory(prefix="garment_transfer_build_") as stage:
+        stage_sources(Path(stage), wheels, platforms)
+        run_blender_ext(blender_ext, "validate", stage)
+        run_blender_ext(blender_ext, "build", "--source-dir", stage, "--output-dir", str(output_dir),
+                        "--split-platforms")
     built = sorted(p for p in output_dir.glob("*.zip") if before.get(p) != p.stat().st_mtime_ns)
     for path in built:
         log(f"built {path} ({path.stat().st_size / 1e6:.1f} MB)")
