@@ -92,7 +92,8 @@ class _Net:
     Parameters
     ----------
     basis : (D,r) tensor
-        Orthonormal basis of the training rows (the encoder's first layer is ``A basis^T``).
+        Orthonormal basis of the training rows (the encoder's first layer is ``input_scale A basis^T``,
+        fed with ``coords = input_scale X basis``).
     D, K, latent : int
     hidden : list of int
     out_bias : (D,) tensor
@@ -100,13 +101,14 @@ class _Net:
     gen : torch.Generator
     """
 
-    def __init__(self, basis, D, K, latent, hidden, out_bias, gen):
+    def __init__(self, basis, D, K, latent, hidden, out_bias, gen, input_scale=1.0):
         import torch
 
+        self.input_scale = input_scale
         enc_sizes = [*hidden, latent]
         dec_sizes = [latent + K, *reversed(hidden), D]
         W0 = _uniform(gen, (enc_sizes[0], D + K), D + K)
-        init = [W0[:, :D] @ basis, W0[:, D:].clone(), _uniform(gen, (enc_sizes[0],), D + K)]
+        init = [W0[:, :D] @ basis / input_scale, W0[:, D:].clone(), _uniform(gen, (enc_sizes[0],), D + K)]
         for i in range(1, len(enc_sizes)):
             fan = enc_sizes[i - 1]
             init += [_uniform(gen, (enc_sizes[i], fan), fan), _uniform(gen, (enc_sizes[i],), fan)]
@@ -224,7 +226,7 @@ class _Net:
         import torch
 
         with torch.no_grad():
-            W0 = torch.cat([self.A @ basis.T, self.Wc], dim=1)
+            W0 = torch.cat([(self.A * self.input_scale) @ basis.T, self.Wc], dim=1)
             enc = [(W0, self.b0)] + list(self.enc)
             arrays = {}
             for i, (W, b) in enumerate(enc):
@@ -382,7 +384,11 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         basis, rr = torch.linalg.qr(X.double().T)
         keep = torch.abs(torch.diagonal(rr)) > 1e-9 * max(float(torch.abs(rr).max()), 1e-300)
         basis = basis[:, keep].float().contiguous()
-        coords = X @ basis
+        # The encoder sees x / sqrt(D): inputs of unit size, so that the encoder's weights and the
+        # decoder's have gradients of like scale (without it SCG and L-BFGS saturate the latent code
+        # in their first steps and stall at the mean field; measured in benchmarks/bench_training.py).
+        input_scale = 1.0 / math.sqrt(D)
+        coords = X @ basis * input_scale
         if masked:
             mask = torch.from_numpy(mask_np.astype(np.float32))
             n_mask = float(mask.sum())
@@ -390,7 +396,7 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         else:
             mask, n_mask = None, float(X.numel())
             out_bias = X.mean(0)
-        net = _Net(basis, D, K, latent, list(hidden), out_bias, gen)
+        net = _Net(basis, D, K, latent, list(hidden), out_bias, gen, input_scale)
         params = net.parameters()
 
         def objective():
