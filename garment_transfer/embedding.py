@@ -18,9 +18,13 @@ def triangle_centroids(V, F):
 
 
 def body_scale(V) -> float:
-    """The largest extent of the bounding box (a body's height): a unit-free length scale."""
+    """The extent along the principal axis (a standing body's height): a unit-free length scale that
+    does not change when the body is moved or rotated."""
     V = np.asarray(V, dtype=np.float64)
-    return float(np.max(V.max(axis=0) - V.min(axis=0)))
+    C = V - V.mean(axis=0)
+    _, _, axes = np.linalg.svd(C[:: max(1, C.shape[0] // 20000)], full_matrices=False)
+    proj = C @ axes[0]
+    return float(proj.max() - proj.min())
 
 
 def default_cover_distance(body_V, cloth_V, cloth_F) -> float:

@@ -94,3 +94,20 @@ def test_makehuman_direct_transfer_average_to_pear_every_garment():
         # The garment moved toward its fitted shape on the pear body: closer than the untransferred one.
         assert e["drape_error_relative"] < 0.5, (name, e)
         assert e["vertex_error_mean"] < 0.06, (name, e)   # 6 mm (the files are in decimetres)
+
+
+def test_result_moves_with_the_scene():
+    # A rigid motion of all three inputs moves the result by the same motion (settings derived from
+    # the body are rotation-invariant).
+    from meshes import random_rotation
+
+    source, target, garment = spheres()
+    R = random_rotation(np.random.default_rng(7))
+    t = np.array([3.0, -2.0, 0.5])
+
+    def moved(m):
+        return m.with_vertices(m.V @ R.T + t)
+
+    a = transfer_garment(source, target, garment, fix_penetration=False)
+    b = transfer_garment(moved(source), moved(target), moved(garment), fix_penetration=False)
+    np.testing.assert_allclose(b.V, a.V @ R.T + t, atol=1e-9)
