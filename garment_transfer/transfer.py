@@ -34,10 +34,11 @@ from .proximity import TriangleSurface
 
 METHODS = ("direct", "model", "surface")
 
-#: Defaults as shares of the body's height (unit-free: metres, decimetres or inches alike).
-OFFSET_SHARE = 0.003          # cloth thickness kept from the skin: ~5 mm on a 1.7 m body
-STIFFNESS_SHARE = 0.05        # shape features longer than this follow the body: ~8.5 cm
-FAR_SHARE = 0.25              # a garment whose median distance to the body exceeds this is misplaced
+#: Defaults as shares of the body scale (embedding.body_scale, about 1.1x the height of a body in
+#: A-pose; unit-free: metres, decimetres or inches alike).
+OFFSET_SHARE = 0.0025         # cloth thickness kept from the skin: ~5 mm on a 1.7 m body
+STIFFNESS_SHARE = 0.04        # shape features longer than this follow the body: ~8 cm
+FAR_SHARE = 0.2               # a garment whose median distance to the body exceeds this is misplaced
 
 
 @dataclass
@@ -101,7 +102,7 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         Interpolate the field over the body at each garment vertex's closest point (True), or
         take the body triangle nearest to each garment triangle (False, the paper).
     stiffness : float, optional
-        Length above which the garment's shape follows the body (default 5% of body height).
+        Length above which the garment's shape follows the body (default 4% of the body scale, about 8 cm on a 1.7 m body).
     need_solver : bool
         False skips the factorisation (for the ``surface`` method).
     """
@@ -161,7 +162,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     model : SharedDeformationModel, optional
         For ``method="model"``, with ``target`` one of ``model.targets``.
     offset : float, optional
-        Smallest distance kept from the target body (default 0.3% of its height).
+        Smallest distance kept from the target body (default 0.25% of its scale, about 5 mm on a 1.7 m body).
     fix_penetration : bool
     interpolate : bool
         Blend nearby body triangles when carrying the field to the garment.
