@@ -100,7 +100,8 @@ def run(epochs, threads, seed, garments, log):
         variants = train_variants(fields, train_names, epochs, threads, seed)
         for key, (_, info) in variants.items():
             trainings.append({"heldout": h, "variant": key, "seconds": info["seconds"],
-                              "final_loss": info["final_loss"], "final_masked_loss": info["final_masked_loss"]})
+                              "final_loss": info["final_loss"],
+                              "final_masked_loss": info["final_masked_loss"]})
         gi = fields.garments.index(h)
         covered = fields.covered[gi]
         m, mu, mh = variants["masked"][0], variants["unmasked"][0], variants["hidden"][0]
@@ -174,7 +175,8 @@ def markdown(res, args, command, seconds):
     L.append("| method | vertex error mm | max mm | MDC | drape error (rel.) | penetration | field RMS |")
     L.append("|---|---|---|---|---|---|---|")
     for m in METHODS:
-        L.append(f"| {m} | {mean_of(rows, m, 'vertex_error_mm'):.2f} | {mean_of(rows, m, 'vertex_error_max_mm'):.1f}"
+        L.append(f"| {m} | {mean_of(rows, m, 'vertex_error_mm'):.2f} | "
+                 f"{mean_of(rows, m, 'vertex_error_max_mm'):.1f}"
                  f" | {mean_of(rows, m, 'mdc'):.4f} | {mean_of(rows, m, 'drape_relative'):.3f} | "
                  f"{100 * mean_of(rows, m, 'penetration'):.2f}% | {mean_of(rows, m, 'field_rms'):.4f} |")
     L.append(f"\nMDC of the fitted ground truth against the source garment (for scale): "

@@ -236,7 +236,7 @@ class _Net:
         return arrays
 
 
-def _samples(dev, active, scale, targets_k):
+def _samples(dev, active, scale):
     """Stack (G,K,M,9) deviations into (G*K, D) normalised rows over the active triangles."""
     G, K = dev.shape[:2]
     X = (dev[:, :, active, :] / scale.astype(np.float32)).reshape(G * K, -1)
@@ -369,7 +369,7 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     if not active.any():
         raise DatasetError(fields.source, "no training garment covers any body triangle")
     scale = normalisation_scale(dev, fields.covered if masked else None)
-    X_np, onehot_np = _samples(dev, active, scale, K)
+    X_np, onehot_np = _samples(dev, active, scale)
     mask_np = np.repeat(np.repeat(fields.covered[:, active], 9, axis=1), K, axis=0) if masked else None
     D = X_np.shape[1]
 
@@ -397,7 +397,6 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
             mask, n_mask = None, float(X.numel())
             out_bias = X.mean(0)
         net = _Net(basis, D, K, latent, list(hidden), out_bias, gen, input_scale)
-        params = net.parameters()
 
         def objective():
             return net.loss_and_grad(coords, onehot, X, mask, n_mask)
@@ -511,7 +510,13 @@ def _optimise(optimizer, net, objective, epochs, lr, on_epoch):
             return loss, net.grad_flat.clone()
 
         w = net.flat.clone()
-        _scg(fg, w, epochs, on_epoch)
+
+        def at_w(ep, loss):
+            # fg leaves the last trial point in the network, which SCG may have rejected
+            net.flat.copy_(w)
+            return on_epoch(ep, loss)
+
+        _scg(fg, w, epochs, at_w)
         net.flat.copy_(w)
 
 
@@ -521,7 +526,7 @@ def _holdout_tensors(holdout, fields, active, scale, masked):
     if list(holdout.targets) != list(fields.targets):
         raise ValueError("held-out fields must have the training targets")
     dev = holdout.deviation
-    Xh, _ = _samples(dev, active, scale, dev.shape[1])
+    Xh, _ = _samples(dev, active, scale)
     mh = np.repeat(np.repeat(holdout.covered[:, active], 9, axis=1), dev.shape[1], axis=0)
     return torch.from_numpy(Xh), torch.from_numpy(mh.astype(np.float32))
 
@@ -597,7 +602,8 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
     garments = [g for g in ds.garments if g not in holdout] if garments is None else list(garments)
     overlap = set(garments) & set(holdout)
     if overlap:
-        raise DatasetError(str(ds.folder), f"garments both trained on and held out: {', '.join(sorted(overlap))}")
+        raise DatasetError(str(ds.folder),
+                           f"garments both trained on and held out: {', '.join(sorted(overlap))}")
     read_progress = None
     if progress is not None:
         def read_progress(f):

@@ -40,7 +40,8 @@ def tiny_garments():
     """Three garments of different topology around a unit sphere."""
     V, F = icosphere(3, radius=1.06)
     z = V[F].mean(axis=1)[:, 2]
-    return {"skirt": piece(V, F, z < -0.2), "top": piece(V, F, z > 0.15), "band": piece(V, F, np.abs(z) < 0.4)}
+    return {"skirt": piece(V, F, z < -0.2), "top": piece(V, F, z > 0.15),
+            "band": piece(V, F, np.abs(z) < 0.4)}
 
 
 def make_tiny_dataset(folder, garments=None, manifest=True):
