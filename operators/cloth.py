@@ -22,10 +22,17 @@ COLLISION_DISTANCE = 0.006
 # A garment must start at least this far outside the body (the solver cannot untangle one inside).
 START_CLEARANCE = 0.010
 PIN_GROUP = "gt_pin"
+# Cloth settings: a light, slightly stretchy fabric, damped by the air so that it settles in a few
+# dozen frames, and sliding over the body (low friction) instead of bunching up as the body grows.
+CLOTH_SETTINGS = {"mass": 0.25, "air_damping": 3.0, "tension_stiffness": 6.0, "compression_stiffness": 6.0,
+                  "shear_stiffness": 4.0, "bending_stiffness": 0.2, "pin_stiffness": 2.0}
+COLLISION_QUALITY = 2
+BODY_FRICTION = 1.0
 
 
 def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), pin_group=None,
-                  frames=30, morph_frames=None, progress=None, report=None, quality=5):
+                  frames=30, morph_frames=None, source_frames=None, progress=None, report=None, quality=5,
+                  cloth_settings=None):
     """Settle a garment on the source body, then follow the body into each target shape.
 
     Parameters
@@ -44,9 +51,12 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
         Garment vertices held in place (waistband, shoulders); pinned vertices follow the body as it
         morphs. None: nothing pinned.
     frames : int
-        Frames to settle on the source body, and again after each morph.
+        Frames to settle after each morph.
     morph_frames : int or None
         Frames over which the body morphs into a target (default: ``frames``).
+    source_frames : int or None
+        Frames to settle on the source body (default: twice ``frames``: the garment starts in its
+        unsettled, made-up shape).
     progress : callable or None
         ``progress(fraction) -> bool``; returning True cancels (raises Cancelled).
     report : list or None
@@ -54,6 +64,8 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
         ``seconds``, ``inside_before`` and ``inside_after`` the penetration fix, ``max_depth``.
     quality : int
         Solver steps per frame.
+    cloth_settings : dict or None
+        Overrides of ``CLOTH_SETTINGS`` (attributes of Blender's ClothSettings).
 
     Returns
     -------
@@ -66,12 +78,15 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
     targets = [_array(t, f"target body {i}") for i, t in enumerate(target_body_Vs)]
     for i, t in enumerate(targets):
         if t.shape != bV.shape:
-            raise MeshError(f"target body {i}", f"has {t.shape[0]} vertices; the source body has {bV.shape[0]}")
+            raise MeshError(f"target body {i}",
+                            f"has {t.shape[0]} vertices; the source body has {bV.shape[0]}")
     polys = [list(map(int, p)) for p in garment_polys]
     pins = np.zeros(0, np.int64) if pin_group is None else np.unique(np.asarray(pin_group, np.int64))
     if pins.size and (pins.min() < 0 or pins.max() >= gV.shape[0]):
         raise MeshError("pin group", f"refers to vertices outside 0..{gV.shape[0] - 1}")
     morph_frames = frames if morph_frames is None else morph_frames
+    source_frames = 2 * frames if source_frames is None else source_frames
+    settings = dict(CLOTH_SETTINGS, **(cloth_settings or {}))
     tri = _triangles(polys)
     runs = 1 + len(targets)
 
@@ -85,13 +100,13 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
     try:
         source_surface = TriangleSurface(bV, bF)
         start, _ = fix_penetration(gV, tri, source_surface, START_CLEARANCE)
-        settled = _simulate(scene, start, polys, pins, bV, bF, None, frames, 0, quality,
-                            step_progress(0), start)
+        settled = _simulate(scene, start, polys, pins, bV, bF, None, source_frames, 0, quality,
+                            settings, step_progress(0), start)
         results = [_finish(settled, tri, source_surface, -1, report)]
         for i, tV in enumerate(targets):
             follow = _pins_following_body(results[0], pins, bV, tV)
             out = _simulate(scene, results[0], polys, pins, bV, bF, tV, frames, morph_frames, quality,
-                            step_progress(1 + i), follow, rest=start)
+                            settings, step_progress(1 + i), follow, rest=start)
             results.append(_finish(out, tri, TriangleSurface(tV, bF), i, report))
         return results
     finally:
@@ -177,8 +192,8 @@ def _animate_key(key_block, frame0, frame1):
     key_block.keyframe_insert("value", frame=frame1)
 
 
-def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quality, progress, follow,
-              rest=None):
+def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quality, settings, progress,
+              follow, rest=None):
     """One cloth run: the garment starts at ``start``; the body morphs from bV to tV (if given)
     over ``morph_frames`` and holds; pinned vertices move from ``start`` to ``follow`` meanwhile."""
     t0 = time.perf_counter()
@@ -195,7 +210,7 @@ def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quali
         del col
         cs = body.collision
         cs.thickness_outer = COLLISION_DISTANCE
-        cs.cloth_friction = 5.0
+        cs.cloth_friction = BODY_FRICTION
         cs.use_culling = True
 
         if rest is not None:
@@ -214,19 +229,16 @@ def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quali
         mod = cloth_ob.modifiers.new("Cloth", 'CLOTH')
         st = mod.settings
         st.quality = quality
-        st.mass = 0.25
-        st.air_damping = 4.0
-        st.tension_stiffness = st.compression_stiffness = 20.0
-        st.shear_stiffness = 10.0
-        st.bending_stiffness = 0.2
+        for key, value in settings.items():
+            setattr(st, key, value)
         if pins.size:
             st.vertex_group_mass = PIN_GROUP
-            st.pin_stiffness = 2.0
         if rest is not None:
             st.rest_shape_key = cloth_ob.data.shape_keys.key_blocks["Basis"]
         cset = mod.collision_settings
         cset.distance_min = COLLISION_DISTANCE
         cset.use_self_collision = False
+        cset.collision_quality = COLLISION_QUALITY
         cache = mod.point_cache
         cache.frame_start = 1
         cache.frame_end = last

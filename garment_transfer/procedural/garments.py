@@ -90,9 +90,7 @@ def _hanging_axes(body: Body, z, z_top):
     # Running maximum from the top down.
     a_run = np.maximum.accumulate(a[::-1])[::-1]
     b_run = np.maximum.accumulate(b[::-1])[::-1]
-    # Below the crotch the thighs, not the torso loft, are the widest part.
-    hip_a, hip_b = a_run, b_run
-    return (np.interp(z, zs, hip_a), np.interp(z, zs, hip_b), np.interp(z, zs, cy))
+    return np.interp(z, zs, a_run), np.interp(z, zs, b_run), np.interp(z, zs, cy)
 
 
 def _ring_grid(n_rows, n_around):
@@ -404,19 +402,19 @@ def _largest_piece(Q, V):
     return remap[Q], V[used]
 
 
-def _boundary_vertices(Q, n):
+def _boundary_edges(Q, n):
+    """(k,2) edges of the quads Q that only one quad uses."""
     e = np.concatenate([Q[:, [0, 1]], Q[:, [1, 2]], Q[:, [2, 3]], Q[:, [3, 0]]])
     key = np.sort(e, axis=1)
     _, inv, cnt = np.unique(key[:, 0] * n + key[:, 1], return_inverse=True, return_counts=True)
-    be = e[cnt[inv] == 1]
-    return be
+    return e[cnt[inv] == 1]
 
 
 def _smooth_boundary(V, Q, iterations=10):
     """Smooth the staircase left by cutting a grid surface: average boundary vertices along the
     boundary loops."""
     V = V.copy()
-    be = _boundary_vertices(Q, V.shape[0])
+    be = _boundary_edges(Q, V.shape[0])
     n = V.shape[0]
     acc_idx = np.concatenate([be[:, 0], be[:, 1]])
     nb_idx = np.concatenate([be[:, 1], be[:, 0]])
@@ -459,7 +457,7 @@ def _catalogue():
                                                detail=_gathers(40, 0.01, start=0.05)),
         "tube_dress": lambda: tube_garment("tube_dress", bust_top, knee + 0.02, 96, 56, ease=0.012,
                                            flare=0.05, follow_body_to=hip, pin_rows=2),
-        "slip_dress": lambda: tube_garment("slip_dress", bust_top, 0.22 * H, 112, 66, ease=0.015,
+        "slip_dress": lambda: tube_garment("slip_dress", bust_top, 0.22 * H, 96, 56, ease=0.015,
                                            flare=0.28, follow_body_to=0.68 * H, pin_rows=2),
         "tank_top": lambda: shell_garment("tank_top", 0.52 * H, sleeve=0.0, ease=0.02),
         "sweater": lambda: shell_garment("sweater", 0.49 * H, sleeve=0.40, ease=0.03, neck=0.08),
@@ -471,7 +469,7 @@ def _catalogue():
         "shift_dress": lambda: shell_garment("shift_dress", knee + 0.03, sleeve=0.0, ease=0.03,
                                              flare=0.10, front_dip=0.05,
                                              detail=wave(12, 0.006, hip)),
-        "formal_dress": lambda: tube_garment("formal_dress", bust_top, 0.06 * H, 144, 80, ease=0.012,
+        "formal_dress": lambda: tube_garment("formal_dress", bust_top, 0.06 * H, 112, 64, ease=0.012,
                                              flare=lambda t: 0.08 * t + 0.3 * np.maximum(t - 0.45, 0),
                                              follow_body_to=waist - 0.05, pin_rows=2,
                                              detail=_sum(_flounce(0.78, 0.12, 22, 0.035),

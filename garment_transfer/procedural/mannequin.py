@@ -12,14 +12,11 @@ Units are metres, Z up, the body stands on z = 0 and faces -Y.
 from __future__ import annotations
 
 import functools
-import logging
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from .sdf import ellipsoid, gradient, round_cone, smooth_min, surface_nets
-
-log = logging.getLogger(__name__)
 
 # Grid spacing of the template polygonisation: about 16K triangles on the banana body.
 TEMPLATE_SPACING = 0.017
