@@ -112,6 +112,16 @@ def cmd_train(args):
 
 
 def cmd_bench(args):
+    if args.report:
+        from .report import run_report
+
+        quick = " --quick" if args.quick else ""
+        command = f"python -m garment_transfer bench --report {args.report}{quick}"
+        out = run_report(args.report, quick=args.quick, progress=_stderr_progress("report"), command=command)
+        _emit(args, {"report": os.path.join(args.report, "report.md"), "seconds": out["seconds"]},
+              [f"wrote {os.path.join(args.report, 'report.md')}, report.json and "
+               f"{', '.join(out['plots'])} in {out['seconds']['total']:.0f} s"])
+        return
     from .bench import run_bench
 
     out = run_bench(sizes=args.sizes, repeats=args.repeats, targets=args.targets,
@@ -179,6 +189,10 @@ def build_parser():
                    default=[28000, 46000, 84000, 156000], help="garment triangle counts")
     b.add_argument("--repeats", type=int, default=3, help="runs per size (the best is kept)")
     b.add_argument("--targets", type=int, default=6, help="bodies in the multi-target run")
+    b.add_argument("--report", metavar="DIR",
+                   help="instead, the whole benchmark report (quality of every method on the demo data and "
+                        "the MakeHuman fixtures, speed to 300K triangles, memory, training) into DIR")
+    b.add_argument("--quick", action="store_true", help="with --report: tiny sizes and epochs (a smoke test)")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_bench)
 

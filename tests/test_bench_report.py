@@ -1,0 +1,77 @@
+"""The benchmark report in its quick form: every file written, every section in the JSON.
+
+Times are not asserted (the machine is shared); the figures of a quick run mean nothing.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from garment_transfer.bench import makehuman_folder
+from garment_transfer.report import METHODS, PAPER_TABLE1, peak_rss_mb
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_quick_report(tmp_path):
+    out = tmp_path / "report"
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "bench", "--report", str(out), "--quick",
+                        "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["report"].endswith("report.md")
+    for name in ("report.md", "report.json", "speed.png", "training.png"):
+        assert (out / name).is_file(), name
+    rep = json.loads((out / "report.json").read_text())
+    assert {"date", "machine", "command", "settings", "paper", "quality", "speed", "memory", "training",
+            "seconds", "plots"} <= set(rep)
+    assert rep["settings"]["quick"] is True
+    assert {"cpu", "cores", "load_average_start", "load_average_end"} <= set(rep["machine"])
+    assert rep["paper"]["table1"] == PAPER_TABLE1
+
+    assert set(rep["quality"]) == {"demo", "makehuman"}
+    ran = [res for res in rep["quality"].values() if "skipped" not in res]
+    if makehuman_folder() is not None:
+        assert "skipped" not in rep["quality"]["makehuman"]
+    for res in ran:
+        assert {"rows", "summary", "trainings", "worse_than_ours", "surface_deform", "folds"} <= set(res)
+        methods = {r["method"] for r in res["rows"]}
+        assert {"ours", "paper", "direct", res["reference"]} <= methods
+        assert methods <= {k for k, _ in METHODS} | {res["reference"]}
+        for m, s in res["summary"].items():
+            assert {"pairs", "mdc", "penetration_ratio", "max_penetration_depth", "drape_error",
+                    "drape_error_relative", "vertex_error_mean", "seconds"} <= set(s), m
+        assert res["summary"]["ours"]["penetration_ratio"] == 0.0
+        assert {t["variant"] for t in res["trainings"]} == {"ours", "paper"}
+        assert all(t["curve"] for t in res["trainings"])
+    if ran:
+        assert (out / "quality.png").is_file()
+
+    sizes = rep["speed"]["sizes"]
+    assert len(sizes) == len(rep["settings"]["sizes"])
+    for r in sizes:
+        assert {"field", "bind", "factor", "solve", "fix", "wall"} <= set(r["cold"])
+        assert "wall" in r["reused"]
+    assert rep["speed"]["multi_target"]["per_target_seconds"]
+    assert [m["triangles"] > 0 and m["peak_rss_mb"] >= m["rss_before_mb"] > 0 for m in rep["memory"]] == \
+        [True] * len(rep["settings"]["memory_sizes"])
+    tr = rep["training"]
+    if "skipped" not in tr:
+        assert tr["body_triangles"] == 37744 and tr["garments"] == 15
+        assert len(tr["curve"]) == tr["epochs"] == rep["settings"]["scale_epochs"]
+    md = (out / "report.md").read_text()
+    for heading in ("## Quality", "## Speed and scale", "### Peak memory", "## Training"):
+        assert heading in md
+
+
+def test_peak_rss_is_the_child_own():
+    # A small process started from a big one reports its own peak, not its parent's size.
+    big = np.ones(400 * 2 ** 20 // 8)
+    assert peak_rss_mb() > 400
+    code = "from garment_transfer.report import peak_rss_mb; print(peak_rss_mb())"
+    p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    assert 0 < float(p.stdout) < 300
+    del big
