@@ -155,7 +155,8 @@ def build_parser():
     t.add_argument("--model", help="model file (.npz) for --method model")
     t.add_argument("--target", help="the model's target label for --method model")
     t.add_argument("--offset", type=float, default=None,
-                   help="distance kept from the body, in the files' units (default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
+                   help="distance kept from the body, in the files' units "
+                        "(default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
     t.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")

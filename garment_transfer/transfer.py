@@ -102,7 +102,8 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         Interpolate the field over the body at each garment vertex's closest point (True), or
         take the body triangle nearest to each garment triangle (False, the paper).
     stiffness : float, optional
-        Length above which the garment's shape follows the body (default 4% of the body scale, about 8 cm on a 1.7 m body).
+        Length above which the garment's shape follows the body (default 4% of the body scale,
+        about 8 cm on a 1.7 m body).
     need_solver : bool
         False skips the factorisation (for the ``surface`` method).
     """

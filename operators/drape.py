@@ -7,7 +7,7 @@ import time
 import bpy
 
 from . import convert
-from .reporting import missing_choice_message, report_failure, window_progress
+from .reporting import poll_objects, report_failure, window_progress
 
 
 def draped_name(garment, target_body):
@@ -86,19 +86,9 @@ class GARMENT_TRANSFER_OT_drape(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        settings = getattr(context.scene, "garment_transfer", None)
-        if settings is None:
-            return False
-        message = missing_choice_message((("the source body", settings.source_body),
-                                                  ("the target body", settings.target_body),
-                                                  ("the garment", settings.garment)))
-        if message:
-            cls.poll_message_set(message)
-            return False
-        if context.mode != 'OBJECT':
-            cls.poll_message_set("Switch to Object Mode first")
-            return False
-        return True
+        return poll_objects(cls, context, lambda s: (("the source body", s.source_body),
+                                                     ("the target body", s.target_body),
+                                                     ("the garment", s.garment)))
 
     def execute(self, context):
         settings = context.scene.garment_transfer

@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 
 from . import convert
-from .reporting import missing_choice_message, length_text, report_failure
+from .reporting import length_text, poll_objects, report_failure
 from .transfer import format_metrics
 
 HEATMAP_ATTRIBUTE = "moved_distance"
@@ -81,19 +81,9 @@ class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        settings = getattr(context.scene, "garment_transfer", None)
-        if settings is None:
-            return False
-        message = missing_choice_message((("the result", settings.result),
-                                                  ("the garment it came from", settings.garment),
-                                                  ("the target body", settings.target_body)))
-        if message:
-            cls.poll_message_set(message)
-            return False
-        if context.mode != 'OBJECT':
-            cls.poll_message_set("Switch to Object Mode first")
-            return False
-        return True
+        return poll_objects(cls, context, lambda s: (("the result", s.result),
+                                                     ("the garment it came from", s.garment),
+                                                     ("the target body", s.target_body)))
 
     def execute(self, context):
         settings = context.scene.garment_transfer

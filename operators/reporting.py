@@ -59,3 +59,20 @@ def missing_choice_message(choices):
         return None
     text = missing[0] if len(missing) == 1 else ", ".join(missing[:-1]) + " and " + missing[-1]
     return f"Choose {text} in the Garment tab"
+
+
+def poll_objects(cls, context, choices):
+    """Shared poll of the operators that work on chosen objects: every object of ``choices(settings)``
+    (label, object pairs) chosen and Object Mode; otherwise False with a poll message saying what is
+    missing."""
+    settings = getattr(context.scene, "garment_transfer", None)
+    if settings is None:
+        return False
+    message = missing_choice_message(choices(settings))
+    if message:
+        cls.poll_message_set(message)
+        return False
+    if context.mode != 'OBJECT':
+        cls.poll_message_set("Switch to Object Mode first")
+        return False
+    return True

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import convert
 from .models import load_model_cached
-from .reporting import missing_choice_message, length_text, report_failure, window_progress
+from .reporting import length_text, poll_objects, report_failure, window_progress
 
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
@@ -102,20 +102,12 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        settings = getattr(context.scene, "garment_transfer", None)
-        if settings is None:
+        if not poll_objects(cls, context, lambda s: (("the source body", s.source_body),
+                                                     ("the target body", s.target_body),
+                                                     ("the garment", s.garment))):
             return False
-        message = missing_choice_message((("the source body", settings.source_body),
-                                                  ("the target body", settings.target_body),
-                                                  ("the garment", settings.garment)))
-        if message:
-            cls.poll_message_set(message)
-            return False
-        if settings.method == 'MODEL' and not settings.model_path:
+        if context.scene.garment_transfer.method == 'MODEL' and not context.scene.garment_transfer.model_path:
             cls.poll_message_set("Choose a model file, or use the Direct method")
-            return False
-        if context.mode != 'OBJECT':
-            cls.poll_message_set("Switch to Object Mode first")
             return False
         return True
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -246,4 +247,9 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # The bpy 4.5 module can hang in its own exit handler (a thread that closes files late waits
+    # forever); everything is written by now, so leave without running exit handlers.
+    os._exit(code)

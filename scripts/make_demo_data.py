@@ -24,7 +24,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-import numpy as np  # noqa: E402
 
 from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
 from garment_transfer.obj import write_text_atomic  # noqa: E402

@@ -28,14 +28,16 @@ def makehuman_pair(tmp_path):
 def test_transfer_and_evaluate_json(tmp_path, makehuman_pair):
     src, tgt, garment, ref = makehuman_pair
     out = tmp_path / "result.obj"
-    p = run("transfer", "--source-body", src, "--target-body", tgt, "--garment", garment, "--out", out, "--json")
+    p = run("transfer", "--source-body", src, "--target-body", tgt, "--garment", garment, "--out", out,
+            "--json")
     assert p.returncode == 0, p.stderr
     data = json.loads(p.stdout)
     assert data["penetrating_vertices"] == 0
     assert {"total", "field", "solve", "fix"} <= set(data["seconds"])
     result = read_obj(out)
     require_same_topology(read_obj(garment), result)    # the garment's own faces
-    p = run("evaluate", "--source", garment, "--result", out, "--target-body", tgt, "--reference", ref, "--json")
+    p = run("evaluate", "--source", garment, "--result", out, "--target-body", tgt, "--reference", ref,
+            "--json")
     assert p.returncode == 0, p.stderr
     ev = json.loads(p.stdout)
     for key in ("mdc", "penetration_ratio", "max_penetration_depth", "drape_error", "drape_error_relative",

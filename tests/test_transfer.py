@@ -8,7 +8,7 @@ from garment_transfer.metrics import evaluate
 from garment_transfer.obj import read_obj
 from garment_transfer.proximity import TriangleSurface
 from garment_transfer.transfer import prepare_garment, transfer_garment
-from meshes import grid, icosphere, require_makehuman
+from meshes import icosphere, require_makehuman
 from garment_transfer.mesh import mesh_from_triangles
 
 
@@ -103,7 +103,8 @@ def test_result_moves_with_the_scene():
 
     source, target, garment = spheres()
     # Jittered, so that no garment vertex lies exactly over a body vertex (a tie between triangles).
-    garment = garment.with_vertices(garment.V + np.random.default_rng(8).normal(scale=1e-3, size=garment.V.shape))
+    jitter = np.random.default_rng(8).normal(scale=1e-3, size=garment.V.shape)
+    garment = garment.with_vertices(garment.V + jitter)
     R = random_rotation(np.random.default_rng(7))
     t = np.array([3.0, -2.0, 0.5])
 

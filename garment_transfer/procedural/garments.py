@@ -247,7 +247,7 @@ def trousers_garment(name, z_top, z_hem, n_around=64, rows_top=10, rows_leg=30, 
             first = first[::-1]
         V_all = np.concatenate(V)
         P0 = V_all[first]
-        hip_j, knee = leg[0][0], leg[0][1]
+        hip_j = leg[0][0]
         centre0 = np.array([hip_j[0], hip_j[1], z_crotch])
         ang = np.arctan2(P0[:, 1] - centre0[1], P0[:, 0] - centre0[0])
         k = first.shape[0]

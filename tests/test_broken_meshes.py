@@ -42,7 +42,8 @@ def test_zero_area_needle_duplicate_and_loose(bodies):
     src, tgt = bodies
     V, F = skirt()
     n = V.shape[0]
-    V2 = np.vstack([V, V[:3], [[0, 0, 0.2]], [[2, 0, 0]]])     # duplicates, a loose vertex inside, one outside
+    # Duplicates, a loose vertex inside the body and one outside.
+    V2 = np.vstack([V, V[:3], [[0, 0, 0.2]], [[2, 0, 0]]])
     F2 = np.vstack([F, [[0, 0, 1]], [[0, 1, 1]], [[n, n + 1, n + 2]],       # zero-area faces
                     [[F[0, 0], F[0, 1], F[0, 1]]]])
     needle = V2[F[1]].copy()
