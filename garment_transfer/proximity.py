@@ -9,6 +9,9 @@ winding number that a hole would spoil.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -16,6 +19,9 @@ from .mesh import triangle_normals
 
 #: Points per batch in closest-point queries (memory stays bounded for any mesh size).
 CHUNK = 65536
+#: Batches run at once, and the smallest batch worth a thread of its own.
+THREADS = max(1, min(4, os.cpu_count() or 1))
+MIN_BATCH = 4096
 
 
 def closest_on_triangles(P, A, B, C):
@@ -143,10 +149,17 @@ class TriangleSurface:
         bary : (p,3) float64
         """
         P = np.asarray(P, dtype=np.float64)
-        if P.shape[0] > CHUNK:
-            # Bounded memory for huge meshes: the candidate arrays grow with points x k.
-            parts = [self.closest(P[i:i + CHUNK], k, verify) for i in range(0, P.shape[0], CHUNK)]
+        if P.shape[0] >= 2 * MIN_BATCH:
+            # Batches bound the memory (the candidate arrays grow with points x k) and run on all
+            # cores: the tree queries and the large array operations release the GIL.
+            size = min(CHUNK, -(-P.shape[0] // THREADS))
+            batches = [P[i:i + size] for i in range(0, P.shape[0], size)]
+            with ThreadPoolExecutor(THREADS) as pool:
+                parts = list(pool.map(lambda b: self._closest(b, k, verify), batches))
             return tuple(np.concatenate(x) for x in zip(*parts))
+        return self._closest(P, k, verify)
+
+    def _closest(self, P, k, verify):
         p = P.shape[0]
         closest = np.zeros((p, 3))
         dist = np.full(p, np.inf)
@@ -156,7 +169,7 @@ class TriangleSurface:
         m = self.F.shape[0]
         while todo.size:
             kk = min(k, m)
-            dc, cand = self.tree.query(P[todo], k=kk, workers=-1)
+            dc, cand = self.tree.query(P[todo], k=kk)
             dc, cand = dc.reshape(todo.size, kk), cand.reshape(todo.size, kk)
             first = min(4, kk)
             self._best_of_dense(P, todo, cand[:, :first], closest, dist, tri, bary)
