@@ -17,11 +17,9 @@ from scipy.spatial import cKDTree
 
 from .mesh import triangle_normals
 
-#: Points per batch in closest-point queries (memory stays bounded for any mesh size).
-CHUNK = 65536
-#: Batches run at once, and the smallest batch worth a thread of its own.
+#: Points per batch in closest-point queries, and batches run at once.
+BATCH = 4096
 THREADS = max(1, min(4, os.cpu_count() or 1))
-MIN_BATCH = 4096
 
 
 def closest_on_triangles(P, A, B, C):
@@ -94,8 +92,8 @@ class TriangleSurface:
         self.F = np.asarray(F, dtype=np.int64)
         corners = self.V[self.F]
         self.centroids = corners.mean(axis=1)
-        self.radii = np.max(np.linalg.norm(corners - self.centroids[:, None], axis=2), axis=1)
-        self.radius = float(self.radii.max()) if self.radii.size else 0.0
+        radii = np.max(np.linalg.norm(corners - self.centroids[:, None], axis=2), axis=1)
+        self.radius = float(radii.max()) if radii.size else 0.0
         self.tree = cKDTree(self.centroids)
         self.face_normals, self.areas = triangle_normals(self.V, self.F)
         self.vertex_normals = self._vertex_pseudonormals()
@@ -129,11 +127,9 @@ class TriangleSurface:
     def closest(self, P, k=16, verify=False):
         """Closest points of P on the surface.
 
-        Candidates are the k triangles with the nearest centroids; a candidate is evaluated only
-        if it could beat the best of the first few (its centroid distance minus its radius is
-        smaller). On the bodies and garments here, k=16 finds the same triangles as a search over
-        128 (the tests check against brute force); ``verify=True`` proves every answer and searches
-        wider where it cannot.
+        Candidates are the k triangles with the nearest centroids. On the bodies and garments here,
+        k=16 finds the same triangles as a search over 128 (the tests check against brute force);
+        ``verify=True`` proves every answer and searches wider where it cannot.
 
         Parameters
         ----------
@@ -149,15 +145,16 @@ class TriangleSurface:
         bary : (p,3) float64
         """
         P = np.asarray(P, dtype=np.float64)
-        if P.shape[0] >= 2 * MIN_BATCH:
-            # Batches bound the memory (the candidate arrays grow with points x k) and run on all
-            # cores: the tree queries and the large array operations release the GIL.
-            size = min(CHUNK, -(-P.shape[0] // THREADS))
-            batches = [P[i:i + size] for i in range(0, P.shape[0], size)]
+        # Small batches keep the candidate arrays in cache (measured 4.5x faster than one batch of
+        # 78K points) and bound the memory for any mesh size; batches run on all cores, as the tree
+        # queries and large array operations release the GIL.
+        batches = [P[i:i + BATCH] for i in range(0, P.shape[0], BATCH)] or [P]
+        if len(batches) == 1 or THREADS == 1:
+            parts = [self._closest(b, k, verify) for b in batches]
+        else:
             with ThreadPoolExecutor(THREADS) as pool:
                 parts = list(pool.map(lambda b: self._closest(b, k, verify), batches))
-            return tuple(np.concatenate(x) for x in zip(*parts))
-        return self._closest(P, k, verify)
+        return tuple(np.concatenate(x) for x in zip(*parts))
 
     def _closest(self, P, k, verify):
         p = P.shape[0]
@@ -171,12 +168,7 @@ class TriangleSurface:
             kk = min(k, m)
             dc, cand = self.tree.query(P[todo], k=kk)
             dc, cand = dc.reshape(todo.size, kk), cand.reshape(todo.size, kk)
-            first = min(4, kk)
-            self._best_of_dense(P, todo, cand[:, :first], closest, dist, tri, bary)
-            if kk > first:
-                lower = dc[:, first:] - self.radii[cand[:, first:]]
-                r, c = np.nonzero(lower < dist[todo][:, None])
-                self._best_of(P, todo, r, cand[:, first:][r, c], closest, dist, tri, bary)
+            self._best_of(P, todo, cand, closest, dist, tri, bary)
             if not verify or kk == m:
                 break
             # Any triangle closer than the best found has its centroid within best + radius of P.
@@ -184,8 +176,8 @@ class TriangleSurface:
             k *= 4
         return closest, dist, tri, bary
 
-    def _best_of_dense(self, P, todo, cand, closest, dist, tri, bary):
-        """Evaluate ``cand[i, :]`` for point ``todo[i]``; keep improvements."""
+    def _best_of(self, P, todo, cand, closest, dist, tri, bary):
+        """Evaluate triangles ``cand[i, :]`` for point ``todo[i]``; keep improvements."""
         kk = cand.shape[1]
         T = cand.reshape(-1)
         Pr = np.repeat(P[todo], kk, axis=0)
@@ -201,26 +193,6 @@ class TriangleSurface:
         dist[r] = dj[better]
         tri[r] = T[sel]
         bary[r] = B[sel]
-
-    def _best_of(self, P, todo, rows, tris, closest, dist, tri, bary):
-        """Evaluate candidate pairs (point ``todo[rows[i]]``, triangle ``tris[i]``); keep improvements."""
-        if rows.size == 0:
-            return
-        pts = todo[rows]
-        c = self.V[self.F[tris]]
-        Q, B = closest_on_triangles(P[pts], c[:, 0], c[:, 1], c[:, 2])
-        d = np.linalg.norm(P[pts] - Q, axis=1)
-        order = np.lexsort((d, pts))
-        keep = np.ones(order.size, bool)
-        keep[1:] = pts[order[1:]] != pts[order[:-1]]
-        best = order[keep]
-        winner = pts[best]
-        better = d[best] < dist[winner]
-        best, winner = best[better], winner[better]
-        closest[winner] = Q[best]
-        dist[winner] = d[best]
-        tri[winner] = tris[best]
-        bary[winner] = B[best]
 
     def normals_at(self, tri, bary):
         """Pseudonormals at surface points given by triangle and barycentric coordinates.

@@ -137,8 +137,7 @@ def test_closest_in_chunks_equals_one_batch(monkeypatch):
     V, F = icosphere(2)
     P = np.random.default_rng(5).normal(size=(1000, 3))
     whole = TriangleSurface(V, F).closest(P)
-    monkeypatch.setattr(proximity, "CHUNK", 128)
-    monkeypatch.setattr(proximity, "MIN_BATCH", 64)
+    monkeypatch.setattr(proximity, "BATCH", 128)
     parts = TriangleSurface(V, F).closest(P)
     for a, b in zip(whole, parts):
         np.testing.assert_array_equal(a, b)
