@@ -261,6 +261,10 @@ class TrainingFields:
     source : str
     body : Mesh
         The source body.
+    units, up_axis : str or None
+        As the dataset's manifest states them.
+    cover_distance : float or None
+        The coverage distance used (None: ``embedding.default_cover_distance`` per garment).
     """
 
     deviation: np.ndarray
@@ -273,6 +277,7 @@ class TrainingFields:
     raw_deviation: np.ndarray | None = None
     units: str | None = None
     up_axis: str | None = None
+    cover_distance: float | None = None
 
     def select(self, garments) -> "TrainingFields":
         """The same fields restricted to some garments (in the given order)."""
@@ -280,7 +285,7 @@ class TrainingFields:
         raw = None if self.raw_deviation is None else self.raw_deviation[idx]
         return TrainingFields(self.deviation[idx], self.covered[idx], self.body_deviation,
                               list(garments), self.targets, self.source, self.body, raw,
-                              self.units, self.up_axis)
+                              self.units, self.up_axis, self.cover_distance)
 
 
 def build_training_fields(dataset, source, targets, garments=None, cover_distance=None,
@@ -359,4 +364,4 @@ def build_training_fields(dataset, source, targets, garments=None, cover_distanc
                 raise Cancelled("reading the dataset was cancelled")
         log.info("garment %s: %d of %d body triangles covered", name, int(covered[g].sum()), M)
     return TrainingFields(dev, covered, body_dev, garments, targets, source, body, raw,
-                          ds.units, ds.up_axis)
+                          ds.units, ds.up_axis, cover_distance)

@@ -450,7 +450,8 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     settings = {"garments": list(fields.garments), "epochs": int(epochs), "epochs_run": stopped["epochs"],
                 "optimizer": optimizer, "lr": lr, "seed": int(seed), "masked": bool(masked),
                 "hidden": [int(h) for h in hidden], "threads": threads, "seconds": round(seconds, 3),
-                "holdout": [] if holdout is None else list(holdout.garments), "patience": int(patience)}
+                "holdout": [] if holdout is None else list(holdout.garments), "patience": int(patience),
+                "cover_distance": getattr(fields, "cover_distance", None)}
     losses = {"final": final, "final_masked": final_masked,
               "best_validation": None if best["state"] is None else best["loss"],
               "best_validation_epoch": None if best["state"] is None else best["epoch"]}
