@@ -24,7 +24,7 @@ the predicted and the held-out garment's own deformation gradients over the body
 Usage::
 
     nice .venv/bin/python benchmarks/heldout_makehuman.py [--epochs 500] [--threads 1]
-        [--out docs/results_makehuman.md] [--json results.json] [--garments g1,g2] [--quick]
+        [--out results.md] [--json results.json] [--garments g1,g2]
 """
 
 from __future__ import annotations
