@@ -42,7 +42,7 @@ def _stderr_progress(label):
     def progress(fraction, *info):
         if fraction - state["last"] >= 0.05 or fraction >= 1.0:
             state["last"] = fraction
-            extra = " ".join(f"{v:.5g}" if isinstance(v, float) else str(v) for v in info)
+            extra = " ".join(f"{v:.5g}" if isinstance(v, float) else str(v) for v in info if v is not None)
             print(f"{label}: {100 * fraction:5.1f}% {extra}", file=sys.stderr, flush=True)
         return False
 
