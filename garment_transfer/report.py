@@ -30,6 +30,7 @@ import importlib.util
 import json
 import logging
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -301,7 +302,7 @@ def quality(folder, source, targets, folds, epochs, reference_kind, sim_seconds=
                                   "threads": info["threads"], "final_loss": info["final_loss"],
                                   "final_masked_loss": info["final_masked_loss"],
                                   "active_triangles": info["active_triangles"],
-                                  "samples": info["samples"], "curve": _thin(curve)})
+                                  "samples": info["samples"], "curve": _thin(curve, 100)})
             step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
             for g in test:
                 garment = ds.garment(g, source)
@@ -657,10 +658,20 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
     from .obj import write_text_atomic
 
     write_text_atomic(out / "report.md", format_report(report))
-    write_text_atomic(out / "report.json", json.dumps(_rounded(report), indent=1, default=_plain) + "\n")
+    write_text_atomic(out / "report.json", _json_text(report))
     if progress:
         progress(1.0, "done")
     return report
+
+
+_NUMBER_LIST = re.compile(r"\[\s*(-?[\d.eE+-]+(?:,\s*-?[\d.eE+-]+)*)\s*\]")
+
+
+def _json_text(report):
+    """report.json: indented, floats to 5 significant digits, lists of numbers on one line."""
+    text = json.dumps(_rounded(report), indent=1, default=_plain)
+    return _NUMBER_LIST.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]",
+                            text) + "\n"
 
 
 def _rounded(x, digits=5):
@@ -1012,8 +1023,9 @@ def format_report(report) -> str:
                   f"({tr['active_triangles']} covered, in the network), {tr['garments']} garments, "
                   f"latent {tr['latent']}, "
                   f"{tr['epochs']} epochs of {tr['optimizer']} ({'masked' if tr['masked'] else 'unmasked'} "
-                  f"loss, {tr['threads']} threads), on {tr['data']}: **{tr['seconds']:.1f} s** with the "
-                  f"set-up ({_f(tr['ms_per_epoch'], '.0f')} ms per epoch after it). Paper, published: about "
+                  f"loss, torch threads: {tr['threads']}), on {tr['data']}: **{tr['seconds']:.1f} s** "
+                  f"with the set-up ({_f(tr['ms_per_epoch'], '.0f')} ms per epoch after it). Paper, "
+                  "published: about "
                   f"{PAPER_TRAINING['seconds'] / 60:.0f} minutes for {PAPER_TRAINING['epochs']} epochs of "
                   f"scaled conjugate gradient (laptop with an RTX 2070), "
                   f"{tr['paper_ms_per_epoch']:.0f} ms per epoch"
