@@ -36,11 +36,11 @@ def _jsonable(x):
     raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
-def _stderr_progress(label):
+def _stderr_progress(label, every=0.05):
     state = {"last": -1.0}
 
     def progress(fraction, *info):
-        if fraction - state["last"] >= 0.05 or fraction >= 1.0:
+        if fraction - state["last"] >= every or fraction >= 1.0:
             state["last"] = fraction
             extra = " ".join(f"{v:.5g}" if isinstance(v, float) else str(v) for v in info if v is not None)
             print(f"{label}: {100 * fraction:5.1f}% {extra}", file=sys.stderr, flush=True)
@@ -134,7 +134,7 @@ def cmd_bench(args):
 def cmd_demo(args):
     from .demo import run_demo
 
-    out = run_demo(args.out, quick=args.quick, progress=_stderr_progress("demo"))
+    out = run_demo(args.out, quick=args.quick, progress=_stderr_progress("demo", every=0.0))
     _emit(args, out, [f"results in {args.out}"] + out.get("summary_lines", []))
 
 

@@ -147,6 +147,12 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
     if render:
         step(0.92, "rendering with Blender (Cycles, CPU)")
         seconds["render"] = render_results(out)
+        pictures = sorted((out / "renders").glob("*.png"))
+        report += "\n## Pictures\n\n" + "".join(
+            f"![{p.stem}](renders/{p.name})\n\n" for p in pictures) + (
+            f"The scene with every garment and body: `demo.blend`. Rendered with Cycles (CPU) in "
+            f"{seconds['render']:.0f} s.\n")
+        write_text_atomic(out / "report.md", report)
     seconds["total"] = time.perf_counter() - t_start
     write_text_atomic(out / "results.json", json.dumps(summary, indent=1, default=_plain))
     step(1.0, "done")
