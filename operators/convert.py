@@ -149,9 +149,36 @@ def _result_mesh_data(garment, depsgraph, evaluated):
     return garment.data.copy()
 
 
-def new_result_object(garment, V_world, name, depsgraph, evaluated=True, scene=None):
+def layer_collections_shown(view_layer):
+    """The collections whose objects are in ``view_layer`` (not excluded, nor under an excluded one)."""
+    shown = set()
+    stack = [view_layer.layer_collection]
+    while stack:
+        layer = stack.pop()
+        if not layer.exclude:
+            shown.add(layer.collection)
+            stack.extend(layer.children)
+    return shown
+
+
+def result_collections(garment, scene, view_layer=None):
+    """Where a result made from ``garment`` goes: the garment's collections that can take a new object
+    (neither linked from a library nor a library override) and, given ``view_layer``, are in it; else
+    the scene's own collection.
+
+    A garment in a linked collection, an excluded one or another scene's would otherwise give a result
+    that cannot be made (linked data is read-only) or that is not in the view layer to be selected.
+    """
+    shown = layer_collections_shown(view_layer) if view_layer is not None else None
+    collections = [c for c in garment.users_collection
+                   if c.library is None and c.override_library is None
+                   and (shown is None or c in shown)]
+    return collections or ([scene.collection] if scene is not None else [])
+
+
+def new_result_object(garment, V_world, name, depsgraph, evaluated=True, scene=None, view_layer=None):
     """A new object with the garment's faces, UVs, materials, seams, sharp edges and vertex groups
-    at new world-space positions, linked into the garment's collections.
+    at new world-space positions, linked into the garment's collections (see result_collections).
 
     The result keeps the garment's transform (without its parent), and drops what would move it
     again: animation, constraints, shape keys, and modifiers (all of them when ``evaluated``, since
@@ -165,7 +192,9 @@ def new_result_object(garment, V_world, name, depsgraph, evaluated=True, scene=N
     name : str
         Name of the new object and its mesh (Blender adds a suffix when taken).
     scene : bpy.types.Scene, optional
-        Where to link the result when the garment is in no collection.
+        Where to link the result when none of the garment's collections can take it.
+    view_layer : bpy.types.ViewLayer, optional
+        The result is linked only into collections in this view layer.
 
     Returns
     -------
@@ -192,8 +221,7 @@ def new_result_object(garment, V_world, name, depsgraph, evaluated=True, scene=N
             if evaluated or mod.type not in REFINING_MODIFIERS:
                 result.modifiers.remove(mod)
         write_positions(me, local_from_world(V_world, M, garment.name))
-        collections = list(garment.users_collection) or ([scene.collection] if scene else [])
-        for coll in collections:
+        for coll in result_collections(garment, scene, view_layer):
             coll.objects.link(result)
         return result
     except BaseException:

@@ -73,7 +73,8 @@ def drape_objects(context, source_body, target_body, garment, *, frames=40, pin_
     shapes = drape_garment(cloth.V, cloth.polygons(), source.V, source.F, target_body_Vs=[target.V],
                            pin_group=pins, frames=frames, progress=progress, report=report)
     return convert.new_result_object(garment, shapes[-1], draped_name(garment, target_body),
-                                     depsgraph, evaluated, scene=context.scene)
+                                     depsgraph, evaluated, scene=context.scene,
+                                     view_layer=context.view_layer)
 
 
 class GARMENT_TRANSFER_OT_drape(bpy.types.Operator):

@@ -37,7 +37,8 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
     metrics : dict
         The core's ``evaluate`` (MDC, penetration, drape and vertex errors).
     heatmap : dict
-        ``written`` (bool), ``scale`` (value shown in full red), ``max``.
+        ``written`` (bool), ``scale`` (value shown in full red), ``max``, and ``reason`` why it was
+        not written (None when it was).
     """
     from ..garment_transfer.errors import MeshError
     from ..garment_transfer.metrics import evaluate, per_vertex_change
@@ -62,13 +63,28 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
     change = np.asarray(per_vertex_change(source.V, result.V), dtype=np.float64)
     scale = float(np.percentile(change, 99)) if change.size else 0.0
     scale = scale if scale > 0 else 1.0
-    heatmap = {"written": False, "scale": scale, "max": float(change.max(initial=0.0))}
-    me = result_obj.data
-    if len(me.vertices) == change.shape[0]:
+    heatmap = {"written": False, "scale": scale, "max": float(change.max(initial=0.0)),
+               "reason": heatmap_refusal(result_obj, change.shape[0])}
+    if heatmap["reason"] is None:
+        me = result_obj.data
         convert.write_vertex_colors(me, heatmap_colors(change, scale), HEATMAP_ATTRIBUTE)
         convert.write_float_attribute(me, change, HEATMAP_ATTRIBUTE + "_value")
         heatmap["written"] = True
     return metrics, heatmap
+
+
+def heatmap_refusal(result_obj, n_values):
+    """Why the heatmap of ``n_values`` per-vertex values cannot be written on ``result_obj``'s mesh,
+    or None when it can."""
+    me = result_obj.data
+    if me.library is not None:
+        # Linked data is read-only (Python could still write it, but the change would not be saved).
+        return (f"{result_obj.name}'s mesh is linked from the library {me.library.filepath}, which "
+                "cannot be changed (make the result local to paint it)")
+    if len(me.vertices) != n_values:
+        return ("the result's modifiers change its vertex count (turn off Use Modifiers and Shape "
+                "Keys)")
+    return None
 
 
 class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
@@ -105,8 +121,7 @@ class GARMENT_TRANSFER_OT_evaluate(bpy.types.Operator):
             self.report({'INFO'}, text + f"; heatmap '{HEATMAP_ATTRIBUTE}' (red = moved >= "
                                          f"{length_text(context, heatmap['scale'])})")
         else:
-            self.report({'WARNING'}, text + "; no heatmap: the result's modifiers change its vertex "
-                                            "count (turn off Use Modifiers and Shape Keys)")
+            self.report({'WARNING'}, text + f"; no heatmap: {heatmap['reason']}")
         return {'FINISHED'}
 
 

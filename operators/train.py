@@ -137,6 +137,19 @@ class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
         if not settings.train_output:
             cls.poll_message_set("Choose where to save the model")
             return False
+        if not bpy.data.filepath:
+            for label, path in (("dataset folder", settings.dataset_path),
+                                ("model file", settings.train_output)):
+                if path.startswith("//"):
+                    # Relative to an unsaved file means relative to wherever Blender was started.
+                    cls.poll_message_set(f"The {label} is relative to the .blend file, which is not "
+                                         "saved yet: save it, or choose a full path")
+                    return False
+        if context.mode != 'OBJECT':
+            # Training ends by switching the scene's method and model file, and an undo step made
+            # in Edit Mode holds the edited mesh only: undo would not take those changes back.
+            cls.poll_message_set("Switch to Object Mode first")
+            return False
         return True
 
     def _start(self, context):

@@ -88,7 +88,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
-                                       depsgraph, evaluated, scene=context.scene)
+                                       depsgraph, evaluated, scene=context.scene,
+                                       view_layer=context.view_layer)
     return result, outcome, metrics
 
 

@@ -10,23 +10,64 @@ With the bpy module (same arguments, ``--`` optional):
 Every (garment, target) pair goes through the add-on's own operator (bpy.ops.garment_transfer.transfer)
 and is written to DIR/<garment>_on_<target>.obj, in the input files' axes and units. A file that cannot
 be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
-exits with 1 if anything failed (0 otherwise, 2 for bad arguments).
+exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Every file is written whole or not
+at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
 AXES = ["X", "Y", "Z", "NEGATIVE_X", "NEGATIVE_Y", "NEGATIVE_Z"]
 
 
+INTERRUPTED = "interrupted (Ctrl+C) before the end of the run"
+
+
 class InputError(Exception):
     pass
+
+
+@contextlib.contextmanager
+def atomic_output(path):
+    """Yield a temporary path next to ``path`` to write; it becomes ``path`` (one rename) when the block
+    ends, and is removed when the block fails or is interrupted, so that no partial file is left."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+_interrupted = False
+
+
+def _on_sigint(_signum, _frame):
+    global _interrupted
+    _interrupted = True
+    raise KeyboardInterrupt
+
+
+def stop_if_interrupted(error=None):
+    """Raise KeyboardInterrupt when Ctrl+C was pressed, or when ``error`` (a RuntimeError from an
+    operator) is one raised inside the operator.
+
+    Blender lets no exception out of an operator or a property callback: it prints it (and for an
+    operator, bpy.ops then raises a RuntimeError holding the traceback's text). A Ctrl+C that lands
+    there would otherwise only fail one pair, and the run would go on.
+    """
+    if _interrupted or (error is not None and "KeyboardInterrupt" in str(error).splitlines()):
+        raise KeyboardInterrupt
 
 
 def parse_args(argv):
@@ -107,6 +148,7 @@ def import_obj(path, label, args):
                               forward_axis=args.forward, use_split_objects=False,
                               use_split_groups=False)
     except RuntimeError as exc:
+        stop_if_interrupted(exc)
         raise InputError(f"{path}: cannot be imported ({exc})") from None
     new = [o for o in bpy.data.objects if o not in before]
     meshes = [o for o in new if o.type == 'MESH']
@@ -136,14 +178,19 @@ def export_obj(obj, path, args):
         other.select_set(False)
     obj.select_set(True)
     bpy.context.view_layer.objects.active = obj
-    bpy.ops.wm.obj_export(filepath=str(path), export_selected_objects=True, apply_modifiers=True,
-                          global_scale=1.0 / args.scale, up_axis=args.up, forward_axis=args.forward,
-                          export_materials=False, export_normals=False, export_uv=True,
-                          export_triangulated_mesh=False)
+    with atomic_output(path) as tmp:
+        bpy.ops.wm.obj_export(filepath=str(tmp), export_selected_objects=True, apply_modifiers=True,
+                              global_scale=1.0 / args.scale, up_axis=args.up,
+                              forward_axis=args.forward, export_materials=False,
+                              export_normals=False, export_uv=True, export_triangulated_mesh=False)
 
 
-def run(args, log):
-    """Do the whole batch; return one record per (garment, target) pair, or per unreadable file."""
+def run(args, log, records=None):
+    """Do the whole batch; return one record per (garment, target) pair, or per unreadable file.
+
+    ``records``, when given, receives the records as they are made (all done so far when the run is
+    interrupted).
+    """
     import bpy
 
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -151,7 +198,7 @@ def run(args, log):
     args.out.mkdir(parents=True, exist_ok=True)
     paths = [args.source_body, *args.target_body, *args.garment]
     labels = dict(zip(map(str, paths), unique_labels(paths)))
-    records = []
+    records = [] if records is None else records
 
     source = import_obj(args.source_body, labels[str(args.source_body)], args)
     targets = []
@@ -184,6 +231,7 @@ def run(args, log):
         settings.garment = garment
         results = []
         for target, label in targets:
+            stop_if_interrupted()
             record, result = transfer_pair(garment, target, label, args, log)
             records.append(record)
             results += [result] if result is not None else []
@@ -215,6 +263,7 @@ def transfer_pair(garment, target, label, args, log):
     try:
         bpy.ops.garment_transfer.transfer()
     except RuntimeError as exc:
+        stop_if_interrupted(exc)
         record["error"] = str(exc).strip().removeprefix("Error: ")
         log(f"FAILED {garment.name} -> {target.name}: {record['error']}")
         return record, None
@@ -234,20 +283,42 @@ def main(argv=None):
     def log(text):
         print(f"batch_transfer: {text}", file=sys.stderr, flush=True)
 
+    global _interrupted
+    _interrupted = False
+    records = []
+    interrupted = False
+    # Under Blender, Ctrl+C only sets a flag the first time and ends the process at once the second
+    # time; as a KeyboardInterrupt it stops the run cleanly (the bpy module's Python does this already).
+    # Blender's own handler is not a Python one: signal.signal returns None for it, nothing to restore.
+    previous = (signal.signal(signal.SIGINT, _on_sigint)
+                if threading.current_thread() is threading.main_thread() else None)
     try:
-        records = run(args, log)
+        run(args, log, records)
     except InputError as exc:
         log(f"FAILED {exc}")
         return 1
+    except KeyboardInterrupt:
+        interrupted = True
+        records.append({"error": INTERRUPTED})
+        log(INTERRUPTED)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
     failed = [r for r in records if "error" in r]
-    (args.out / "summary.json").write_text(json.dumps(records, indent=1) + "\n", encoding="utf-8")
+    summary = args.out / "summary.json"
+    if args.out.is_dir():
+        with atomic_output(summary) as tmp:
+            tmp.write_text(json.dumps(records, indent=1) + "\n", encoding="utf-8")
     done = len(records) - len(failed)
-    log(f"{done} transferred, {len(failed)} failed; summary in {args.out / 'summary.json'}")
-    return 1 if failed else 0
+    log(f"{done} transferred, {len(failed) - interrupted} failed; summary in {summary}")
+    return 130 if interrupted else 1 if failed else 0
 
 
 if __name__ == "__main__":
-    code = main()
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        code = 130
     sys.stdout.flush()
     sys.stderr.flush()
     # The bpy 4.5 module can hang in its own exit handler (a thread that closes files late waits

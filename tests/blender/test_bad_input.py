@@ -122,6 +122,7 @@ def test_evaluate_refuses_inputs_and_other_topologies(dressed):
 
 def test_training_without_torch_says_how_to_get_it(dressed, monkeypatch, tmp_path):
     dressed.settings.dataset_path = str(tmp_path)
+    dressed.settings.train_output = str(tmp_path / "model.npz")
     monkeypatch.setitem(sys.modules, "torch", None)
     expect_report(bpy.ops.garment_transfer.train, "pip install torch==2.13.0",
                   "transfer works without it")
@@ -131,4 +132,5 @@ def test_training_without_torch_says_how_to_get_it(dressed, monkeypatch, tmp_pat
 def test_training_on_a_missing_dataset(dressed, tmp_path):
     pytest.importorskip("torch", reason="the dataset is read once torch is there")
     dressed.settings.dataset_path = str(tmp_path / "no_dataset")
+    dressed.settings.train_output = str(tmp_path / "model.npz")
     expect_report(bpy.ops.garment_transfer.train, "no_dataset", "not found")
