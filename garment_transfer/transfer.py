@@ -85,7 +85,7 @@ def _check_placement(source_body: Mesh, garment: Mesh, distance):
     if median > FAR_SHARE * scale:
         raise MeshError(garment.name,
                         f"is far from the source body {source_body.name} (median distance "
-                        f"{median:.3g}, body height {scale:.3g}): is it dressed on that body, "
+                        f"{median:.3g}, body size {scale:.3g}): is it dressed on that body, "
                         "in the same units and space?")
 
 
