@@ -5,35 +5,29 @@ class GarmentTransferError(Exception):
     """Base class: an expected failure with a message meant for the user."""
 
 
-class MeshError(GarmentTransferError, ValueError):
-    """A mesh (file or object) that cannot be used as given."""
+class NamedError(GarmentTransferError, ValueError):
+    """An error about one named thing (file, object, model): ``"<name>: <problem>"``."""
 
     def __init__(self, name, problem):
         self.name = name
         self.problem = problem
         super().__init__(f"{name}: {problem}")
+
+
+class MeshError(NamedError):
+    """A mesh (file or object) that cannot be used as given."""
 
 
 class TopologyMismatchError(MeshError):
     """Two meshes that must share vertex order and faces do not."""
 
 
-class ModelError(GarmentTransferError, ValueError):
+class ModelError(NamedError):
     """A model file that is unreadable, corrupt, or made for other data."""
 
-    def __init__(self, name, problem):
-        self.name = name
-        self.problem = problem
-        super().__init__(f"{name}: {problem}")
 
-
-class DatasetError(GarmentTransferError, ValueError):
+class DatasetError(NamedError):
     """A dataset folder that does not follow the layout."""
-
-    def __init__(self, name, problem):
-        self.name = name
-        self.problem = problem
-        super().__init__(f"{name}: {problem}")
 
 
 class Cancelled(GarmentTransferError):
