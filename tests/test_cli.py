@@ -87,3 +87,23 @@ def test_bench_small_runs(tmp_path):
         assert abs(r["triangles"] - r["requested"]) / r["requested"] < 0.05
         assert r["cold"]["penetrating_vertices"] == 0
     assert len(data["multi_target"]["per_target_seconds"]) == 2
+
+
+def test_train_then_transfer_with_the_model(tmp_path, makehuman_pair):
+    root = require_makehuman()
+    model = tmp_path / "model.npz"
+    p = run("train", "--dataset", root, "--source", "female_average", "--targets", "female_pear,male_slim",
+            "--garments", "male_casualsuit02,male_casualsuit04", "--epochs", "5", "--out", model, "--json")
+    assert p.returncode == 0, p.stderr
+    summary = json.loads(p.stdout)
+    assert summary["epochs"] == 5 and isinstance(summary["final_loss"], float) and summary["seconds"] > 0
+    assert "train:" in p.stderr        # progress on stderr
+    src, tgt, garment, _ = makehuman_pair
+    out = tmp_path / "by_model.obj"
+    p = run("transfer", "--method", "model", "--model", model, "--target", "female_pear",
+            "--source-body", src, "--target-body", tgt, "--garment", garment, "--out", out, "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["penetrating_vertices"] == 0 and out.is_file()
+    p = run("transfer", "--method", "model", "--model", model, "--target", "nobody",
+            "--source-body", src, "--target-body", tgt, "--garment", garment, "--out", tmp_path / "x.obj")
+    assert p.returncode == 1 and "nobody" in p.stderr and not (tmp_path / "x.obj").exists()
