@@ -225,7 +225,7 @@ def principled(name, colour, roughness=0.6, sheen=0.0):
         return mat
     mat = bpy.data.materials.new(name)
     mat.diffuse_color = (*colour, 1.0)  # what the viewport's solid mode shows
-    nt = mat.node_tree
+    nt = node_tree(mat)
     nt.nodes.clear()
     bsdf = nt.nodes.new("ShaderNodeBsdfPrincipled")
     bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
@@ -235,6 +235,14 @@ def principled(name, colour, roughness=0.6, sheen=0.0):
     out = nt.nodes.new("ShaderNodeOutputMaterial")
     nt.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
     return mat
+
+
+def node_tree(datablock):
+    """The node tree of a new material or world: Blender 4.x makes them without one until
+    ``use_nodes`` is set; 5.0 always gives them one."""
+    if datablock.node_tree is None:
+        datablock.use_nodes = True
+    return datablock.node_tree
 
 
 def material(kind):
@@ -251,7 +259,7 @@ def heat_material(attribute, vmax):
     import bpy
 
     mat = bpy.data.materials.new(f"heat_{attribute}")
-    nt = mat.node_tree
+    nt = node_tree(mat)
     nt.nodes.clear()
     attr = nt.nodes.new("ShaderNodeAttribute")
     attr.attribute_type = "GEOMETRY"
@@ -359,7 +367,7 @@ def setup_scene(size, samples, percent, denoise):
     # The camera sees plain white; everything else sees a dim grey sky (soft fill light).
     world = bpy.data.worlds.new("demo_world")
     scene.world = world
-    nt = world.node_tree
+    nt = node_tree(world)
     nt.nodes.clear()
     seen = nt.nodes.new("ShaderNodeBackground")
     seen.inputs["Color"].default_value = (BACKGROUND, BACKGROUND, BACKGROUND, 1.0)
