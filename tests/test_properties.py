@@ -13,7 +13,9 @@ from garment_transfer.proximity import TriangleSurface
 from garment_transfer.transfer import transfer_garment
 from meshes import icosphere, random_rotation
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# Derandomized: CI runs the same examples every time (a failure is reproducible, never flaky).
+SETTINGS = settings(max_examples=25, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.too_slow])
 
 
 def sheet(seed, nx, ny, wave):
@@ -68,7 +70,7 @@ def test_metrics_are_finite_and_in_range(m, seed):
     assert 0.0 <= ratio <= 1.0 and depth >= 0.0 and inside.shape == (m.n_vertices,)
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=10, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(st.floats(0.8, 1.4), st.floats(0.8, 1.4), st.floats(0.9, 1.2), st.integers(0, 10_000))
 def test_transfer_keeps_faces_and_is_finite_and_outside(sx, sy, sz, seed):
     V, F = icosphere(3)
