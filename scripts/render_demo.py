@@ -9,9 +9,11 @@ DIR is the folder the demo writes: ``results.json`` (source, targets, test_garme
 (``body__<body>.obj``, ``<garment>__<source>__source.obj``, ``<garment>__<target>__<method>.obj``,
 ``<garment>__<target>__ours_change.npy``). This writes
 
-- ``DIR/demo.blend``: one collection per test garment, a row of columns side by side along X: the source
-  garment on the source body, then for each target body our transfer and the simulated garment on it;
-  the scene camera frames the first garment's row;
+- ``DIR/demo.blend``: one collection per test garment (rows behind each other along +Y), with columns
+  side by side along X: the source garment on the source body, then for each target body our transfer
+  (with its per-vertex ``ours_change`` attribute) and the simulated garment on it; the scene camera
+  frames the first garment on the source and the first target, the only collections set to render;
+  ``--first-target-only`` leaves the other targets out;
 - ``DIR/renders/fig7_<garment>.png`` (like the paper's figures 7 and 8): source | ours on the first
   target | simulation on the first target;
 - ``DIR/renders/fig11_<garment>.png`` (figure 11): the first test garment on the source body (blue),
@@ -54,7 +56,7 @@ COLOURS = {
 RAMP = [(0.0, (0.02, 0.05, 0.70)), (0.25, (0.0, 0.45, 0.90)), (0.5, (0.10, 0.75, 0.15)),
         (0.75, (0.95, 0.80, 0.0)), (1.0, (0.85, 0.03, 0.01))]
 
-SIZES = {"fig7": (960, 540), "fig11": (1440, 480), "fig3": (720, 540)}
+SIZES = {"fig7": (960, 540), "fig11": (1200, 400), "fig3": (720, 540)}
 LABEL_SIZE = 0.09  # metres: label text height next to 1.7 m bodies
 BACKGROUND = 1.0
 
@@ -69,11 +71,13 @@ def log(msg):
 
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog="render_demo.py",
-                                     description="Render the Garment Transfer demo results with Cycles (CPU).")
+                                     description="Render the Garment Transfer demo results with Cycles "
+                                                 "(CPU).")
     parser.add_argument("--results", type=Path, required=True, help="results folder written by the demo")
-    parser.add_argument("--samples", type=int, default=24, help="Cycles samples per pixel (default 24)")
+    parser.add_argument("--samples", type=int, default=16,
+                        help="Cycles samples per pixel (default 16; denoised, that is enough)")
     parser.add_argument("--resolution-percent", type=int, default=100,
-                        help="scale of the image sizes (100: fig7 960x540, fig11 1440x480, fig3 720x540)")
+                        help="scale of the image sizes (100: fig7 960x540, fig11 1200x400, fig3 720x540)")
     parser.add_argument("--no-denoise", action="store_true",
                         help="do not denoise (by default OpenImageDenoise is used where Cycles has it)")
     parser.add_argument("--first-target-only", action="store_true",
@@ -158,7 +162,8 @@ class Results:
         mesh = self.mesh(f"{garment}__{body}__{method}")
         source = self.mesh(f"{garment}__{self.source}__source")
         if mesh.n_vertices != source.n_vertices:
-            raise ResultsError(f"{self.folder / 'meshes' / (garment + '__' + body + '__' + method + '.obj')}: "
+            path = self.folder / "meshes" / f"{garment}__{body}__{method}.obj"
+            raise ResultsError(f"{path}: "
                                f"{mesh.n_vertices} vertices, the source garment has {source.n_vertices}")
         return mesh
 
@@ -426,12 +431,12 @@ def render_to(scene, path):
 
     tmp = path.with_name(f".tmp-{path.name}")
     scene.render.filepath = str(tmp)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     bpy.ops.render.render(write_still=True)
     if not tmp.is_file():
         raise RuntimeError(f"Cycles wrote no image for {path.name}")
     os.replace(tmp, path)
-    return time.perf_counter() - t
+    return time.perf_counter() - t, time.process_time() - cpu
 
 
 def reset():
@@ -444,23 +449,32 @@ def reset():
 # Layouts
 
 
-def place_columns(res, columns, collection=None, y=0.0, labels=True, prefix=""):
-    """Put columns side by side along X, centred on x = 0.
+def place_columns(res, columns, collections=None, y=0.0, labels=True):
+    """Put columns side by side along X, centred on x = 0, each labelled underneath.
 
-    ``columns``: list of (name, body name or None, garment mesh, material kind, label).
+    ``columns``: list of (name, body name or None, garment mesh, material kind, label);
+    ``collections``: the collection of each column (default: the scene's).
     Returns the objects made, a list per column.
     """
+    import bpy
+
     meshes = [res.body(b) for _, b, _, _, _ in columns if b] + [g for _, _, g, _, _ in columns]
-    step = column_step(meshes)
-    made = []
     bottom = min(float(m.V[:, 2].min()) for m in meshes)
+    collections = collections or [None] * len(columns)
+    texts = [add_label(label, 0.0, bottom - 0.05, coll, name=f"{name}_label", y=y)
+             if labels and label else None for (name, _, _, _, label), coll in zip(columns, collections)]
+    bpy.context.view_layer.update()
+    # Columns as wide as the widest mesh or label, so that neither runs into its neighbour.
+    step = max(column_step(meshes), max([t.dimensions.x + 0.1 for t in texts if t] or [0.0]))
+    made = []
     shared = {}
-    for i, (name, body, garment, kind, label) in enumerate(columns):
+    for i, (name, body, garment, kind, _) in enumerate(columns):
         x = (i - (len(columns) - 1) / 2) * step
         column = []
+        collection = collections[i]
         if body:
-            data = shared.get(body)
-            obj = new_mesh_object(f"{name}_body", res.body(body), (x, y, 0.0), collection, data=data)
+            obj = new_mesh_object(f"{name}_body", res.body(body), (x, y, 0.0), collection,
+                                  data=shared.get(body))
             shared[body] = obj.data
             obj.data.name = f"body_{body}"
             set_material(obj, material("body"))
@@ -469,14 +483,21 @@ def place_columns(res, columns, collection=None, y=0.0, labels=True, prefix=""):
         if kind in COLOURS:
             set_material(gobj, material(kind))
         column.append(gobj)
-        if labels and label:
-            column.append(add_label(label, x, bottom - 0.05, collection, name=f"{name}_label", y=y))
+        if texts[i] is not None:
+            texts[i].location.x = x
+            column.append(texts[i])
         made.append(column)
     return made
 
 
 def build_blend(res, path, samples, percent, denoise):
-    """demo.blend: a collection per test garment, one row per garment along +Y (behind each other)."""
+    """demo.blend: a collection per test garment, one row per garment along +Y (behind each other), with
+    a child collection for the source and one per target body.
+
+    Only the first garment's source and first target render (the others' camera icons are off, or the
+    rows behind and the neighbouring columns would show at the edges and under the labels); the camera
+    frames them, so F12 gives the first fig7 image.
+    """
     import bpy
 
     reset()
@@ -486,13 +507,22 @@ def build_blend(res, path, samples, percent, denoise):
     for row, g in enumerate(res.garments):
         coll = bpy.data.collections.new(g)
         scene.collection.children.link(coll)
+        coll.hide_render = row > 0
+        subs = {}
+        for i, key in enumerate([None] + res.blend_targets):
+            sub = bpy.data.collections.new(f"{g} source" if key is None else f"{g} on {key}")
+            coll.children.link(sub)
+            sub.hide_render = i > 1
+            subs[key] = sub
         cols = [(f"{g}_source", res.source, res.garment(g, res.source, "source"), "source",
                  f"source ({res.source})")]
+        colls = [subs[None]]
         for t in res.blend_targets:
             cols.append((f"{g}_on_{t}_ours", t, res.garment(g, t, "ours"), "ours", f"ours on {t}"))
             cols.append((f"{g}_on_{t}_simulation", t, res.garment(g, t, "simulation"), "simulation",
                          f"simulation on {t}"))
-        made = place_columns(res, cols, coll, y=row * row_gap)
+            colls += [subs[t], subs[t]]
+        made = place_columns(res, cols, colls, y=row * row_gap)
         if row == 0:
             first_row = [o for column in made[:3] for o in column]
         for t in res.blend_targets:
@@ -558,7 +588,7 @@ def render_fig3(res, g, t, out, samples, percent, denoise):
     made += colour_bar(mat, vmax, x=step + 0.02, z0=float(garment.V[:, 2].min()),
                        z1=float(garment.V[:, 2].max()))
     frame_camera(scene, made)
-    return render_to(scene, out), vmax
+    return (*render_to(scene, out), vmax)
 
 
 def colour_bar(mat, vmax, x, z0, z1, width=0.05):
@@ -575,7 +605,8 @@ def colour_bar(mat, vmax, x, z0, z1, width=0.05):
     add_point_attribute(bar, "ours_change", np.repeat(np.linspace(0.0, vmax, n + 1), 2))
     set_material(bar, mat)
     lo = add_label("0 mm", x, z0 - 0.03, name="bar_low")
-    hi = add_label(f"{vmax * 1000:.0f} mm", x, z1 + 0.03 + LABEL_SIZE, name="bar_high")
+    mm = vmax * 1000
+    hi = add_label(f"{mm:.0f} mm" if mm >= 10 else f"{mm:.2g} mm", x, z1 + 0.03 + LABEL_SIZE, name="bar_high")
     return [bar, lo, hi]
 
 
@@ -603,7 +634,8 @@ def main(argv=None):
     try:
         res = Results(folder, first_target_only=args.first_target_only)
         res.check_meshes()
-        log(f"source {res.source}, targets {', '.join(res.targets)}, test garments {', '.join(res.garments)}; "
+        log(f"source {res.source}, targets {', '.join(res.targets)}, "
+            f"test garments {', '.join(res.garments)}; "
             f"Cycles CPU, {args.samples} samples, {args.resolution_percent}% size, "
             f"denoising {'on (OpenImageDenoise)' if denoise else 'off'}")
         renders = folder / "renders"
@@ -615,14 +647,14 @@ def main(argv=None):
         log(f"wrote {blend} ({time.perf_counter() - t:.1f} s)")
         jobs = [(f"fig7_{g}.png", render_fig7, (g,)) for g in res.garments]
         jobs.append((f"fig11_{res.garments[0]}.png", render_fig11, (res.garments[0],)))
-        jobs += [(f"fig3_{g}_on_{res.targets[0]}.png", render_fig3, (g, res.targets[0])) for g in res.garments]
+        first = res.targets[0]
+        jobs += [(f"fig3_{g}_on_{first}.png", render_fig3, (g, first)) for g in res.garments]
         for i, (name, fn, extra) in enumerate(jobs, 1):
             out = renders / name
-            got = fn(res, *extra, out, args.samples, args.resolution_percent, denoise)
-            seconds, note = (got[0], f", red = {got[1] * 1000:.1f} mm and more") if isinstance(got, tuple) \
-                else (got, "")
+            seconds, cpu, *vmax = fn(res, *extra, out, args.samples, args.resolution_percent, denoise)
+            note = f"; red = {vmax[0] * 1000:.1f} mm and more" if vmax else ""
             written.append(out)
-            log(f"[{i}/{len(jobs)}] rendered {out} in {seconds:.1f} s{note}")
+            log(f"[{i}/{len(jobs)}] rendered {out} in {seconds:.1f} s ({cpu:.1f} s CPU){note}")
     except ResultsError as exc:
         print(f"render_demo: error: {exc}", file=sys.stderr)
         return 1
