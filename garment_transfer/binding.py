@@ -79,3 +79,27 @@ def carry(binding: Binding, body_V, body_F):
     surface_point = np.einsum("pk,pkj->pj", binding.bary, body_V[tris])
     Y, _ = triangle_frames(body_V, tris)
     return surface_point + np.einsum("pij,pj->pi", Y, binding.local)
+
+
+def follow_nearest_vertex(points, body_V, body_V_new):
+    """Points moved by the displacement of their nearest body vertex (a coarse, fast way to follow a body
+    that changes shape: Blender's cloth solver uses it for pinned vertices).
+
+    Parameters
+    ----------
+    points : (p,3) float
+    body_V, body_V_new : (n,3) float
+        The body's vertices before and after (same vertex order).
+
+    Returns
+    -------
+    P : (p,3) float64
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, dtype=np.float64)
+    if points.shape[0] == 0:
+        return points.copy()
+    body_V = np.asarray(body_V, dtype=np.float64)
+    _, idx = cKDTree(body_V).query(points)
+    return points + (np.asarray(body_V_new, dtype=np.float64)[idx] - body_V[idx])

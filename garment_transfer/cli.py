@@ -14,29 +14,20 @@ import sys
 import time
 
 from .errors import GarmentTransferError
+from .files import json_default
 
 log = logging.getLogger("garment_transfer")
 
 
 def _emit(args, result: dict, lines):
     if getattr(args, "json", False):
-        print(json.dumps(result, indent=2, default=_jsonable))
+        print(json.dumps(result, indent=2, default=json_default))
     else:
         for line in lines:
             print(line)
 
 
-def _jsonable(x):
-    import numpy as np
-
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
-
-
-def _stderr_progress(label, every=0.05):
+def stderr_progress(label, every=0.05):
     state = {"last": -1.0}
 
     def progress(fraction, *info):
@@ -105,42 +96,17 @@ def cmd_train(args):
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
                                  epochs=args.epochs, latent=args.latent, seed=args.seed, out=args.out,
-                                 progress=_stderr_progress("train"),
+                                 progress=stderr_progress("train"),
                                  masked=not args.unmasked)
     _emit(args, summary, [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss "
                           f"{summary.get('final_loss')}, {summary.get('seconds', 0):.1f} s"])
 
 
-def cmd_bench(args):
-    if args.report:
-        from .report import run_report
-
-        quick = " --quick" if args.quick else ""
-        command = f"python -m garment_transfer bench --report {args.report}{quick}"
-        out = run_report(args.report, quick=args.quick, progress=_stderr_progress("report"), command=command)
-        _emit(args, {"report": os.path.join(args.report, "report.md"), "seconds": out["seconds"]},
-              [f"wrote {os.path.join(args.report, 'report.md')}, report.json and "
-               f"{', '.join(out['plots'])} in {out['seconds']['total']:.0f} s"])
-        return
-    from .bench import run_bench
-
-    out = run_bench(sizes=args.sizes, repeats=args.repeats, targets=args.targets,
-                    progress=_stderr_progress("bench"))
-    from .bench import format_bench
-
-    _emit(args, out, format_bench(out))
-
-
-def cmd_demo(args):
-    from .demo import run_demo
-
-    out = run_demo(args.out, quick=args.quick, progress=_stderr_progress("demo", every=0.0))
-    _emit(args, out, [f"results in {args.out}"] + out.get("summary_lines", []))
-
-
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
-                                description="Design-preserving garment transfer between body shapes.")
+                                description="Design-preserving garment transfer between body shapes.",
+                                epilog="The demo, benchmarks and studies live in the repository's lab: "
+                                       "python -m lab --help.")
     p.add_argument("-v", "--verbose", action="store_true", help="log details on stderr")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -185,23 +151,6 @@ def build_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
-    b = sub.add_parser("bench", help="per-stage transfer times against the paper's")
-    b.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")],
-                   default=[28000, 46000, 84000, 156000], help="garment triangle counts")
-    b.add_argument("--repeats", type=int, default=3, help="runs per size (the best is kept)")
-    b.add_argument("--targets", type=int, default=6, help="bodies in the multi-target run")
-    b.add_argument("--report", metavar="DIR",
-                   help="instead, the whole benchmark report (quality of every method on the demo data and "
-                        "the MakeHuman fixtures, speed to 300K triangles, memory, training) into DIR")
-    b.add_argument("--quick", action="store_true", help="with --report: tiny sizes and epochs (a smoke test)")
-    b.add_argument("--json", action="store_true", help="print one JSON object")
-    b.set_defaults(func=cmd_bench)
-
-    d = sub.add_parser("demo", help="the whole method on the built-in demo data")
-    d.add_argument("--out", default="results", help="results folder (default: results)")
-    d.add_argument("--quick", action="store_true", help="fewer garments and epochs")
-    d.add_argument("--json", action="store_true", help="print one JSON object")
-    d.set_defaults(func=cmd_demo)
     return p
 
 

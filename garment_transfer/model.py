@@ -30,12 +30,12 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import zipfile
 
 import numpy as np
 
 from .errors import ModelError
+from .files import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -302,17 +302,11 @@ def save_npz_atomic(path, arrays, metadata):
             raise ModelError(path, f"array {key!r} is not numeric ({np.asarray(arr).dtype})")
     payload = dict(arrays)
     payload["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
             np.savez(fh, **payload)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def load_model(path) -> SharedDeformationModel:

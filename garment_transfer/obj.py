@@ -8,11 +8,11 @@ temporary file in the same folder, renamed over the target once complete.
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 
 from .errors import MeshError
+from .files import write_text_atomic
 from .mesh import Mesh, mesh_from_polygons
 
 
@@ -73,20 +73,21 @@ def read_obj(path, name=None) -> Mesh:
     return mesh_from_polygons(V, polys, name=name, obj_lines=lines)
 
 
-def _format_vertices(V):
-    return ["v %.9g %.9g %.9g" % tuple(v) for v in V]
+def _format_vertices(V, digits=9):
+    fmt = f"v %.{digits}g %.{digits}g %.{digits}g"
+    return [fmt % tuple(v) for v in V]
 
 
-def obj_text(mesh: Mesh, V=None, header=None) -> str:
+def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
     """OBJ text of ``mesh`` with vertex positions ``V`` (default: the mesh's own).
 
     A mesh read from a file keeps every non-vertex line of that file; others get plain
-    ``v``/``f`` lines with their original polygons.
+    ``v``/``f`` lines with their original polygons. ``digits``: significant digits per coordinate.
     """
     V = mesh.V if V is None else np.asarray(V, dtype=np.float64)
     if V.shape != mesh.V.shape:
         raise MeshError(mesh.name, f"cannot write {V.shape[0]} vertices into a mesh of {mesh.n_vertices}")
-    vlines = _format_vertices(V)
+    vlines = _format_vertices(V, digits)
     out = [f"# {header}"] if header else []
     if mesh.obj_lines is not None:
         it = iter(vlines)
@@ -98,23 +99,6 @@ def obj_text(mesh: Mesh, V=None, header=None) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_text_atomic(path, text):
-    """Write text to path through a temporary file and a rename: no half-written file."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise MeshError(path, f"the folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.splitext(path)[1], dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_obj(path, mesh: Mesh, V=None, header=None):
+def write_obj(path, mesh: Mesh, V=None, header=None, digits=9):
     """Write ``mesh`` (optionally with other vertex positions ``V``) to an OBJ file, atomically."""
-    write_text_atomic(path, obj_text(mesh, V, header))
+    write_text_atomic(path, obj_text(mesh, V, header, digits))

@@ -10,6 +10,7 @@ import time
 import bpy
 import numpy as np
 
+from ..garment_transfer.binding import follow_nearest_vertex
 from ..garment_transfer.errors import Cancelled, MeshError
 from ..garment_transfer.penetration import fix_penetration
 from ..garment_transfer.proximity import TriangleSurface
@@ -129,12 +130,8 @@ def _triangles(polys):
 
 def _pins_following_body(G, pins, bV, tV):
     """Pinned garment vertices moved with the body under them (displacement of the nearest body vertex)."""
-    from scipy.spatial import cKDTree
-
     follow = G.copy()
-    if pins.size:
-        _, idx = cKDTree(bV).query(G[pins])
-        follow[pins] += tV[idx] - bV[idx]
+    follow[pins] = follow_nearest_vertex(G[pins], bV, tV)
     return follow
 
 

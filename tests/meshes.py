@@ -1,13 +1,12 @@
 """Small meshes with known answers, shared by the core tests."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from garment_transfer.mesh import mesh_from_polygons
+from lab.paths import SHARED_MAKEHUMAN
 
-MAKEHUMAN = Path(__file__).resolve().parents[2] / "shared" / "data" / "makehuman"
+MAKEHUMAN = SHARED_MAKEHUMAN
 
 
 def require_makehuman():

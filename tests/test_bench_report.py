@@ -10,15 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from garment_transfer.bench import makehuman_folder
-from garment_transfer.report import METHODS, PAPER_TABLE1, peak_rss_mb
+from lab.paths import makehuman_folder
+from lab.report import METHODS, PAPER_TABLE1, peak_rss_mb
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_quick_report(tmp_path):
     out = tmp_path / "report"
-    p = subprocess.run([sys.executable, "-m", "garment_transfer", "bench", "--report", str(out), "--quick",
+    p = subprocess.run([sys.executable, "-m", "lab", "report", str(out), "--quick",
                         "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["report"].endswith("report.md")
@@ -39,7 +39,7 @@ def test_quick_report(tmp_path):
         assert {"rows", "summary", "trainings", "worse_than_ours", "surface_deform", "folds"} <= set(res)
         methods = {r["method"] for r in res["rows"]}
         assert {"ours", "paper", "direct", res["reference"]} <= methods
-        assert methods <= {k for k, _ in METHODS} | {res["reference"]}
+        assert methods <= set(METHODS) | {res["reference"]}
         for m, s in res["summary"].items():
             assert {"pairs", "mdc", "penetration_ratio", "max_penetration_depth", "drape_error",
                     "drape_error_relative", "vertex_error_mean", "seconds"} <= set(s), m
@@ -70,7 +70,7 @@ def test_peak_rss_is_the_child_own():
     # A small process started from a big one reports its own peak, not its parent's size.
     big = np.ones(400 * 2 ** 20 // 8)
     assert peak_rss_mb() > 400
-    code = "from garment_transfer.report import peak_rss_mb; print(peak_rss_mb())"
+    code = "from lab.report import peak_rss_mb; print(peak_rss_mb())"
     p = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     assert 0 < float(p.stdout) < 300

@@ -9,9 +9,8 @@ from garment_transfer.errors import DatasetError
 from garment_transfer.gradients import deformation_gradients
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.obj import write_obj
-from meshes import icosphere
+from meshes import MAKEHUMAN, icosphere
 
-MAKEHUMAN = Path(__file__).resolve().parents[2] / "shared/data/makehuman"
 
 SCALE = 1.2
 

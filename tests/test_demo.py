@@ -2,7 +2,7 @@
 
 import json
 
-from garment_transfer.demo import run_demo
+from lab.demo import run_demo
 
 
 def test_quick_demo_writes_meshes_report_and_results(tmp_path):

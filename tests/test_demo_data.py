@@ -1,9 +1,8 @@
-"""The committed demo dataset (garment_transfer/demo_data): complete, consistent, compact, and with
+"""The committed demo dataset (data/demo): complete, consistent, compact, and with
 every garment outside the body it was draped on."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +10,9 @@ import pytest
 from garment_transfer.dataset import load_dataset
 from garment_transfer.mesh import require_same_topology
 from garment_transfer.proximity import TriangleSurface
+from lab.paths import DEMO_DATA
 
-DEMO = Path(__file__).resolve().parents[1] / "garment_transfer" / "demo_data"
+DEMO = DEMO_DATA
 
 
 @pytest.fixture(scope="module")

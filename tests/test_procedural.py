@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from garment_transfer.mesh import mesh_from_polygons, mesh_from_triangles, mesh_report, triangle_normals
-from garment_transfer.procedural.garments import (CLEARANCE, TEST_GARMENTS, TRAIN_GARMENTS, garment,
+from lab.procedural.garments import (CLEARANCE, TEST_GARMENTS, TRAIN_GARMENTS, garment,
                                                   push_out, _source_body)
-from garment_transfer.procedural.mannequin import PRESETS, Body, body_sdf, mannequin, measurements
-from garment_transfer.procedural.sdf import gradient
+from lab.procedural.mannequin import PRESETS, Body, body_sdf, mannequin, measurements
+from lab.procedural.sdf import gradient
 
 
 @pytest.fixture(scope="module")

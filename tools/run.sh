@@ -10,7 +10,7 @@ cmd="${1:-}"; shift || true
 case "$cmd" in
   demo)
     bash tools/setup.sh
-    exec .venv/bin/python -m garment_transfer demo "$@" ;;
+    exec .venv/bin/python -m lab demo "$@" ;;
   test)
     bash tools/setup.sh
     if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest -q "$@"; fi

@@ -20,11 +20,13 @@ if [ ! -x "$venv/bin/python" ]; then
   "$PY" -m venv "$venv"
 fi
 stamp="$venv/.requirements.sha"
-want="$(sha256sum "$reqs" | cut -d' ' -f1)"
+want="$(cat "$reqs" pyproject.toml | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: installing Python packages into $venv (first time takes a few minutes)" >&2
   "$venv/bin/python" -m pip install -q --upgrade pip
   "$venv/bin/python" -m pip install -q -r "$reqs"
+  # The core and the lab, installed from this checkout (editable): one garment_transfer in every process.
+  "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e .
   echo "$want" > "$stamp"
 fi
 # System libraries for `import bpy` (Debian names).

@@ -1,6 +1,7 @@
 """Fixtures for the Blender layer, with the real bpy module.
 
-The add-on is registered once per session from this checkout (scripts/extension_loader.py); every
+The add-on is registered once per session from this checkout (scripts/extension_loader.py, with the
+installed core as its core: one garment_transfer in the process); every
 test starts from an empty factory scene. The MakeHuman fixtures are imported as Blender objects the
 way a user would (decimetres, Y up: scaled by 0.1 and turned Z up on import).
 """
@@ -15,8 +16,10 @@ import bpy
 import numpy as np
 import pytest
 
+from lab.paths import SHARED_MAKEHUMAN
+
 ROOT = Path(__file__).resolve().parents[2]
-MAKEHUMAN = Path(__file__).resolve().parents[3] / "shared" / "data" / "makehuman"
+MAKEHUMAN = SHARED_MAKEHUMAN
 GARMENT = "female_sportsuit01"
 
 sys.path.insert(0, str(ROOT / "scripts"))

@@ -13,8 +13,8 @@ from conftest import scene_state
 
 @pytest.fixture(scope="module")
 def small_case():
-    from garment_transfer.procedural.garments import tube_garment
-    from garment_transfer.procedural.mannequin import mannequin
+    from lab.procedural.garments import tube_garment
+    from lab.procedural.mannequin import mannequin
 
     V, F = mannequin("banana")
     # A target 6% wider around the torso axis (cheaper than another preset, same topology).

@@ -1,4 +1,4 @@
-"""The demo's Blender side: scripts/render_demo.py on a small results folder, in a subprocess."""
+"""The demo's Blender side: lab/blender/render_demo.py on a small results folder, in a subprocess."""
 
 import json
 import struct
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from garment_transfer.demo import run_demo
+from lab.demo import run_demo
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -62,7 +62,7 @@ def png_pixels(path):
 def test_render_script_writes_pictures_and_a_blend(tmp_path):
     out = tmp_path / "results"
     run_demo(out, quick=True, epochs=3, render=False)
-    p = subprocess.run([sys.executable, str(ROOT / "scripts" / "render_demo.py"), "--results", str(out),
+    p = subprocess.run([sys.executable, "-m", "lab.blender.render_demo", "--results", str(out),
                         "--samples", "2", "--resolution-percent", "10", "--first-target-only"],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-2000:]

@@ -1,4 +1,4 @@
-"""scripts/render_demo.py on a tiny results folder: a .blend with the named objects and Cycles PNGs that show
+"""lab/blender/render_demo.py on a tiny results folder: a .blend with the named objects and Cycles PNGs that show
 the garments in their colours; a malformed folder fails with the file named."""
 
 from __future__ import annotations
@@ -11,13 +11,12 @@ import zlib
 
 import numpy as np
 import pytest
-from conftest import ROOT
 
-from garment_transfer.bench import tube_dress
+from lab.bench import tube_dress
 from garment_transfer.mesh import mesh_from_polygons
 from garment_transfer.obj import write_obj
 
-SCRIPT = ROOT / "scripts" / "render_demo.py"
+SCRIPT = "lab.blender.render_demo"
 TARGETS = ["wide", "narrow"]
 GARMENT = "dress"
 PERCENT = 20
@@ -63,7 +62,7 @@ def make_results(folder):
 
 
 def run_script(folder, *extra, timeout=120):
-    cmd = [sys.executable, str(SCRIPT), "--results", str(folder), *extra]
+    cmd = [sys.executable, "-m", SCRIPT, "--results", str(folder), *extra]
     return subprocess.run(cmd, capture_output=True, encoding="utf-8", errors="replace", timeout=timeout)
 
 

@@ -1,6 +1,6 @@
 """Benchmark report: ours against the paper, the baselines and simulation, side by side.
 
-``python -m garment_transfer bench --report DIR [--quick]`` writes ``DIR/report.md``, ``DIR/report.json``
+``python -m lab report DIR [--quick]`` writes ``DIR/report.md``, ``DIR/report.json``
 and plots (PNG). Every figure comes from the run that writes it; the only numbers typed in are the
 paper's published ones (``PAPER_TABLE1``, ``PAPER_TRAINING``, ``bench.PAPER_SECONDS``), always labelled
 as the paper's.
@@ -12,21 +12,20 @@ Sections:
   (the reference is the garment fitted on each body). Methods: ours (model, masked loss, interpolated
   field, penetration fix), the paper as written (nearest-triangle embedding, unmasked loss, no fix),
   direct deformation transfer (the body's own gradients), Blender's Surface Deform modifier (bound to
-  the source body, evaluated on the target shape; ``scripts/surface_deform_baseline.py`` in a
+  the source body, evaluated on the target shape; ``lab/blender/surface_deform_baseline.py`` in a
   subprocess) and the reference itself (simulation or fitted garment). Figures: ``metrics.evaluate``.
-* **Speed and scale**: ``bench.run_bench`` per stage, cold and with the garment's factor reused, from
+* **Speed and scale**: ``lab.bench.run_bench`` per stage, cold and with the garment's factor reused, from
   28K to 300K triangles, against the paper's times; one garment to six bodies.
 * **Peak memory**: the largest benchmark size and a 1M-triangle garment, each in a fresh process
   (``resource.getrusage`` high-water mark).
 * **Training** at the paper's scale (a 37,744-triangle body, 15 garments, 1000 epochs) on the synthetic
-  fields of ``benchmarks/bench_training.py``, with its loss curve.
+  fields of ``lab/training_scale.py``, with its loss curve.
 
 The core never imports bpy: Blender runs in subprocesses only.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import logging
 import os
@@ -41,17 +40,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench import PAPER_SECONDS, machine_description, makehuman_folder
+from garment_transfer.files import json_default, write_text_atomic
+
+from .bench import PAPER_SECONDS, machine_description
+from .experiment import METHODS as ALL_METHODS
+from .experiment import curve_recorder, run_experiment, thin
+from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder
 
 log = logging.getLogger(__name__)
-
-ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ROOT / "scripts"
-DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
-BENCH_TRAINING = ROOT / "benchmarks" / "bench_training.py"
-
-MAKEHUMAN_SOURCE = "female_average"
-MAKEHUMAN_TARGETS = ("female_pear", "female_slim_banana", "male_average", "male_slim")
 
 #: The paper's table 1 (Shi et al.), published figures: vertices, triangles, MDC of their transfer and of
 #: the simulation on the target, total transfer time (s) on an i7-8750H laptop. Keyed by the demo data's
@@ -72,19 +68,8 @@ PAPER_TABLE1 = {
 PAPER_TRAINING = {"triangles": 37744, "garments": 15, "epochs": 1000, "latent": 30, "seconds": 35 * 60}
 PAPER_MACHINE = "laptop Intel Core i7-8750H 2.2 GHz, 16 GB RAM, RTX 2070 Max-Q"
 
-#: Methods in report order: key, label.
-METHODS = [
-    ("ours", "Ours: model (masked loss), interpolated field, penetration fix"),
-    ("paper", "Paper as written: model (unmasked loss), nearest-triangle embedding, no fix"),
-    ("direct", "Direct deformation transfer: the body's own gradients, interpolated, penetration fix"),
-    ("surface_deform", "Blender's Surface Deform modifier bound to the source body (no fix)"),
-]
-#: Transfer settings per model-based method: (method, model key, prepared kind, keyword arguments).
-_RUNS = {
-    "ours": ("model", "ours", "interp", {}),
-    "paper": ("model", "paper", "nearest", {"interpolate": False, "fix_penetration": False}),
-    "direct": ("direct", None, "interp", {}),
-}
+#: Methods in report order.
+METHODS = ["ours", "paper", "direct", "surface_deform"]
 #: Figures summarised per method (lower is better for all).
 FIGURES = ["mdc", "penetration_ratio", "max_penetration_depth", "drape_error", "drape_error_relative",
            "vertex_error_mean", "seconds"]
@@ -148,32 +133,12 @@ def _mm_per_unit(units):
     return _MM.get((units or "").strip().lower())
 
 
-def _curve_recorder(curve):
-    """A ``train_model`` progress callback appending ``[epoch, seconds, loss]`` to ``curve``."""
-    t0 = time.perf_counter()
-
-    def progress(fraction, loss):
-        if loss is not None:
-            curve.append([len(curve) + 1, time.perf_counter() - t0, float(loss)])
-        return False
-
-    return progress
-
-
-def _thin(curve, n=200):
-    """At most ``n`` evenly spaced points of a curve, the last one kept."""
-    if len(curve) <= n:
-        return curve
-    idx = np.unique(np.linspace(0, len(curve) - 1, n).round().astype(int))
-    return [curve[i] for i in idx]
-
-
 # --------------------------------------------------------------------------------------------------
 # Blender baselines (subprocesses)
 
 
 def surface_deform(source_body: Path, targets: dict, garments: dict, workdir: Path) -> dict:
-    """Run ``scripts/surface_deform_baseline.py`` on every garment and target.
+    """Run ``lab/blender/surface_deform_baseline.py`` on every garment and target.
 
     Parameters
     ----------
@@ -191,10 +156,11 @@ def surface_deform(source_body: Path, targets: dict, garments: dict, workdir: Pa
         ``targets``, target name to ``seconds`` and ``out``, or ``error``), ``wall_seconds``; or
         ``error`` alone when the script could not run.
     """
-    script = SCRIPTS / "surface_deform_baseline.py"
+    script = BLENDER_SCRIPTS / "surface_deform_baseline.py"
     if not script.is_file():
         return {"error": f"{script} not found"}
-    cmd = [sys.executable, str(script), "--source-body", str(source_body), "--out", str(workdir)]
+    cmd = [sys.executable, "-m", "lab.blender.surface_deform_baseline",
+           "--source-body", str(source_body), "--out", str(workdir)]
     for name, path in targets.items():
         cmd += ["--target-body", f"{name}={path}"]
     for name, path in garments.items():
@@ -261,87 +227,32 @@ def quality(folder, source, targets, folds, epochs, reference_kind, sim_seconds=
         ``seconds``), ``trainings`` (per fold and variant: seconds, epochs, losses, loss ``curve``),
         ``surface_deform`` (the script's run), ``read_seconds``, ``units``, ``mm_per_unit``.
     """
-    from .dataset import build_training_fields, load_dataset
-    from .metrics import evaluate
-    from .obj import read_obj
-    from .training import train_model
-    from .transfer import prepare_garment, transfer_garment
+    from garment_transfer.dataset import load_dataset
+    from garment_transfer.obj import read_obj
 
-    sim_seconds = sim_seconds or {}
     ds = load_dataset(folder)
-    train_union = [g for g in ds.garments if any(g in tr for tr, _ in folds)]
     tests = [g for g in ds.garments if any(g in te for _, te in folds)]
-    t = time.perf_counter()
-    fields = build_training_fields(ds, source, targets, train_union, keep_raw=True)
-    read_seconds = time.perf_counter() - t
-    source_body = ds.body(source)
-    bodies = {b: ds.body(b) for b in targets}
-
-    def step(fraction, stage):
-        log.info("%s", stage)
-        if progress:
-            progress(fraction, stage)
-
-    rows, trainings = [], []
+    external, sd_summary = {}, {}
     with tempfile.TemporaryDirectory(prefix="gt_surface_deform_") as work:
-        step(0.0, "Surface Deform (Blender)")
+        if progress:
+            progress(0.0, "Surface Deform (Blender)")
         sd = surface_deform(ds.body_path(source), {b: ds.body_path(b) for b in targets},
                             {g: ds.garment_path(g, source) for g in tests}, Path(work))
         if "error" in sd:
             log.warning("Surface Deform baseline: %s", sd["error"])
-        for i, (train, test) in enumerate(folds):
-            part = fields.select(train)
-            models = {}
-            for key, masked in (("ours", True), ("paper", False)):
-                curve = []
-                model, info = train_model(part, epochs=epochs, seed=seed, masked=masked,
-                                          progress=_curve_recorder(curve))
-                models[key] = model
-                trainings.append({"fold": i, "test": list(test), "variant": key, "masked": masked,
-                                  "seconds": info["seconds"], "epochs": info["epochs"],
-                                  "threads": info["threads"], "final_loss": info["final_loss"],
-                                  "final_masked_loss": info["final_masked_loss"],
-                                  "active_triangles": info["active_triangles"],
-                                  "samples": info["samples"], "curve": _thin(curve, 100)})
-            step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
-            for g in test:
-                garment = ds.garment(g, source)
-                prepared, prep_seconds = {}, {}
-                for kind, interp in (("interp", True), ("nearest", False)):
-                    t = time.perf_counter()
-                    prepared[kind] = prepare_garment(source_body, garment, interpolate=interp)
-                    prep_seconds[kind] = time.perf_counter() - t
-                sd_g = sd.get("garments", {}).get(g, {})
-                for b in targets:
-                    body = bodies[b]
-                    ref = ds.garment(g, b)
-                    base = {"fold": i, "garment": g, "target": b}
-
-                    def add(method, V, seconds, **extra):
-                        e = evaluate(garment, garment.with_vertices(V), body, reference=ref)
-                        e.update(base, method=method, seconds=seconds, **extra)
-                        rows.append(e)
-
-                    add(reference_kind, ref.V, sim_seconds.get(g))
-                    for key, (method, mkey, kind, kw) in _RUNS.items():
-                        r = transfer_garment(source_body, body, garment, method=method,
-                                             model=models.get(mkey), target=b, prepared=prepared[kind], **kw)
-                        add(key, r.V, prep_seconds[kind] + r.seconds["total"],
-                            seconds_reused=r.seconds["total"],
-                            stages={k: v for k, v in r.seconds.items() if k != "total"})
-                    res = sd_g.get("targets", {}).get(b, {})
-                    if "out" in res:
-                        V = read_obj(res["out"]).V
-                        add("surface_deform", V, sd_g["bind_seconds"] + res["seconds"],
-                            seconds_reused=res["seconds"])
-            step((i + 1) / len(folds), f"fold {i + 1}/{len(folds)} evaluated")
-    sd_summary = {k: v for k, v in sd.items() if k != "garments"}
-    if "garments" in sd:
-        sd_summary["failures"] = {g: r["error"] for g, r in sd["garments"].items() if "error" in r}
-    return {"rows": rows, "trainings": trainings, "surface_deform": sd_summary,
-            "read_seconds": read_seconds, "units": ds.units, "mm_per_unit": _mm_per_unit(ds.units),
-            "source": source, "targets": list(targets), "reference": reference_kind,
-            "folds": [{"train": list(tr), "test": list(te)} for tr, te in folds], "epochs": epochs}
+        for g, rec in sd.get("garments", {}).items():
+            for b, res in rec.get("targets", {}).items():
+                if "out" in res:
+                    external[(g, b)] = (read_obj(res["out"]).V, rec["bind_seconds"] + res["seconds"],
+                                        res["seconds"])
+        sd_summary = {k: v for k, v in sd.items() if k != "garments"}
+        if "garments" in sd:
+            sd_summary["failures"] = {g: r["error"] for g, r in sd["garments"].items() if "error" in r}
+    out = run_experiment(folder, source, targets, folds, METHODS, epochs, reference=reference_kind, seed=seed,
+                         reference_seconds=sim_seconds, external={"surface_deform": external},
+                         progress=progress)
+    out.update(surface_deform=sd_summary, mm_per_unit=_mm_per_unit(ds.units))
+    return out
 
 
 def summarise(result) -> dict:
@@ -356,7 +267,7 @@ def summarise(result) -> dict:
     """
     mm = result.get("mm_per_unit")
     out = {}
-    methods = [result["reference"]] + [k for k, _ in METHODS]
+    methods = [result["reference"]] + METHODS
     for m in methods:
         rs = [r for r in result["rows"] if r["method"] == m]
         if not rs:
@@ -430,7 +341,7 @@ def demo_quality(settings, dataset=DEMO_DATA, progress=None):
 
 def makehuman_quality(settings, folder=None, progress=None):
     """Leave-one-garment-out quality on the MakeHuman fixtures; ``{"skipped": why}`` without them."""
-    from .dataset import load_dataset
+    from garment_transfer.dataset import load_dataset
 
     folder = folder or makehuman_folder()
     if folder is None:
@@ -479,8 +390,9 @@ def memory_case(triangles) -> dict:
         ``triangles``, ``vertices``, ``seconds`` (per stage), ``rss_before_mb`` (peak once the bodies
         and the garment are built), ``peak_rss_mb``, ``penetrating_vertices``.
     """
+    from garment_transfer.transfer import transfer_garment
+
     from .bench import bench_bodies, tube_dress
-    from .transfer import transfer_garment
 
     source, bodies = bench_bodies(1)
     garment = tube_dress(source, int(triangles))
@@ -498,7 +410,7 @@ def measure_memory(triangles, timeout=1200) -> dict:
     """``memory_case(triangles)`` in a fresh Python process, so that its peak RSS is its own."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    cmd = [sys.executable, "-m", "garment_transfer.report", "--memory-case", str(int(triangles))]
+    cmd = [sys.executable, "-m", "lab.report", "--memory-case", str(int(triangles))]
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, cwd=str(ROOT))
     except subprocess.TimeoutExpired:
@@ -509,17 +421,8 @@ def measure_memory(triangles, timeout=1200) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def _load_bench_training():
-    if not BENCH_TRAINING.is_file():
-        return None
-    spec = importlib.util.spec_from_file_location("gt_bench_training", BENCH_TRAINING)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def training_at_scale(epochs) -> dict:
-    """Train at the paper's scale on ``benchmarks/bench_training.py``'s synthetic fields.
+    """Train at the paper's scale on ``lab/training_scale.py``'s synthetic fields.
 
     Returns
     -------
@@ -528,25 +431,24 @@ def training_at_scale(epochs) -> dict:
         (steady), threads, the loss ``curve`` (``[epoch, seconds, loss]``), the paper's time and its ratio
         to ours (with the paper's epoch count only); or ``skipped``.
     """
-    bt = _load_bench_training()
-    if bt is None:
-        return {"skipped": f"{BENCH_TRAINING} not found"}
-    from .training import train_model
+    from garment_transfer.training import train_model
+
+    from . import training_scale as bt
 
     fields = bt.synthetic_fields(PAPER_TRAINING["garments"], 1)
     curve = []
     _, info = train_model(fields, latent=PAPER_TRAINING["latent"], epochs=epochs,
-                          progress=_curve_recorder(curve))
+                          progress=curve_recorder(curve))
     # Steady cost of an epoch: between the first and the last epoch (the set-up before is left out).
     per_epoch = (curve[-1][1] - curve[0][1]) / (len(curve) - 1) if len(curve) > 1 else None
-    return {"data": "synthetic fields of benchmarks/bench_training.py (timing only; no dataset of the "
+    return {"data": "synthetic fields of lab/training_scale.py (timing only; no dataset of the "
                     "paper's size is at hand)",
             "body_triangles": fields.body.n_triangles, "garments": len(fields.garments),
             "targets": len(fields.targets), "active_triangles": info["active_triangles"],
             "latent": info["latent"], "epochs": info["epochs"], "optimizer": info["optimizer"],
             "masked": info["masked"], "threads": info["threads"], "seconds": info["seconds"],
             "ms_per_epoch": per_epoch * 1000.0 if per_epoch is not None else None,
-            "final_loss": info["final_loss"], "curve": _thin(curve),
+            "final_loss": info["final_loss"], "curve": thin(curve),
             "paper_seconds": PAPER_TRAINING["seconds"],
             "paper_ms_per_epoch": 1000.0 * PAPER_TRAINING["seconds"] / PAPER_TRAINING["epochs"],
             "paper_over_ours": (PAPER_TRAINING["seconds"] / info["seconds"]
@@ -655,8 +557,6 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
         progress(0.98, "writing")
     report["plots"] = write_plots(report, out)
     seconds["total"] = time.perf_counter() - t_start
-    from .obj import write_text_atomic
-
     write_text_atomic(out / "report.md", format_report(report))
     write_text_atomic(out / "report.json", _json_text(report))
     if progress:
@@ -669,7 +569,7 @@ _NUMBER_LIST = re.compile(r"\[\s*(-?[\d.eE+-]+(?:,\s*-?[\d.eE+-]+)*)\s*\]")
 
 def _json_text(report):
     """report.json: indented, floats to 5 significant digits, lists of numbers on one line."""
-    text = json.dumps(_rounded(report), indent=1, default=_plain)
+    text = json.dumps(_rounded(report), indent=1, default=json_default)
     return _NUMBER_LIST.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",")) + "]",
                             text) + "\n"
 
@@ -683,16 +583,6 @@ def _rounded(x, digits=5):
     if isinstance(x, (float, np.floating)):
         return float(f"{float(x):.{digits}g}")
     return x
-
-
-def _plain(x):
-    if isinstance(x, (np.floating, np.integer, np.bool_)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, Path):
-        return str(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -891,7 +781,7 @@ def _quality_md(key, res):
               f"| method | MDC | penetration | max depth ({unit}) | drape error ({unit}) | drape rel. | "
               f"vertex error ({unit}) | time (s) |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for m in [k for k, _ in METHODS] + [ref]:
+    for m in METHODS + [ref]:
         s = res["summary"].get(m)
         if not s:
             lines.append(f"| {m} | not run | | | | | | |")
@@ -903,7 +793,7 @@ def _quality_md(key, res):
                      f"{_f(s['seconds'], '.3f')} |")
     rs = res["summary"].get(ref, {})
     if rs.get("penetration_ratio"):
-        inside = [m for m, _ in METHODS if (res["summary"].get(m) or {}).get("penetration_ratio")]
+        inside = [m for m in METHODS if (res["summary"].get(m) or {}).get("penetration_ratio")]
         lines += ["", f"The reference itself has {rs['penetration_ratio']:.1%} of its vertices inside the "
                       f"target body (deepest {_f(rs['max_penetration_depth'], '.1f', scale)} {unit} on "
                       "average): a method that pushes the garment out of the body moves away from it; "
@@ -954,7 +844,7 @@ def format_report(report) -> str:
     s = report["seconds"]
     lines = [f"# {report['title']}", "",
              f"Written on {report['date']} by "
-             f"`{report.get('command') or 'garment_transfer.report.run_report'}` "
+             f"`{report.get('command') or 'lab.report.run_report'}` "
              f"in {s['total']:.0f} s on {m['cpu']} ({m['cores']} cores), Python {m['python']}, numpy "
              f"{m['numpy']}, torch {m.get('torch')}. Load average (1, 5, 15 min) at the start "
              f"{', '.join(f'{x:.1f}' for x in m['load_average_start'])}, at the end "
@@ -965,7 +855,7 @@ def format_report(report) -> str:
     lines += ["Every figure here comes from this run, except the paper's published figures (Shi et al., "
               f"{PAPER_MACHINE}), which are marked as such.", "",
               "## Quality", "", "Methods:", ""]
-    lines += [f"- `{k}`: {label}" for k, label in METHODS]
+    lines += [f"- `{k}`: {ALL_METHODS[k].label}" for k in METHODS]
     lines += ["- `simulation` (demo data): the garment draped on the target body by Blender's cloth solver "
               "(the reference).",
               "- `fitted` (MakeHuman): the garment fitted on the target body by MakeHuman (the reference).",
@@ -1048,13 +938,13 @@ def format_report(report) -> str:
 
 
 def main(argv=None):
-    """``python -m garment_transfer.report --memory-case N``: one ``memory_case``, as JSON on stdout."""
+    """``python -m lab.report --memory-case N``: one ``memory_case``, as JSON on stdout."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m garment_transfer.report")
+    ap = argparse.ArgumentParser(prog="python -m lab.report")
     ap.add_argument("--memory-case", type=int, required=True, help="garment triangles")
     args = ap.parse_args(argv)
-    sys.stdout.write(json.dumps(memory_case(args.memory_case), default=_plain) + "\n")
+    sys.stdout.write(json.dumps(memory_case(args.memory_case), default=json_default) + "\n")
     return 0
 
 

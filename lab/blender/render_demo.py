@@ -1,9 +1,9 @@
 """Render the demo results (``python -m garment_transfer demo``) with Blender: a .blend and Cycles figures.
 
 With the bpy module:
-    .venv/bin/python scripts/render_demo.py --results DIR [--samples 24] [--resolution-percent 100]
+    .venv/bin/python -m lab render --results DIR [--samples 24] [--resolution-percent 100]
 In Blender:
-    blender --background --python-exit-code 1 --python scripts/render_demo.py -- --results DIR
+    blender --background --python-exit-code 1 --python lab/blender/render_demo.py -- --results DIR
 
 DIR is the folder the demo writes: ``results.json`` (source, targets, test_garments) and ``meshes/``
 (``body__<body>.obj``, ``<garment>__<source>__source.obj``, ``<garment>__<target>__<method>.obj``,
@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
+# Under a Blender binary the checkout is not installed: import it from here.
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 

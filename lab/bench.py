@@ -11,25 +11,15 @@ from __future__ import annotations
 import os
 import platform
 import time
-from pathlib import Path
 
 import numpy as np
 
-from .mesh import Mesh, mesh_from_polygons
+from garment_transfer.mesh import Mesh, mesh_from_polygons
+
+from .paths import MAKEHUMAN_SOURCE, makehuman_folder
 
 #: The paper's table 2 ("T", laptop i7-8750H), seconds for a whole transfer: published figures.
 PAPER_SECONDS = {28000: 0.764, 46000: 1.301, 84000: 2.822, 156000: 5.928}
-
-
-def makehuman_folder():
-    """The shared MakeHuman fixtures next to the repository, or None."""
-    env = os.environ.get("GARMENT_TRANSFER_MAKEHUMAN")
-    candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[2] / "shared" / "data" / "makehuman")
-    for c in candidates:
-        if (c / "bodies").is_dir():
-            return c
-    return None
 
 
 def bench_bodies(n_targets=6):
@@ -40,12 +30,12 @@ def bench_bodies(n_targets=6):
     source : Mesh
     targets : list of Mesh
     """
-    from .obj import read_obj
+    from garment_transfer.obj import read_obj
 
     folder = makehuman_folder()
     if folder is not None:
         names = ["female_pear", "female_slim_banana", "male_average", "male_slim"]
-        source = read_obj(folder / "bodies" / "female_average.obj", name="female_average")
+        source = read_obj(folder / "bodies" / f"{MAKEHUMAN_SOURCE}.obj", name=MAKEHUMAN_SOURCE)
         bodies = [read_obj(folder / "bodies" / f"{n}.obj", name=n) for n in names]
     else:
         from .procedural.mannequin import PRESETS, mannequin
@@ -110,7 +100,7 @@ def tube_dress(body: Mesh, triangles: int, folds=24, fold_depth=0.012):
 
 
 def _time_transfer(source, target, garment, prepared=None):
-    from .transfer import transfer_garment
+    from garment_transfer.transfer import transfer_garment
 
     t = time.perf_counter()
     r = transfer_garment(source, target, garment, prepared=prepared)
@@ -128,7 +118,7 @@ def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progres
         ``machine``, ``body``, ``sizes`` (a list of per-size records with per-stage ``cold`` and
         ``reused`` seconds and ``paper_seconds``), ``multi_target``.
     """
-    from .transfer import prepare_garment
+    from garment_transfer.transfer import prepare_garment
 
     source, bodies = bench_bodies(max(targets, 1))
     target = bodies[0]

@@ -10,9 +10,9 @@ timing (the cost does not depend on the values), and the output says so.
 
 Usage::
 
-    nice .venv/bin/python benchmarks/bench_training.py [--epochs 1000] [--threads N] [--optimizer adam]
+    nice .venv/bin/python -m lab training-scale [--epochs 1000] [--threads N] [--optimizer adam]
         [--unmasked] [--json]
-    nice .venv/bin/python benchmarks/bench_training.py --compare-optimisers [--epochs 300] [--threads 1]
+    nice .venv/bin/python -m lab training-scale --compare-optimisers [--epochs 300] [--threads 1]
 
 ``--compare-optimisers`` trains on the MakeHuman fixtures (source female_average, 4 targets, one garment
 held out) with each optimiser and reports the training loss, the held-out error of the predicted field
@@ -30,14 +30,13 @@ import os
 import platform
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from garment_transfer.dataset import TrainingFields
+from garment_transfer.mesh import mesh_from_polygons
 
-from garment_transfer.dataset import TrainingFields  # noqa: E402
-from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
+from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
 PAPER = {"triangles": 37744, "garments": 15, "epochs": 1000, "latent": 30, "seconds": 35 * 60}
 
@@ -79,11 +78,6 @@ def synthetic_fields(n_garments=15, n_targets=1, seed=0):
                           raw_deviation=dev.copy())
 
 
-def makehuman_folder():
-    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "makehuman"
-    return folder if (folder / "bodies").is_dir() else None
-
-
 #: (optimiser, learning rate, share of --epochs). SCG evaluates the gradient twice per epoch and L-BFGS
 #: (with its line search) about twice: they get half the epochs, for about as many gradient evaluations.
 OPTIMISER_RUNS = [("adam", 1e-3, 1.0), ("adam", 3e-3, 1.0), ("adam", 1e-2, 1.0), ("lbfgs", 1.0, 0.5),
@@ -110,8 +104,7 @@ def compare_optimisers(epochs, threads, holdout="female_casualsuit01"):
     folder = makehuman_folder()
     if folder is None:
         raise SystemExit("the MakeHuman fixtures (../shared/data/makehuman) are needed for the comparison")
-    targets = ["female_pear", "female_slim_banana", "male_average", "male_slim"]
-    fields = build_training_fields(folder, "female_average", targets)
+    fields = build_training_fields(folder, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS))
     train = fields.select([g for g in fields.garments if g != holdout])
     held = fields.select([holdout])
     rows = []
@@ -128,7 +121,7 @@ def compare_optimisers(epochs, threads, holdout="female_casualsuit01"):
                      "best_heldout_epoch": info["best_validation_epoch"], "seconds": info["seconds"],
                      "cpu_seconds": round(time.process_time() - c0, 2)})
         print(json.dumps(rows[-1]), file=sys.stderr)
-    data = (f"MakeHuman: source female_average, targets {', '.join(targets)}, {len(train.garments)} "
+    data = (f"MakeHuman: source {MAKEHUMAN_SOURCE}, targets {', '.join(MAKEHUMAN_TARGETS)}, {len(train.garments)} "
             f"training garments, held out {holdout}")
     return {"mean_field_heldout": mean_field_error(model, held), "data": data, "rows": rows}
 

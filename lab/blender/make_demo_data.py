@@ -3,7 +3,7 @@ Blender's cloth solver on the source body and then on every target body.
 
 Runs with a Python that has the ``bpy`` module (or ``blender --background --python`` this file ``--``)::
 
-    .venv/bin/python scripts/make_demo_data.py --out garment_transfer/demo_data
+    .venv/bin/python -m lab make-data [--out data/demo]
 
 Deterministic: the same arguments give the same files. Writes, in the common dataset layout,
 ``bodies/<body>.obj``, ``garments/<garment>/<body>.obj`` and ``manifest.json``.
@@ -20,15 +20,17 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = Path(__file__).resolve().parents[2]
+# Under a Blender binary (blender --python this file) the checkout is not installed: import it from here.
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 
 from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
-from garment_transfer.obj import write_text_atomic  # noqa: E402
-from garment_transfer.procedural.garments import TEST_GARMENTS, TRAIN_GARMENTS, garment  # noqa: E402
-from garment_transfer.procedural.mannequin import PRESETS, mannequin  # noqa: E402
+from garment_transfer.obj import obj_text, write_text_atomic  # noqa: E402
+from lab.procedural.garments import TEST_GARMENTS, TRAIN_GARMENTS, garment  # noqa: E402
+from lab.procedural.mannequin import PRESETS, mannequin  # noqa: E402
 
 SOURCE = "banana"
 TARGETS = ("pear", "slim", "heavy", "apple", "hourglass")
@@ -47,17 +49,14 @@ def load_cloth():
     return module
 
 
-def obj_text(V, polys, header):
-    """Compact OBJ: 5 significant digits (0.01 mm at body scale), the polygons as given."""
-    lines = [f"# {header}"]
-    lines += ["v %.5g %.5g %.5g" % tuple(v) for v in V]
-    lines += ["f " + " ".join(str(int(i) + 1) for i in p) for p in polys]
-    return "\n".join(lines) + "\n"
+def compact_obj(V, polys, header):
+    """Compact OBJ text: 5 significant digits (0.01 mm at body scale), the polygons as given."""
+    return obj_text(mesh_from_polygons(V, polys), header=header, digits=5)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default=str(ROOT / "garment_transfer" / "demo_data"))
+    ap.add_argument("--out", default=str(ROOT / "data" / "demo"))
     ap.add_argument("--garments", nargs="*", default=list(TRAIN_GARMENTS + TEST_GARMENTS))
     ap.add_argument("--targets", nargs="*", default=list(TARGETS))
     ap.add_argument("--frames", type=int, default=15, help="frames to settle after each morph")
@@ -84,7 +83,7 @@ def main(argv=None):
         bodies[name] = V
         if args.log_dir is None:
             write_text_atomic(out / "bodies" / f"{name}.obj",
-                              obj_text(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
+                              compact_obj(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
             say(f"body {name}: {V.shape[0]} vertices, {F.shape[0]} triangles")
     F = mannequin(SOURCE)[1]
     cloth = load_cloth()
@@ -111,7 +110,7 @@ def drape_one(cloth, gname, bodies, F, args, out, say, counter):
     folder.mkdir(parents=True, exist_ok=True)
     tris = mesh_from_polygons(g.V, g.polygons, name=gname).n_triangles
     for body, S in zip([SOURCE] + args.targets, shapes):
-        write_text_atomic(folder / f"{body}.obj", obj_text(S, g.polygons, f"{gname} draped on {body}"))
+        write_text_atomic(folder / f"{body}.obj", compact_obj(S, g.polygons, f"{gname} draped on {body}"))
     secs = time.perf_counter() - t
     entry = {"garment": gname, "vertices": int(g.V.shape[0]), "triangles": int(tris),
              "seconds": round(secs, 1),
@@ -133,7 +132,7 @@ def run_jobs(args, out, say):
     for name in [SOURCE] + args.targets:
         V, F = mannequin(name)
         write_text_atomic(out / "bodies" / f"{name}.obj",
-                          obj_text(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
+                          compact_obj(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
         say(f"body {name}: {V.shape[0]} vertices, {F.shape[0]} triangles")
     with tempfile.TemporaryDirectory() as logs:
         common = ["--out", str(out), "--targets", *args.targets, "--frames", str(args.frames),
@@ -161,7 +160,7 @@ def write_manifest(out, args, log):
         "targets": args.targets,
         "train_garments": [g for g in TRAIN_GARMENTS if g in done],
         "test_garments": [g for g in TEST_GARMENTS if g in done],
-        "generator": {"script": "scripts/make_demo_data.py", "frames": args.frames,
+        "generator": {"script": "lab/blender/make_demo_data.py", "frames": args.frames,
                       "morph_frames": args.morph_frames, "source_frames": args.source_frames},
         "drape_log": log,
     }

@@ -7,10 +7,10 @@ Blender ships it (default falloff and strength).
 
 With the bpy module::
 
-    .venv/bin/python scripts/surface_deform_baseline.py --source-body S.obj \
+    .venv/bin/python -m lab.blender.surface_deform_baseline --source-body S.obj \
         --target-body pear=T1.obj --target-body slim=T2.obj --garment dress=G.obj --out DIR
 
-In Blender: ``blender --background --python scripts/surface_deform_baseline.py -- <same arguments>``.
+In Blender: ``blender --background --python lab/blender/surface_deform_baseline.py -- <same arguments>``.
 
 ``NAME=PATH`` names an input (default: the file's stem). Writes ``DIR/<garment>__<target>.obj`` (the
 garment file with only its ``v`` lines changed) and ``DIR/surface_deform.json``: one record per garment
@@ -27,8 +27,10 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = Path(__file__).resolve().parents[2]
+# Under a Blender binary the checkout is not installed: import it from here.
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
 
 def named_path(text):

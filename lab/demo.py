@@ -1,11 +1,11 @@
 """The main job on the built-in demo data: train, transfer the test garments, measure, report.
 
-The demo dataset (``garment_transfer/demo_data``, made by ``scripts/make_demo_data.py`` with
-Blender's cloth solver) has procedural mannequins (a banana-shaped source and five targets) and 20
-garments draped on each: 15 for training, 5 complex ones for testing. For every test garment and
-target body this writes the transferred garment of every method, the simulation on that body as
-the reference, and a report in the form of the paper's table 1. Renders and a .blend come from
-``scripts/render_demo.py`` (Blender), run as a separate process.
+The demo dataset (``data/demo``, made by ``lab/blender/make_demo_data.py`` with Blender's cloth solver)
+has procedural mannequins (a banana-shaped source and five targets) and 20 garments draped on each: 15
+for training, 5 complex ones for testing. For every test garment and target body this writes the
+transferred garment of every method, the simulation on that body as the reference, and a report in the
+form of the paper's table 1. Renders and a .blend come from ``lab/blender/render_demo.py`` (Blender), run
+as a separate process.
 """
 
 from __future__ import annotations
@@ -20,27 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .metrics import evaluate, per_vertex_change
-from .obj import write_obj, write_text_atomic
+from garment_transfer.files import write_json_atomic, write_text_atomic
+from garment_transfer.metrics import per_vertex_change
+from garment_transfer.obj import write_obj
+
+from .experiment import METHODS as ALL_METHODS
+from .experiment import run_experiment
+from .paths import BLENDER_SCRIPTS, DEMO_DATA
 
 log = logging.getLogger(__name__)
 
-DEMO_DATA = Path(__file__).resolve().parent / "demo_data"
-
-#: Methods compared, in report order: (key, label, transfer keyword arguments).
-METHODS = [
-    ("ours", "Ours (model, masked, interpolated, penetration fix)", {}),
-    ("paper", "Paper as written (nearest triangle, unmasked loss, no fix)",
-     {"interpolate": False, "fix_penetration": False}),
-    ("direct", "Direct deformation transfer (body gradients)", {}),
-    ("surface", "Body-driven fit (like Surface Deform)", {}),
-]
-
-
-def _manifest(folder):
-    path = Path(folder) / "manifest.json"
-    with open(path, encoding="utf-8") as fh:
-        return json.load(fh)
+#: Methods compared, in report order.
+METHODS = ["ours", "paper", "direct", "surface"]
 
 
 def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epochs=None, render=True):
@@ -67,16 +58,11 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
     dict
         ``rows`` (one per garment, target and method), ``training``, ``seconds``, ``report``.
     """
-    from .dataset import load_dataset
-    from .model import load_model
-    from .training import train_from_dataset
-    from .transfer import prepare_garment, transfer_garment
-
     t_start = time.perf_counter()
     out = Path(out)
-    (out / "meshes").mkdir(parents=True, exist_ok=True)
-    man = _manifest(dataset)
-    ds = load_dataset(dataset)
+    meshes = out / "meshes"
+    meshes.mkdir(parents=True, exist_ok=True)
+    man = json.loads((Path(dataset) / "manifest.json").read_text(encoding="utf-8"))
     source = man["source"]
     targets = list(man["targets"])
     train = list(man["train_garments"])
@@ -89,61 +75,36 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
         if progress:
             progress(fraction, stage)
 
+    def save_models(_fold, models):
+        for key in ("ours", "paper"):
+            models[key].save(out / f"model_{key}.npz")
+        step(0.3, "trained the shared model (ours and the paper's)")
+
+    def save_result(g, t, key, garment, V):
+        write_obj(meshes / f"{g}__{t}__{key}.obj", garment, V)
+        if key == "ours":
+            np.save(meshes / f"{g}__{t}__ours_change.npy", per_vertex_change(garment.V, V).astype(np.float32))
+
     step(0.0, "training the shared model")
-    training = {}
-    models = {}
-    for key, masked in (("ours", True), ("paper", False)):
-        path = out / f"model_{key}.npz"
-        training[key] = train_from_dataset(dataset, source, targets, garments=train, epochs=epochs,
-                                           seed=0, out=path, masked=masked)
-        models[key] = load_model(path)
-        step(0.15 if key == "ours" else 0.3, f"trained {key} in {training[key]['seconds']:.1f} s")
+    res = run_experiment(dataset, source, targets, [(train, test)], METHODS, epochs, reference="simulation",
+                         on_result=save_result, on_models=save_models,
+                         progress=lambda f, stage: step(0.3 + 0.6 * f, stage))
+    from garment_transfer.dataset import load_dataset
 
-    source_body = ds.body(source)
-    bodies = {t: ds.body(t) for t in targets}
-    rows = []
-    n_jobs = len(test) * len(targets)
-    done = 0
+    ds = load_dataset(dataset)
     for g in test:
-        garment = ds.garment(g, source)
-        prepared = {"interp": prepare_garment(source_body, garment),
-                    "nearest": prepare_garment(source_body, garment, interpolate=False)}
-        write_obj(out / "meshes" / f"{g}__{source}__source.obj", garment)
-        for t in targets:
-            reference = ds.garment(g, t)
-            body = bodies[t]
-            sim = evaluate(garment, reference, body, reference=reference)
-            sim.update(garment=g, target=t, method="simulation", seconds=None)
-            rows.append(sim)
-            write_obj(out / "meshes" / f"{g}__{t}__simulation.obj", reference)
-            for key, _, kwargs in METHODS:
-                method = "model" if key in ("ours", "paper") else key
-                prep = prepared["nearest" if not kwargs.get("interpolate", True) else "interp"]
-                if method == "surface":
-                    prep = None
-                r = transfer_garment(source_body, body, garment, method=method, model=models.get(key),
-                                     target=t, prepared=prep, **kwargs)
-                result = garment.with_vertices(r.V)
-                e = evaluate(garment, result, body, reference=reference)
-                e.update(garment=g, target=t, method=key, seconds=r.seconds)
-                rows.append(e)
-                write_obj(out / "meshes" / f"{g}__{t}__{key}.obj", garment, r.V)
-                if key == "ours":
-                    np.save(out / "meshes" / f"{g}__{t}__ours_change.npy",
-                            per_vertex_change(garment.V, r.V).astype(np.float32))
-            done += 1
-            step(0.3 + 0.6 * done / n_jobs, f"{g} on {t}")
-    for t in targets:
-        write_obj(out / "meshes" / f"body__{t}.obj", bodies[t])
-    write_obj(out / "meshes" / f"body__{source}.obj", source_body)
+        write_obj(meshes / f"{g}__{source}__source.obj", ds.garment(g, source))
+    for b in [source] + targets:
+        write_obj(meshes / f"body__{b}.obj", ds.body(b))
 
+    training = {t["variant"]: {k: v for k, v in t.items() if k != "curve"} for t in res["trainings"]}
     seconds = {"total_before_render": time.perf_counter() - t_start}
     summary = {"dataset": str(dataset), "source": source, "targets": targets, "train_garments": train,
-               "test_garments": test, "epochs": epochs, "training": training, "rows": rows,
+               "test_garments": test, "epochs": epochs, "training": training, "rows": res["rows"],
                "seconds": seconds}
     report = format_report(summary)
     write_text_atomic(out / "report.md", report)
-    write_text_atomic(out / "results.json", json.dumps(summary, indent=1, default=_plain))
+    write_json_atomic(out / "results.json", summary)
     if render:
         step(0.92, "rendering with Blender (Cycles, CPU)")
         seconds["render"] = render_results(out)
@@ -154,27 +115,19 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
             f"{seconds['render']:.0f} s.\n")
         write_text_atomic(out / "report.md", report)
     seconds["total"] = time.perf_counter() - t_start
-    write_text_atomic(out / "results.json", json.dumps(summary, indent=1, default=_plain))
+    write_json_atomic(out / "results.json", summary)
     step(1.0, "done")
     summary["report"] = str(out / "report.md")
     summary["summary_lines"] = report.splitlines()[:40]
     return summary
 
 
-def _plain(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
-
-
 def render_results(out):
-    """Run ``scripts/render_demo.py`` on the results folder; seconds taken."""
-    script = Path(__file__).resolve().parents[1] / "scripts" / "render_demo.py"
+    """Run ``lab/blender/render_demo.py`` on the results folder; seconds taken."""
+    script = BLENDER_SCRIPTS / "render_demo.py"
     t = time.perf_counter()
-    p = subprocess.run([sys.executable, str(script), "--results", str(out)], capture_output=True, text=True,
-                       env=dict(os.environ))
+    p = subprocess.run([sys.executable, "-m", "lab.blender.render_demo", "--results", str(out)],
+                       capture_output=True, text=True, env=dict(os.environ))
     if p.returncode != 0:
         raise RuntimeError(f"rendering failed ({script.name}): {p.stderr.strip().splitlines()[-1:]}")
     return time.perf_counter() - t
@@ -215,13 +168,13 @@ def format_report(summary) -> str:
             continue
         lines.append(f"| {g} | {o['vertices']} | {o['triangles']} | {o['mdc']:.4f} | {s['mdc']:.4f} | "
                      f"{100 * o['penetration_ratio']:.2f}% | {100 * s['penetration_ratio']:.2f}% | "
-                     f"{_fmt(o['drape_error_relative'])} | {o['seconds']['total']:.3f} |")
+                     f"{_fmt(o['drape_error_relative'])} | {o['seconds']:.3f} |")
     lines += ["", "## Every method, mean over test garments, per target", "",
               "| target | method | MDC | penetration | max depth (m) | drape error (m) | drape rel. | "
               "vertex error vs simulation (m) | time (s) |",
               "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for t in summary["targets"]:
-        for key in ["simulation"] + [k for k, _, _ in METHODS]:
+        for key in ["simulation"] + METHODS:
             rs = [by[(g, t, key)] for g in summary["test_garments"] if (g, t, key) in by]
             if not rs:
                 continue
@@ -230,13 +183,13 @@ def format_report(summary) -> str:
                 vals = [r[name] for r in rs if r.get(name) is not None]
                 return float(np.mean(vals)) if vals else None
 
-            secs = [r["seconds"]["total"] for r in rs if r.get("seconds")]
+            secs = [r["seconds"] for r in rs if r.get("seconds")]
             lines.append(f"| {t} | {key} | {mean('mdc'):.4f} | {100 * mean('penetration_ratio'):.2f}% | "
                          f"{mean('max_penetration_depth'):.4f} | {_fmt(mean('drape_error'), '.4f')} | "
                          f"{_fmt(mean('drape_error_relative'))} | {_fmt(mean('vertex_error_mean'), '.4f')} | "
                          f"{_fmt(float(np.mean(secs)) if secs else None)} |")
-    lines += ["", "Methods:", ""] + [f"- `{k}`: {label}" for k, label, _ in METHODS] + [
+    lines += ["", "Methods:", ""] + [f"- `{k}`: {ALL_METHODS[k].label}" for k in METHODS] + [
         "- `simulation`: the garment draped on the target body by Blender's cloth solver (the reference).",
-        "", f"Written by `python -m garment_transfer demo` in "
+        "", f"Written by `python -m lab demo` in "
             f"{summary['seconds']['total_before_render']:.0f} s (before rendering).", ""]
     return "\n".join(lines)

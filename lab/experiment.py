@@ -1,0 +1,261 @@
+"""The one experiment loop: train the models a set of methods needs, transfer held-out garments with every
+method to every target body, and evaluate each result against the reference garment on that body.
+
+The demo, the benchmark report and the held-out studies are each one call of ``run_experiment`` with
+their own data: which methods (keys of ``METHODS``), which garments are trained on and tested (folds),
+which bodies. Figures are ``garment_transfer.metrics.evaluate``'s.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from garment_transfer.dataset import build_training_fields, load_dataset
+from garment_transfer.gradients import deformation_gradients
+from garment_transfer.metrics import evaluate
+from garment_transfer.training import train_model
+from garment_transfer.transfer import prepare_garment, transfer_garment
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Method:
+    """One way of transferring a garment, as the experiments compare them.
+
+    Attributes
+    ----------
+    key, label : str
+    kind : {"model", "direct", "surface", "external"}
+        A ``transfer_garment`` method, or ``external``: results computed elsewhere (Blender's Surface
+        Deform) and handed to ``run_experiment``.
+    variant : str, optional
+        For ``model``: the training variant (a key of ``VARIANTS``).
+    field : str
+        For ``model``: how the model's field for a new garment is read (``SharedDeformationModel.body_field``'s
+        ``how``), or ``"oracle"``: the held-out garment's own embedded deformation.
+    interpolate, fix_penetration : bool
+        ``transfer_garment``'s options.
+    """
+
+    key: str
+    label: str
+    kind: str
+    variant: str | None = None
+    field: str = "mean_latent"
+    interpolate: bool = True
+    fix_penetration: bool = True
+
+
+#: Training variants: ``train_model`` keyword arguments.
+VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]}}
+
+#: Every method the lab compares, by key.
+METHODS = {m.key: m for m in (
+    Method("ours", "Ours: model (masked loss), interpolated field, penetration fix", "model", "ours"),
+    Method("paper", "Paper as written: model (unmasked loss), nearest-triangle embedding, no fix", "model",
+           "paper", interpolate=False, fix_penetration=False),
+    Method("direct", "Direct deformation transfer: the body's own gradients, interpolated, penetration fix",
+           "direct"),
+    Method("surface", "Body-driven fit (like Surface Deform): the garment follows the body alone", "surface"),
+    Method("surface_deform", "Blender's Surface Deform modifier bound to the source body (no fix)", "external"),
+    Method("mean_field", "Model's mean of the training fields (no network)", "model", "ours", field="mean_field"),
+    Method("hidden_mean_latent", "Model with a 32-unit sigmoid hidden layer, decoder at the mean latent",
+           "model", "hidden"),
+    Method("hidden_mean_decoded", "Model with a 32-unit sigmoid hidden layer, mean of the decoded fields",
+           "model", "hidden", field="mean_decoded"),
+    Method("oracle", "The held-out garment's own embedded deformation (the best a body field can do here)",
+           "model", "ours", field="oracle"),
+)}
+
+
+class _FixedField:
+    """Stands in for a model in ``transfer_garment``: a given body field per target."""
+
+    def __init__(self, model, field_of):
+        self._model = model
+        self._field_of = field_of
+        self.name = model.name
+        self.targets = model.targets
+
+    def check_source_body(self, mesh):
+        self._model.check_source_body(mesh)
+
+    def body_field(self, target):
+        return self._field_of(target)
+
+
+def curve_recorder(curve):
+    """A ``train_model`` progress callback appending ``[epoch, seconds, loss]`` to ``curve``."""
+    t0 = time.perf_counter()
+
+    def progress(fraction, loss):
+        if loss is not None:
+            curve.append([len(curve) + 1, time.perf_counter() - t0, float(loss)])
+        return False
+
+    return progress
+
+
+def thin(curve, n=200):
+    """At most ``n`` evenly spaced points of a curve, the last one kept."""
+    if len(curve) <= n:
+        return curve
+    idx = np.unique(np.linspace(0, len(curve) - 1, n).round().astype(int))
+    return [curve[i] for i in idx]
+
+
+def field_rms(Q, true_dev, covered):
+    """RMS over the covered triangles of the difference between a field Q (M,3,3) and I + true_dev (M,9)."""
+    d = Q.reshape(-1, 9)[covered] - (np.eye(3).reshape(9) + true_dev[covered])
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
+def _field_source(method, model, fields, gi, targets):
+    """What ``transfer_garment`` reads a model-based method's body field from."""
+    if method.field == "mean_latent":
+        return model
+    if method.field != "oracle":
+        return _FixedField(model, lambda t: model.body_field(t, how=method.field))
+
+    def own(t):
+        k = targets.index(t)
+        dev = np.where(fields.covered[gi][:, None], fields.deviation[gi, k], fields.body_deviation[k])
+        return dev.astype(np.float64).reshape(-1, 3, 3) + np.eye(3)
+
+    return _FixedField(model, own)
+
+
+def run_experiment(dataset, source, targets, folds, methods, epochs, reference="simulation", seed=0,
+                   threads=None, reference_seconds=None, external=None, field_error=False,
+                   on_result=None, on_models=None, progress=None):
+    """Train, transfer and evaluate: every method on every held-out garment and target.
+
+    Parameters
+    ----------
+    dataset : str or Path
+        A dataset folder (``garment_transfer.dataset.load_dataset``).
+    source : str
+        The source body.
+    targets : list of str
+    folds : list of (list of str, list of str)
+        (training garments, test garments); the models are trained once per fold.
+    methods : list of str
+        Keys of ``METHODS``, in report order.
+    epochs : int
+    reference : str
+        The method name of the reference rows (``simulation`` or ``fitted``).
+    seed, threads : int
+        ``train_model``'s.
+    reference_seconds : dict, optional
+        Garment name to the seconds the reference took per body (simulation time).
+    external : dict, optional
+        Method key to {(garment, target): (V (n,3), seconds cold, seconds reused)} for ``external`` methods.
+    field_error : bool
+        Also record ``field_rms``: the RMS difference between each method's body field and the test
+        garment's own embedded deformation (its target garments must be in the dataset).
+    on_result : callable(garment, target, key, garment_mesh, V), optional
+        Called with every result (the reference too, under the name ``reference``).
+    on_models : callable(fold, {variant: model}), optional
+        Called with each fold's trained models.
+    progress : callable(fraction, stage), optional
+
+    Returns
+    -------
+    dict
+        ``rows`` (one per fold, garment, target and method: ``evaluate``'s figures plus ``fold``,
+        ``garment``, ``target``, ``method``, ``seconds`` (cold: the garment's preparation and the
+        transfer), ``seconds_reused`` and ``stages``), ``trainings`` (per fold and variant: seconds,
+        epochs, losses, loss ``curve``), ``read_seconds``, ``units``, ``up_axis``.
+    """
+    methods = [METHODS[k] for k in methods]
+    external = external or {}
+    reference_seconds = reference_seconds or {}
+    variants = sorted({m.variant for m in methods if m.kind == "model"}, key=list(VARIANTS).index)
+
+    def step(fraction, stage):
+        log.info("%s", stage)
+        if progress:
+            progress(fraction, stage)
+
+    ds = load_dataset(dataset)
+    tests = [g for g in ds.garments if any(g in te for _, te in folds)]
+    needed = [g for g in ds.garments if any(g in tr for tr, _ in folds)
+              or (g in tests and (field_error or any(m.field == "oracle" for m in methods)))]
+    t = time.perf_counter()
+    fields = build_training_fields(ds, source, targets, needed, keep_raw=True) if needed else None
+    read_seconds = time.perf_counter() - t
+    source_body = ds.body(source)
+    bodies = {b: ds.body(b) for b in targets}
+    body_fields = {b: deformation_gradients(source_body.V, bodies[b].V, source_body.F)[0]
+                   for b in targets} if field_error else {}
+    dataset_info = {"folder": ds.folder.name, "units": ds.units, "up_axis": ds.up_axis}
+
+    rows, trainings = [], []
+    for i, (train, test) in enumerate(folds):
+        part = fields.select(train) if variants else None
+        models = {}
+        for v in variants:
+            curve = []
+            model, info = train_model(part, epochs=epochs, seed=seed, threads=threads,
+                                      progress=curve_recorder(curve), **VARIANTS[v])
+            model.metadata["dataset"] = dataset_info
+            models[v] = model
+            kept = ("seconds", "epochs", "threads", "final_loss", "final_masked_loss", "active_triangles",
+                    "samples")
+            trainings.append({"fold": i, "test": list(test), "variant": v,
+                              "masked": VARIANTS[v].get("masked", True), **{k: info[k] for k in kept},
+                              "curve": thin(curve, 100)})
+        if on_models:
+            on_models(i, models)
+        step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
+        for g in test:
+            garment = ds.garment(g, source)
+            prepared, prep_seconds = {}, {}
+            for interp in sorted({m.interpolate for m in methods if m.kind != "external"}, reverse=True):
+                t = time.perf_counter()
+                prepared[interp] = prepare_garment(source_body, garment, interpolate=interp)
+                prep_seconds[interp] = time.perf_counter() - t
+            gi = fields.garments.index(g) if fields is not None and g in fields.garments else None
+            for b in targets:
+                body = bodies[b]
+                ref = ds.garment(g, b)
+                k = targets.index(b)
+
+                def add(key, V, seconds, Q=None, **extra):
+                    e = evaluate(garment, garment.with_vertices(V), body, reference=ref)
+                    e.update(fold=i, garment=g, target=b, method=key, seconds=seconds, **extra)
+                    if field_error and gi is not None and Q is not None:
+                        e["field_rms"] = field_rms(Q, fields.deviation[gi, k].astype(np.float64),
+                                                   fields.covered[gi])
+                    rows.append(e)
+                    if on_result:
+                        on_result(g, b, key, garment, V)
+
+                add(reference, ref.V, reference_seconds.get(g))
+                for m in methods:
+                    if m.kind == "external":
+                        got = external.get(m.key, {}).get((g, b))
+                        if got is not None:
+                            add(m.key, got[0], got[1], seconds_reused=got[2])
+                        continue
+                    model, Q = None, None
+                    if m.kind == "model":
+                        model = _field_source(m, models[m.variant], fields, gi, targets)
+                        Q = model.body_field(b) if field_error else None
+                    elif m.kind == "direct":
+                        Q = body_fields.get(b)
+                    r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
+                                         prepared=prepared[m.interpolate], interpolate=m.interpolate,
+                                         fix_penetration=m.fix_penetration)
+                    add(m.key, r.V, prep_seconds[m.interpolate] + r.seconds["total"], Q=Q,
+                        seconds_reused=r.seconds["total"],
+                        stages={s: v for s, v in r.seconds.items() if s != "total"})
+        step((i + 1) / len(folds), f"fold {i + 1}/{len(folds)} evaluated")
+    return {"rows": rows, "trainings": trainings, "read_seconds": read_seconds, "units": ds.units,
+            "up_axis": ds.up_axis, "source": source, "targets": list(targets), "reference": reference,
+            "folds": [{"train": list(tr), "test": list(te)} for tr, te in folds], "epochs": epochs}

@@ -1,0 +1,26 @@
+"""Where the lab's data lives: the one place that knows the repository's and the shared folders' layout."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+#: The repository root (the extension root).
+ROOT = Path(__file__).resolve().parents[1]
+#: The built-in demo dataset (``lab/blender/make_demo_data.py`` writes it).
+DEMO_DATA = ROOT / "data" / "demo"
+#: Blender-side scripts the lab runs in subprocesses.
+BLENDER_SCRIPTS = ROOT / "lab" / "blender"
+#: The MakeHuman fixtures' place beside a checkout (``../shared/data/makehuman``).
+SHARED_MAKEHUMAN = ROOT.parent / "shared" / "data" / "makehuman"
+MAKEHUMAN_SOURCE = "female_average"
+MAKEHUMAN_TARGETS = ("female_pear", "female_slim_banana", "male_average", "male_slim")
+
+
+def makehuman_folder():
+    """The MakeHuman fixtures (``$GARMENT_TRANSFER_MAKEHUMAN``, else ``SHARED_MAKEHUMAN``), or None."""
+    env = os.environ.get("GARMENT_TRANSFER_MAKEHUMAN")
+    for c in ([Path(env)] if env else []) + [SHARED_MAKEHUMAN]:
+        if (c / "bodies").is_dir():
+            return c
+    return None

@@ -1,0 +1,40 @@
+"""``python -m lab``: the lab's commands run as a user runs them."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "lab", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_help_on_every_lab_command():
+    p = run("--help")
+    assert p.returncode == 0
+    for cmd in ("demo", "bench", "report", "heldout", "training-scale", "make-data", "render"):
+        assert cmd in p.stdout
+    for cmd in ("demo", "bench", "report", "heldout", "training-scale"):
+        p = run(cmd, "--help")
+        assert p.returncode == 0 and "usage" in p.stdout, (cmd, p.stderr)
+
+
+def test_bench_small_runs():
+    p = run("bench", "--sizes", "3000,6000", "--repeats", "1", "--targets", "2", "--json")
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert [r["requested"] for r in data["sizes"]] == [3000, 6000]
+    for r in data["sizes"]:
+        assert abs(r["triangles"] - r["requested"]) / r["requested"] < 0.05
+        assert r["cold"]["penetrating_vertices"] == 0
+    assert len(data["multi_target"]["per_target_seconds"]) == 2
+
+
+def test_bench_refuses_sizes_and_repeats_out_of_range():
+    for args in (("--repeats", "0"), ("--sizes", "-5"), ("--sizes", "")):
+        p = run("bench", *args)
+        assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
