@@ -254,14 +254,13 @@ def project(f, V, iterations=4):
 
 
 def _neighbours(n, F):
+    """(n,n) sparse averaging over each vertex's edge neighbours."""
     import scipy.sparse as sp
 
-    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2], F[:, 1], F[:, 2], F[:, 0]])
-    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0], F[:, 0], F[:, 1], F[:, 2]])
-    A = sp.csr_matrix((np.ones(i.shape[0]), (i, j)), shape=(n, n))
-    A.data[:] = 1.0
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    return sp.diags(1.0 / deg) @ A
+    from garment_transfer.penetration import vertex_adjacency
+
+    A = vertex_adjacency(n, F)
+    return sp.diags(1.0 / np.asarray(A.sum(axis=1)).ravel()) @ A
 
 
 def relax(f, V, F, iterations=3, step=0.5):
