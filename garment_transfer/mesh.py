@@ -16,6 +16,9 @@ from .errors import MeshError, TopologyMismatchError
 # One place for geometric tolerances: a triangle whose doubled area is below
 # DEGENERATE_AREA * (mean edge length)^2 counts as degenerate.
 DEGENERATE_AREA = 1e-12
+# Coordinates beyond this overflow once squared in areas and distances (1e300 ** 2 = inf); no mesh
+# in any unit comes near it.
+MAX_COORDINATE = 1e100
 
 
 @dataclass
@@ -160,7 +163,8 @@ def mesh_from_triangles(V, F, name="mesh") -> Mesh:
 
 
 def check_polygons(V, face_vertices, face_start, name):
-    """Raise MeshError for what no algorithm here can use: no faces, bad indices, NaN/inf."""
+    """Raise MeshError for what no algorithm here can use: no faces, bad indices, NaN/inf, coordinates
+    too large to square."""
     if V.shape[0] == 0:
         raise MeshError(name, "the mesh has no vertices")
     if face_start.shape[0] <= 1:
@@ -168,6 +172,11 @@ def check_polygons(V, face_vertices, face_start, name):
     if not np.all(np.isfinite(V)):
         bad = int(np.flatnonzero(~np.all(np.isfinite(V), axis=1))[0])
         raise MeshError(name, f"vertex {bad} has a NaN or infinite coordinate")
+    big = np.abs(V).max(axis=1) > MAX_COORDINATE
+    if big.any():
+        bad = int(np.flatnonzero(big)[0])
+        raise MeshError(name, f"vertex {bad} has a coordinate of {np.abs(V[bad]).max():.3g}, too large to "
+                              "compute with (are the units right?)")
     sizes = np.diff(face_start)
     if np.any(sizes < 3):
         bad = int(np.flatnonzero(sizes < 3)[0])

@@ -87,7 +87,9 @@ def test_non_manifold_and_disconnected_pieces(bodies):
 
 def test_garment_inside_the_body_is_pushed_out(bodies):
     src, tgt = bodies
-    V, F = skirt(radius=0.95)
+    # Skin-tight: inside by 0.15% of the body scale (the placement check refuses more than 1% of
+    # the vertices deeper than 0.5%).
+    V, F = skirt(radius=0.997)
     g = mesh_from_triangles(V, F, name="inside")
     r = transfer_garment(src, tgt, g)
     assert r.info["inside_before"] > 0 and r.penetrating_vertices == 0
