@@ -1,7 +1,12 @@
 """Command line: ``python -m garment_transfer <command> ...`` (``--help`` on each).
 
 Exit code 0 on success, 1 on an input or model problem (one line naming the file and what is
-wrong, and no output file written), 2 on a usage error.
+wrong, and no output file written), 2 on a usage error (including an option out of its range),
+130 when stopped with Ctrl+C (one line, nothing half-written).
+
+Outputs are checked before any long work starts (see ``output.check_output``): an output that is
+one of the inputs, a symlink, a special file or a folder, or whose folder is missing or read-only,
+is refused at once.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ log = logging.getLogger("garment_transfer")
 
 def _emit(args, result: dict, lines):
     if getattr(args, "json", False):
-        print(json.dumps(result, indent=2, default=_jsonable))
+        print(json.dumps(_finite(result), indent=2, default=_jsonable, allow_nan=False))
     else:
         for line in lines:
             print(line)
@@ -34,6 +39,50 @@ def _jsonable(x):
     if isinstance(x, np.ndarray):
         return x.tolist()
     raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+
+
+def _finite(x):
+    """NaN and infinities as null: JSON has no such numbers."""
+    import math
+
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if hasattr(x, "dtype") and getattr(x, "shape", None) == () and x.dtype.kind == "f":
+        return _finite(float(x))
+    return x
+
+
+def _number(kind, low, low_inclusive=True, what="a number"):
+    """An argparse type: a finite ``kind`` (int or float) above ``low``; argparse makes the error a
+    one-line usage error (exit 2) naming the option."""
+    import math
+
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
+        if value < low or (value == low and not low_inclusive):
+            bound = f">= {low}" if low_inclusive else f"> {low}"
+            raise argparse.ArgumentTypeError(f"{text!r} must be {bound}")
+        return value
+
+    parse.__name__ = what
+    return parse
+
+
+def _sizes(text):
+    parse = _number(int, 3, what="a whole number")
+    try:
+        return [parse(x) for x in text.split(",")]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"in {text!r}: {exc} (garment triangle counts, comma-separated)")
 
 
 def _stderr_progress(label, every=0.05):
@@ -51,6 +100,10 @@ def _stderr_progress(label, every=0.05):
 
 def cmd_transfer(args):
     from .obj import read_obj, write_obj
+    from .output import check_output
+
+    inputs = [args.source_body, args.target_body, args.garment, args.model]
+    check_output(args.out, inputs, "--out")
     from .transfer import transfer_garment
 
     t = time.perf_counter()
@@ -69,7 +122,7 @@ def cmd_transfer(args):
                               target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
                               interpolate=not args.no_interpolate)
     t = time.perf_counter()
-    write_obj(args.out, garment, result.V,
+    write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
                      f"{os.path.basename(args.target_body)} ({args.method})")
     seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
@@ -101,6 +154,9 @@ def cmd_train(args):
     except ImportError as exc:
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
+    from .output import check_output
+
+    check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
@@ -149,14 +205,15 @@ def build_parser():
     t.add_argument("--target-body", required=True, help="OBJ: the same body mesh in the target shape")
     t.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
     t.add_argument("--out", required=True, help="OBJ to write (the garment's own faces, new positions)")
-    t.add_argument("--method", choices=["direct", "model", "surface"], default="direct",
+    t.add_argument("--method", choices=["direct", "model", "surface"], default=None,
                    help="direct: the body's own deformation (default); model: a trained shared "
-                        "deformation model; surface: follow the body only (baseline)")
-    t.add_argument("--model", help="model file (.npz) for --method model")
-    t.add_argument("--target", help="the model's target label for --method model")
-    t.add_argument("--offset", type=float, default=None,
-                   help="distance kept from the body, in the files' units "
-                        "(default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
+                        "deformation model (the default when --model or --target is given); "
+                        "surface: follow the body only (baseline)")
+    t.add_argument("--model", help="model file (.npz); implies --method model")
+    t.add_argument("--target", help="the model's target label; implies --method model")
+    t.add_argument("--offset", type=_number(float, 0.0, what="a distance"), default=None,
+                   help="distance kept from the body, in the files' units: >= 0 and at most 5%% of "
+                        "the body's size (default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
     t.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")
@@ -177,19 +234,23 @@ def build_parser():
     r.add_argument("--source", required=True, help="source body name")
     r.add_argument("--targets", required=True, help="target body names, comma-separated")
     r.add_argument("--garments", help="garment names to train on, comma-separated (default: all)")
-    r.add_argument("--epochs", type=int, default=1000)
-    r.add_argument("--latent", type=int, default=30)
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--epochs", type=_number(int, 1, what="a whole number"), default=1000,
+                   help="training epochs (>= 1)")
+    r.add_argument("--latent", type=_number(int, 1, what="a whole number"), default=30,
+                   help="size of the shared deformation space (>= 1)")
+    r.add_argument("--seed", type=_number(int, 0, what="a whole number"), default=0)
     r.add_argument("--unmasked", action="store_true", help="the paper's unmasked loss")
     r.add_argument("--out", required=True, help="model file to write (.npz)")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
     b = sub.add_parser("bench", help="per-stage transfer times against the paper's")
-    b.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")],
-                   default=[28000, 46000, 84000, 156000], help="garment triangle counts")
-    b.add_argument("--repeats", type=int, default=3, help="runs per size (the best is kept)")
-    b.add_argument("--targets", type=int, default=6, help="bodies in the multi-target run")
+    b.add_argument("--sizes", type=_sizes,
+                   default=[28000, 46000, 84000, 156000], help="garment triangle counts (each >= 3)")
+    b.add_argument("--repeats", type=_number(int, 1, what="a whole number"), default=3,
+                   help="runs per size, >= 1 (the best is kept)")
+    b.add_argument("--targets", type=_number(int, 1, what="a whole number"), default=6,
+                   help="bodies in the multi-target run (>= 1)")
     b.add_argument("--report", metavar="DIR",
                    help="instead, the whole benchmark report (quality of every method on the demo data and "
                         "the MakeHuman fixtures, speed to 300K triangles, memory, training) into DIR")
@@ -206,11 +267,21 @@ def build_parser():
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command == "transfer":
+            if args.method is None:
+                args.method = "model" if (args.model or args.target) else "direct"
+            elif args.method != "model" and (args.model or args.target):
+                parser.error(f"--model and --target are for --method model, not --method {args.method}")
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
         args.func(args)
+    except KeyboardInterrupt:
+        # Every writer renames a complete temporary file at the end: nothing is half-written.
+        print("interrupted (Ctrl+C); no partial file written", file=sys.stderr)
+        return 130
     except GarmentTransferError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -264,8 +264,23 @@ def require_same_topology(a: Mesh, b: Mesh):
     if (a.face_start.shape != b.face_start.shape or a.face_vertices.shape != b.face_vertices.shape
             or not np.array_equal(a.face_vertices, b.face_vertices)
             or not np.array_equal(a.face_start, b.face_start)):
+        if _reversed_faces(a, b):
+            raise TopologyMismatchError(
+                b.name, f"has the faces of {a.name} turned around (one of them is mirrored: a negative "
+                        "scale); mirror both or neither")
         raise TopologyMismatchError(
             b.name, f"has other faces than {a.name}; the two must be the same mesh in different shapes")
+
+
+def _reversed_faces(a: Mesh, b: Mesh) -> bool:
+    if not np.array_equal(a.face_start, b.face_start) or a.face_vertices.shape != b.face_vertices.shape:
+        return False
+    fs = a.face_start
+    sizes = np.diff(fs)
+    start = np.repeat(fs[:-1], sizes)
+    local = np.arange(fs[-1]) - start
+    turned = np.where(local == 0, 0, np.repeat(sizes, sizes) - local)
+    return bool(np.array_equal(a.face_vertices[start + turned], b.face_vertices))
 
 
 def faces_hash(mesh: Mesh) -> str:

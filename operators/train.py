@@ -89,6 +89,12 @@ def training_plan(settings):
     out = bpy.path.abspath(settings.train_output)
     if not out.lower().endswith(".npz"):
         out += ".npz"
+    from ..garment_transfer.output import check_output
+    from ..garment_transfer.training import check_training_settings
+
+    # Before the long work: a missing or read-only folder must not cost a whole training.
+    check_output(out, (), "Save Model As")
+    check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
     return dict(dataset_dir=folder, source=source, targets=targets, epochs=settings.train_epochs,
                 latent=settings.train_latent, out=out)
 
