@@ -12,9 +12,10 @@ What is read (the OBJ format allows any run of spaces and tabs between fields):
 - A line that is none of the OBJ statements (for example a damaged keyword), a number that is not
   one, a face with fewer than 3 vertices or an index out of range is an error naming the line.
 - A file cut off is refused where that can be seen: the last line is a ``v`` or ``f`` (or other
-  data) record without its line break, or the faces stop early, leaving the last vertices of the
-  file (two or more, and more than ``CUT_OFF_SHARE`` of them) used by no face or other element. A file cut exactly at a line break
-  inside the faces, where every vertex is still used, is a valid OBJ file and cannot be told apart.
+  data) record without its line break, or the faces stop early, leaving vertices (two or more, and
+  more than ``CUT_OFF_SHARE`` of them) used by no face or other element. A file cut exactly at a
+  line break inside the faces, where every vertex is still used, is a valid OBJ file and cannot be
+  told apart.
 
 Writing is atomic (see ``output.write_atomic``).
 """
@@ -30,8 +31,8 @@ from .errors import MeshError
 from .mesh import Mesh, mesh_from_polygons
 from .output import write_atomic
 
-#: More than this share of the vertices, at the end of the file and used by no face, means the
-#: faces stop early: a file cut off. (MakeHuman and demo files: none.)
+#: More than this share of the vertices used by no face means the faces stop early: a file cut off.
+#: (MakeHuman fixtures and demo files: none.)
 CUT_OFF_SHARE = 0.01
 
 _WS = "[ \t\r\f\v]"
@@ -91,6 +92,11 @@ def read_obj(path, name=None) -> Mesh:
     except OSError as exc:
         raise MeshError(name, f"cannot be read ({exc.strerror or exc})") from None
     lines = _decode(data, name).split("\n")
+    # First: a record cut in two is usually malformed too, but "cut off" is what the user must hear.
+    if _statement(lines[-1])[0] in _DATA:
+        raise MeshError(name, f"line {len(lines)}: the file ends in the middle of a record "
+                              f"({_show(lines[-1])} has no line break): it looks cut off. If it is "
+                              "complete, end it with a line break")
     verts, polys, others = [], [], []
     for lineno, line in enumerate(lines, 1):
         key, fields = _statement(line)
@@ -106,11 +112,6 @@ def read_obj(path, name=None) -> Mesh:
         elif key not in _KEYWORDS:
             raise MeshError(name, f"line {lineno}: not an OBJ statement: {_show(line)}; "
                                   "is the file damaged?")
-    last_key = _statement(lines[-1])[0]
-    if last_key in _DATA:
-        raise MeshError(name, f"line {len(lines)}: the file ends in the middle of a record "
-                              f"({_show(lines[-1])} has no line break): it looks cut off. If it is "
-                              "complete, end it with a line break")
     if not verts:
         raise MeshError(name, "has no vertices (is it an OBJ file?)")
     if not polys:
@@ -168,11 +169,11 @@ def _check_cut_off(n, polys, others, name):
     for p in polys:
         used[p] = True
     used[others] = True
-    last = int(np.flatnonzero(used)[-1])
-    tail = n - 1 - last
-    if tail >= 2 and tail > CUT_OFF_SHARE * n:
-        raise MeshError(name, f"its last {tail} of {n} vertices are used by no face: the faces stop "
-                              f"early, as in a file cut off ({len(polys)} faces read). Export it again")
+    loose = int(n - used.sum())
+    if loose >= 2 and loose > CUT_OFF_SHARE * n:
+        raise MeshError(name, f"{loose} of its {n} vertices are used by no face: the faces stop early, as "
+                              f"in a file cut off ({len(polys)} faces read). Export it again (or delete "
+                              "the loose vertices)")
 
 
 def _format(x):

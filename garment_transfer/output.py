@@ -89,9 +89,11 @@ def check_output(path, inputs=(), what="output"):
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise OutputError(path, f"its folder {folder} does not exist; create it first")
-    if not os.access(folder, os.W_OK | os.X_OK):
+    # Mode bits as well as access(): root may write anywhere, but a file or folder marked read-only
+    # says its owner wants it kept.
+    if not os.access(folder, os.W_OK | os.X_OK) or not os.stat(folder).st_mode & 0o222:
         raise OutputError(path, f"its folder {folder} is not writable")
-    if st is not None and not os.access(path, os.W_OK):
+    if st is not None and (not os.access(path, os.W_OK) or not st.st_mode & 0o222):
         raise OutputError(path, "exists and is read-only; remove it or give another file name")
     return path
 

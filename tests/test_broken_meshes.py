@@ -114,8 +114,9 @@ def test_all_zero_area_garment_is_refused(bodies):
 
 
 @pytest.mark.parametrize("text, problem", [
-    ("v 0 0 0\nv 1 0 0\nv 0 1", "3 coordinates"),          # truncated mid-line
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2", "at least 3"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1", "line 3: the file ends in the middle of a record.*cut off"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2", "line 5: the file ends in the middle of a record"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1\n", "3 coordinates"),
     ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "out of range"),
 ])
