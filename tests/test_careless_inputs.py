@@ -422,3 +422,14 @@ def test_every_error_is_a_garment_transfer_error():
 def _write(path, data: bytes):
     path.write_bytes(data)
     return path
+
+
+def test_one_body_mirrored_and_the_other_not_is_named():
+    from garment_transfer.errors import TopologyMismatchError
+    from garment_transfer.mesh import mesh_from_polygons, require_same_topology
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float)
+    a = mesh_from_polygons(V, [[0, 1, 2, 3], [1, 4, 2]], name="a.obj")
+    b = mesh_from_polygons(V, [[0, 3, 2, 1], [1, 2, 4]], name="b.obj")     # each polygon turned around
+    with pytest.raises(TopologyMismatchError, match="b.obj: has the faces of a.obj turned around"):
+        require_same_topology(a, b)

@@ -61,10 +61,10 @@ BASES = base_files()
 def reference_read(data: bytes):
     """(V (n,3), polygons) that the v and f lines of ``data`` define, or None where they define none."""
     text = data.decode("utf-8", "surrogateescape")
-    text = text[1:] if text.startswith("\ufeff") else text
     verts, polys = [], []
     for line in text.split("\n"):
-        fields = line.split("#", 1)[0].split()
+        # A byte-order mark starts a file, or a line of files joined together.
+        fields = line.lstrip("\ufeff").split("#", 1)[0].split()
         if not fields:
             continue
         try:
@@ -81,8 +81,8 @@ def reference_read(data: bytes):
 
 
 def vf_lines(data: bytes):
-    text = data.decode("utf-8", "surrogateescape").lstrip("\ufeff")
-    return [ln for ln in text.split("\n") if ln.split()[:1] in (["v"], ["f"])]
+    text = data.decode("utf-8", "surrogateescape")
+    return [ln.lstrip("\ufeff") for ln in text.split("\n") if ln.lstrip("\ufeff").split()[:1] in (["v"], ["f"])]
 
 
 @st.composite
