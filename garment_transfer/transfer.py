@@ -41,10 +41,11 @@ STIFFNESS_SHARE = 0.04        # shape features longer than this follow the body:
 FAR_SHARE = 0.2               # a garment whose median distance to the body exceeds this is misplaced
 #: A garment with more than INSIDE_SHARE of its vertices deeper than INSIDE_DEPTH_SHARE of the body
 #: scale (about 1 cm on a 1.7 m body) inside the source body is not dressed on it. Measured with
-#: ``python -m lab.placement_study``: dressed MakeHuman fixtures at most 0.36% of their vertices (demo
-#: garments 0%); the same garments moved 0.5 m up or turned 90 degrees about the vertical axis at
-#: least 7% (MakeHuman), 7% (demo, turned) and 0.9% (3 of 120 demo skirts moved up on the pear body;
-#: the other 117 above 1%).
+#: ``python -m lab.placement_study``: the dressed MakeHuman fixtures have at most 0.36% of their
+#: vertices that deep (the demo garments none); moved 0.5 m up or turned 90 degrees about the vertical
+#: axis, every MakeHuman garment (80 cases) and every turned demo garment (120) is refused, and 108 of
+#: 120 demo garments moved up (tops floating above the shoulders and a few skirts around the chest
+#: pass: they are not inside the body, and within FAR_SHARE of it).
 INSIDE_DEPTH_SHARE = 0.005
 INSIDE_SHARE = 0.01
 #: The largest offset accepted, as a share of the body scale (about 10 cm on a 1.7 m body): cloth

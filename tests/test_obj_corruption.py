@@ -82,7 +82,8 @@ def reference_read(data: bytes):
 
 def vf_lines(data: bytes):
     text = data.decode("utf-8", "surrogateescape")
-    return [ln.lstrip("\ufeff") for ln in text.split("\n") if ln.lstrip("\ufeff").split()[:1] in (["v"], ["f"])]
+    lines = [ln.lstrip("\ufeff") for ln in text.split("\n")]
+    return [ln for ln in lines if ln.split()[:1] in (["v"], ["f"])]
 
 
 @st.composite
@@ -152,8 +153,10 @@ _COORDS = re.compile(rb"^(\xef\xbb\xbf)?([ \t\r\f\v]*v[ \t\r\f\v]+)[^ \t\r\f\v#]
 
 def without_coordinates(data: bytes) -> bytes:
     """The file with the three coordinates of every v line blanked: what must survive a write."""
-    return _COORDS.sub(lambda m: (m.group(1) or b"") + m.group(2) + b"x" + m.group(3) + b"y" + m.group(4) + b"z",
-                       data)
+    def blank(m):
+        return (m.group(1) or b"") + m.group(2) + b"x" + m.group(3) + b"y" + m.group(4) + b"z"
+
+    return _COORDS.sub(blank, data)
 
 
 def read_obj_bytes(tmp_path, data):
