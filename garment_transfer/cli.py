@@ -169,6 +169,9 @@ def cmd_train(args):
 
 def cmd_bench(args):
     if args.report:
+        from .output import check_output_folder
+
+        check_output_folder(args.report, "--report")
         from .report import run_report
 
         quick = " --quick" if args.quick else ""
@@ -188,6 +191,9 @@ def cmd_bench(args):
 
 
 def cmd_demo(args):
+    from .output import check_output_folder
+
+    check_output_folder(args.out, "--out")
     from .demo import run_demo
 
     out = run_demo(args.out, quick=args.quick, progress=_stderr_progress("demo", every=0.0))

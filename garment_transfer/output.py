@@ -98,6 +98,26 @@ def check_output(path, inputs=(), what="output"):
     return path
 
 
+def check_output_folder(path, what="output folder"):
+    """Raise OutputError unless ``path`` is a folder or can be made one (checked before the work).
+
+    Returns
+    -------
+    str
+    """
+    path = os.fspath(path)
+    if path == "":
+        raise OutputError(f"{what} ''", "is empty; give a folder name")
+    if os.path.lexists(path) and not os.path.isdir(path):
+        raise OutputError(path, f"is a file, not a folder; give {what} a folder for the results")
+    parent = os.path.abspath(path)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.access(parent, os.W_OK | os.X_OK) or not os.stat(parent).st_mode & 0o222:
+        raise OutputError(path, f"cannot be written: {parent} is not writable")
+    return path
+
+
 def write_atomic(path, write, inputs=(), what="output", binary=False):
     """Write a file whole or not at all.
 

@@ -151,6 +151,17 @@ def test_out_in_a_missing_or_read_only_folder_or_empty_names_the_users_path(scen
         ro.chmod(0o755)
 
 
+def test_result_folders_that_are_files_are_refused_before_the_work(tmp_path, capsys):
+    taken = tmp_path / "results"
+    taken.write_text("mine\n")
+    before = snapshot(tmp_path)
+    for args in (("demo", "--out", taken), ("bench", "--report", taken)):
+        code, _, err = run_cli(capsys, *args)
+        assert code == 1
+        one_clean_line(err, str(taken), "is a file, not a folder")
+    assert snapshot(tmp_path) == before
+
+
 def test_output_files_get_the_umask_permissions(tmp_path):
     old = os.umask(0o027)
     try:
