@@ -1,7 +1,12 @@
 """Command line: ``python -m garment_transfer <command> ...`` (``--help`` on each).
 
 Exit code 0 on success, 1 on an input or model problem (one line naming the file and what is
-wrong, and no output file written), 2 on a usage error.
+wrong, and no output file written), 2 on a usage error (including an option out of its range),
+130 when stopped with Ctrl+C (one line, nothing half-written).
+
+Outputs are checked before any long work starts (see ``files.check_output``): an output that is
+one of the inputs, a symlink, a special file or a folder, or whose folder is missing or read-only,
+is refused at once.
 """
 
 from __future__ import annotations
@@ -21,10 +26,46 @@ log = logging.getLogger("garment_transfer")
 
 def _emit(args, result: dict, lines):
     if getattr(args, "json", False):
-        print(json.dumps(result, indent=2, default=json_default))
+        print(json.dumps(_finite(result), indent=2, default=json_default, allow_nan=False))
     else:
         for line in lines:
             print(line)
+
+
+def _finite(x):
+    """NaN and infinities as null: JSON has no such numbers."""
+    import math
+
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if hasattr(x, "dtype") and getattr(x, "shape", None) == () and x.dtype.kind == "f":
+        return _finite(float(x))
+    return x
+
+
+def number_option(kind, low, low_inclusive=True, what="a number"):
+    """An argparse type: a finite ``kind`` (int or float) above ``low``; argparse makes the error a
+    one-line usage error (exit 2) naming the option."""
+    import math
+
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+        if kind is float and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
+        if value < low or (value == low and not low_inclusive):
+            bound = f">= {low}" if low_inclusive else f"> {low}"
+            raise argparse.ArgumentTypeError(f"{text!r} must be {bound}")
+        return value
+
+    parse.__name__ = what
+    return parse
 
 
 def stderr_progress(label, every=0.05):
@@ -42,6 +83,10 @@ def stderr_progress(label, every=0.05):
 
 def cmd_transfer(args):
     from .obj import read_obj, write_obj
+    from .files import check_output
+
+    inputs = [args.source_body, args.target_body, args.garment, args.model]
+    check_output(args.out, inputs, "--out")
     from .transfer import transfer_garment
 
     t = time.perf_counter()
@@ -60,7 +105,7 @@ def cmd_transfer(args):
                               target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
                               interpolate=not args.no_interpolate)
     t = time.perf_counter()
-    write_obj(args.out, garment, result.V,
+    write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
                      f"{os.path.basename(args.target_body)} ({args.method})")
     seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
@@ -92,6 +137,9 @@ def cmd_train(args):
     except ImportError as exc:
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
+    from .files import check_output
+
+    check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
@@ -115,14 +163,15 @@ def build_parser():
     t.add_argument("--target-body", required=True, help="OBJ: the same body mesh in the target shape")
     t.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
     t.add_argument("--out", required=True, help="OBJ to write (the garment's own faces, new positions)")
-    t.add_argument("--method", choices=["direct", "model", "surface"], default="direct",
+    t.add_argument("--method", choices=["direct", "model", "surface"], default=None,
                    help="direct: the body's own deformation (default); model: a trained shared "
-                        "deformation model; surface: follow the body only (baseline)")
-    t.add_argument("--model", help="model file (.npz) for --method model")
-    t.add_argument("--target", help="the model's target label for --method model")
-    t.add_argument("--offset", type=float, default=None,
-                   help="distance kept from the body, in the files' units "
-                        "(default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
+                        "deformation model (the default when --model or --target is given); "
+                        "surface: follow the body only (baseline)")
+    t.add_argument("--model", help="model file (.npz); implies --method model")
+    t.add_argument("--target", help="the model's target label; implies --method model")
+    t.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
+                   help="distance kept from the body, in the files' units: >= 0 and at most 5%% of "
+                        "the body's size (default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
     t.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")
@@ -143,9 +192,11 @@ def build_parser():
     r.add_argument("--source", required=True, help="source body name")
     r.add_argument("--targets", required=True, help="target body names, comma-separated")
     r.add_argument("--garments", help="garment names to train on, comma-separated (default: all)")
-    r.add_argument("--epochs", type=int, default=1000)
-    r.add_argument("--latent", type=int, default=30)
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--epochs", type=number_option(int, 1, what="a whole number"), default=1000,
+                   help="training epochs (>= 1)")
+    r.add_argument("--latent", type=number_option(int, 1, what="a whole number"), default=30,
+                   help="size of the shared deformation space (>= 1)")
+    r.add_argument("--seed", type=number_option(int, 0, what="a whole number"), default=0)
     r.add_argument("--unmasked", action="store_true", help="the paper's unmasked loss")
     r.add_argument("--out", required=True, help="model file to write (.npz)")
     r.add_argument("--json", action="store_true", help="print one JSON object")
@@ -155,11 +206,21 @@ def build_parser():
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command == "transfer":
+            if args.method is None:
+                args.method = "model" if (args.model or args.target) else "direct"
+            elif args.method != "model" and (args.model or args.target):
+                parser.error(f"--model and --target are for --method model, not --method {args.method}")
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
         args.func(args)
+    except KeyboardInterrupt:
+        # Every writer renames a complete temporary file at the end: nothing is half-written.
+        print("interrupted (Ctrl+C); no partial file written", file=sys.stderr)
+        return 130
     except GarmentTransferError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -30,5 +30,9 @@ class DatasetError(NamedError):
     """A dataset folder that does not follow the layout."""
 
 
+class SettingError(NamedError):
+    """A setting (command-line option, operator property, function argument) out of its range."""
+
+
 class Cancelled(GarmentTransferError):
     """Long work stopped because a progress callback asked for it."""

@@ -16,6 +16,9 @@ from .errors import MeshError, TopologyMismatchError
 # One place for geometric tolerances: a triangle whose doubled area is below
 # DEGENERATE_AREA * (mean edge length)^2 counts as degenerate.
 DEGENERATE_AREA = 1e-12
+# Coordinates beyond this overflow once squared in areas and distances (1e300 ** 2 = inf); no mesh
+# in any unit comes near it.
+MAX_COORDINATE = 1e100
 
 
 @dataclass
@@ -160,7 +163,8 @@ def mesh_from_triangles(V, F, name="mesh") -> Mesh:
 
 
 def check_polygons(V, face_vertices, face_start, name):
-    """Raise MeshError for what no algorithm here can use: no faces, bad indices, NaN/inf."""
+    """Raise MeshError for what no algorithm here can use: no faces, bad indices, NaN/inf, coordinates
+    too large to square."""
     if V.shape[0] == 0:
         raise MeshError(name, "the mesh has no vertices")
     if face_start.shape[0] <= 1:
@@ -168,6 +172,11 @@ def check_polygons(V, face_vertices, face_start, name):
     if not np.all(np.isfinite(V)):
         bad = int(np.flatnonzero(~np.all(np.isfinite(V), axis=1))[0])
         raise MeshError(name, f"vertex {bad} has a NaN or infinite coordinate")
+    big = np.abs(V).max(axis=1) > MAX_COORDINATE
+    if big.any():
+        bad = int(np.flatnonzero(big)[0])
+        raise MeshError(name, f"vertex {bad} has a coordinate of {np.abs(V[bad]).max():.3g}, too large to "
+                              "compute with (are the units right?)")
     sizes = np.diff(face_start)
     if np.any(sizes < 3):
         bad = int(np.flatnonzero(sizes < 3)[0])
@@ -255,8 +264,23 @@ def require_same_topology(a: Mesh, b: Mesh):
     if (a.face_start.shape != b.face_start.shape or a.face_vertices.shape != b.face_vertices.shape
             or not np.array_equal(a.face_vertices, b.face_vertices)
             or not np.array_equal(a.face_start, b.face_start)):
+        if _reversed_faces(a, b):
+            raise TopologyMismatchError(
+                b.name, f"has the faces of {a.name} turned around (one of them is mirrored: a negative "
+                        "scale); mirror both or neither")
         raise TopologyMismatchError(
             b.name, f"has other faces than {a.name}; the two must be the same mesh in different shapes")
+
+
+def _reversed_faces(a: Mesh, b: Mesh) -> bool:
+    if not np.array_equal(a.face_start, b.face_start) or a.face_vertices.shape != b.face_vertices.shape:
+        return False
+    fs = a.face_start
+    sizes = np.diff(fs)
+    start = np.repeat(fs[:-1], sizes)
+    local = np.arange(fs[-1]) - start
+    turned = np.where(local == 0, 0, np.repeat(sizes, sizes) - local)
+    return bool(np.array_equal(a.face_vertices[start + turned], b.face_vertices))
 
 
 def faces_hash(mesh: Mesh) -> str:

@@ -152,6 +152,7 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
         require_same_topology(source, reference)
         ref_V, ref_F, kind = reference.V, F, "reference"
     elif source_body is not None:
+        require_same_topology(source_body, target_body)
         ref_V = carry(bind(source.V, source_body.V, source_body.F), target_body.V, source_body.F)
         ref_F, kind = F, "body_fit"
     out["drape_reference"] = kind

@@ -35,7 +35,6 @@ import zipfile
 import numpy as np
 
 from .errors import ModelError
-from .files import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -272,12 +271,15 @@ class SharedDeformationModel:
             self._cache[key] = Q
         return self._cache[key].copy()
 
-    def save(self, path):
-        """Write the model to ``path`` (.npz) through a temporary file in the same folder and a rename."""
-        save_npz_atomic(path, self.arrays, self.metadata)
+    def save(self, path, inputs=()):
+        """Write the model to ``path`` (.npz) through a temporary file in the same folder and a rename.
+
+        ``inputs``: files the model file must not be (see ``files.check_output``).
+        """
+        save_npz_atomic(path, self.arrays, self.metadata, inputs=inputs)
 
 
-def save_npz_atomic(path, arrays, metadata):
+def save_npz_atomic(path, arrays, metadata, inputs=()):
     """Write arrays and a JSON metadata string to an .npz file, atomically.
 
     Parameters
@@ -287,26 +289,25 @@ def save_npz_atomic(path, arrays, metadata):
         Numeric or bool arrays only (never object arrays).
     metadata : dict
         JSON-serialisable.
+    inputs : iterable of paths
+        Files the model file must not be (see ``files.check_output``).
 
     Raises
     ------
     ModelError
-        If the folder does not exist or an array is not numeric.
+        If an array is not numeric.
+    OutputError
+        If ``path`` must not or cannot be written (see ``files.write_atomic``).
     """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise ModelError(path, f"the folder {folder} does not exist")
+    from .files import write_atomic
+
     for key, arr in arrays.items():
         if np.asarray(arr).dtype.kind not in "fiub":
-            raise ModelError(path, f"array {key!r} is not numeric ({np.asarray(arr).dtype})")
+            raise ModelError(os.fspath(path), f"array {key!r} is not numeric ({np.asarray(arr).dtype})")
     payload = dict(arrays)
     payload["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **payload)
-            fh.flush()
-            os.fsync(fh.fileno())
+    write_atomic(path, lambda fh: np.savez(fh, **payload), inputs=inputs, what="the model file",
+                 binary=True)
 
 
 def load_model(path) -> SharedDeformationModel:
@@ -326,6 +327,20 @@ def load_model(path) -> SharedDeformationModel:
     name = path
     if not os.path.isfile(path):
         raise ModelError(name, "model file not found")
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as exc:
+        raise ModelError(name, f"cannot be read ({exc.strerror or exc})") from None
+    if magic[:1] == b"\x80":
+        raise ModelError(name, "holds Python objects (pickled data); refused: a model file must "
+                               "contain plain arrays only")
+    if magic != b"PK\x03\x04":
+        kind = "an empty file" if not magic else (
+            "a text file (an OBJ mesh?)" if all(32 <= c < 127 or c in (9, 10, 13) for c in magic)
+            else "some other binary file")
+        raise ModelError(name, f"is not a model file (.npz, a zip archive) but {kind}; give the .npz "
+                               "file written by train")
     arrays = {}
     try:
         with np.load(path, allow_pickle=False) as npz:

@@ -1,104 +1,212 @@
 """Wavefront OBJ reading and writing.
 
-Reading keeps the file's own lines, so a result written "like" its source keeps the source's
-faces, UVs, normals, groups and materials: only the ``v`` lines change. Writing is atomic: a
-temporary file in the same folder, renamed over the target once complete.
+Reading keeps the file's own text, so a result written "like" its source is the source byte for
+byte except for the three coordinates of each ``v`` line: faces, UVs, normals, groups, materials,
+vertex colours (``v x y z r g b``), comments in any encoding, line endings and a byte-order mark all
+stay. Bytes that are not UTF-8 are carried through unchanged (``surrogateescape``).
+
+What is read (the OBJ format allows any run of spaces and tabs between fields):
+
+- ``v x y z [w | r g b]``: numbers only; ``f`` with 1-based or negative (relative) indices, with or
+  without ``/vt/vn``; comments after ``#``; the other OBJ statements are kept and not used.
+- A line that is none of the OBJ statements (for example a damaged keyword), a number that is not
+  one, a face with fewer than 3 vertices or an index out of range is an error naming the line.
+- A file cut off is refused where that can be seen: the last line is a ``v`` or ``f`` (or other
+  data) record without its line break, or the faces stop early, leaving vertices (two or more, and
+  more than ``CUT_OFF_SHARE`` of them) used by no face or other element. A file cut exactly at a
+  line break inside the faces, where every vertex is still used, is a valid OBJ file and cannot be
+  told apart.
+
+Writing is atomic and never replaces an input (see ``files.write_atomic``).
 """
 
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 
 from .errors import MeshError
-from .files import write_text_atomic
 from .mesh import Mesh, mesh_from_polygons
+from .files import write_text_atomic
+
+#: More than this share of the vertices used by no face means the faces stop early: a file cut off.
+#: (MakeHuman fixtures and demo files: none.)
+CUT_OFF_SHARE = 0.01
+
+_WS = "[ \t\r\f\v]"
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?|nan|inf|infinity)\Z",
+                     re.ASCII | re.IGNORECASE)
+_INDEX = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/[+-]?\d*)?)?\Z", re.ASCII)
+# A v line split so that only the three coordinates are replaced when writing: the prefix (any BOM,
+# indentation, the keyword and the blank after it), x, blank, y, blank, z, and everything after z.
+_V_LINE = re.compile(rf"(\ufeff?{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+_KEYWORDS = frozenset("""v vt vn vp f l p g o s usemtl mtllib cstype deg bmat step curv curv2 surf parm
+trim hole scrv sp end con mg bevel c_interp d_interp lod usemap maplib shadow_obj trace_obj ctech stech
+call csh""".split())
+_DATA = frozenset("v vt vn vp f l p".split())
+
+
+def _decode(data: bytes, name) -> str:
+    sample = data[:4096]
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")) or sample.count(0) > len(sample) // 4:
+        raise MeshError(name, "is UTF-16 (or UTF-32) text; OBJ files are ASCII or UTF-8: save it "
+                              "as UTF-8")
+    if b"\x00" in sample:
+        raise MeshError(name, "is not a text OBJ file (binary content)")
+    return data.decode("utf-8", errors="surrogateescape")
+
+
+def _statement(line):
+    """The keyword and fields of a line (no comment), or (None, []) for a blank or comment line."""
+    body = line.lstrip("\ufeff").split("#", 1)[0]
+    parts = re.split(f"{_WS}+", body.strip(" \t\r\f\v"))
+    if parts == [""]:
+        return None, []
+    return parts[0], parts[1:]
+
+
+def _show(line):
+    return repr(line.strip()[:60].encode("utf-8", "surrogateescape").decode("utf-8", "replace"))
 
 
 def read_obj(path, name=None) -> Mesh:
-    """Read an OBJ file into a Mesh (polygons triangulated, original faces kept).
+    """Read an OBJ file into a Mesh (polygons triangulated, original faces and text kept).
 
     Raises
     ------
     MeshError
-        Naming the file: missing, unreadable, malformed lines, bad indices, NaN/inf, no faces.
+        Naming the file (and the line): missing, unreadable, not text, malformed lines, bad
+        indices, NaN/inf, no faces, cut off.
     """
     path = os.fspath(path)
     name = name or path
     try:
-        with open(path, "r", encoding="utf-8", errors="replace") as fh:
-            text = fh.read()
+        with open(path, "rb") as fh:
+            data = fh.read()
     except FileNotFoundError:
         raise MeshError(name, "file not found") from None
     except IsADirectoryError:
         raise MeshError(name, "is a folder, not an OBJ file") from None
     except OSError as exc:
         raise MeshError(name, f"cannot be read ({exc.strerror or exc})") from None
-    if "\x00" in text[:4096]:
-        raise MeshError(name, "is not a text OBJ file (binary content)")
-    lines = text.splitlines()
-    verts, polys = [], []
+    lines = _decode(data, name).split("\n")
+    # First: a record cut in two is usually malformed too, but "cut off" is what the user must hear.
+    if _statement(lines[-1])[0] in _DATA:
+        raise MeshError(name, f"line {len(lines)}: the file ends in the middle of a record "
+                              f"({_show(lines[-1])} has no line break): it looks cut off. If it is "
+                              "complete, end it with a line break")
+    verts, polys, others = [], [], []
     for lineno, line in enumerate(lines, 1):
-        if line.startswith("v "):
-            parts = line.split()
-            if len(parts) < 4:
-                raise MeshError(name, f"line {lineno}: a vertex needs 3 coordinates: {line.strip()[:60]!r}")
-            try:
-                verts.append((float(parts[1]), float(parts[2]), float(parts[3])))
-            except ValueError:
-                raise MeshError(name, f"line {lineno}: not a number in {line.strip()[:60]!r}") from None
-        elif line.startswith("f "):
-            parts = line.split()[1:]
-            try:
-                idx = [int(p.split("/", 1)[0]) for p in parts]
-            except ValueError:
-                raise MeshError(name, f"line {lineno}: bad face {line.strip()[:60]!r}") from None
-            n = len(verts)
-            idx = [i - 1 if i > 0 else n + i for i in idx]
-            if any(i < 0 for i in idx) or 0 in [int(p.split("/", 1)[0]) for p in parts]:
-                raise MeshError(name, f"line {lineno}: face index out of range in {line.strip()[:60]!r}")
-            if len(idx) < 3:
-                raise MeshError(name, f"line {lineno}: a face needs at least 3 vertices")
-            polys.append(idx)
+        key, fields = _statement(line)
+        if key is None:
+            continue
+        if key == "v":
+            verts.append(_vertex(fields, line, lineno, name))
+        elif key == "f":
+            polys.append(_face(fields, len(verts), line, lineno, name))
+        elif key in ("l", "p"):
+            # Not used, but their vertices are not loose: they count for the cut-off check.
+            others.extend(_element(fields, len(verts)))
+        elif key not in _KEYWORDS:
+            raise MeshError(name, f"line {lineno}: not an OBJ statement: {_show(line)}; "
+                                  "is the file damaged?")
     if not verts:
         raise MeshError(name, "has no vertices (is it an OBJ file?)")
     if not polys:
         raise MeshError(name, "has no faces (a point cloud or lines only)")
     V = np.asarray(verts, dtype=np.float64)
-    if max(max(p) for p in polys) >= V.shape[0]:
-        raise MeshError(name, f"a face refers to vertex beyond the {V.shape[0]} the file has")
+    top = max(max(p) for p in polys)
+    if top >= V.shape[0]:
+        raise MeshError(name, f"a face refers to vertex {top + 1} but the file has {V.shape[0]}")
+    _check_cut_off(V.shape[0], polys, others, name)
     if all(len(p) == len(polys[0]) for p in polys):
         polys = np.asarray(polys, dtype=np.int64)
     return mesh_from_polygons(V, polys, name=name, obj_lines=lines)
 
 
-def _format_vertices(V, digits=9):
-    fmt = f"v %.{digits}g %.{digits}g %.{digits}g"
-    return [fmt % tuple(v) for v in V]
+def _vertex(fields, line, lineno, name):
+    if len(fields) < 3:
+        raise MeshError(name, f"line {lineno}: a vertex needs 3 coordinates: {_show(line)}")
+    bad = [f for f in fields if not _NUMBER.match(f)]
+    if bad:
+        raise MeshError(name, f"line {lineno}: not a number ({_show(bad[0])}) in {_show(line)}")
+    return float(fields[0]), float(fields[1]), float(fields[2])
+
+
+def _face(fields, n, line, lineno, name):
+    if len(fields) < 3:
+        raise MeshError(name, f"line {lineno}: a face needs at least 3 vertices: {_show(line)}")
+    idx = []
+    for f in fields:
+        m = _INDEX.match(f)
+        if not m:
+            raise MeshError(name, f"line {lineno}: bad face {_show(line)}")
+        i = int(m.group(1))
+        i = i - 1 if i > 0 else n + i
+        if i < 0 or m.group(1).lstrip("+-").strip("0") == "":
+            raise MeshError(name, f"line {lineno}: face index out of range in {_show(line)}")
+        idx.append(i)
+    return idx
+
+
+def _element(fields, n):
+    """Vertex indices of an ``l`` or ``p`` element that can be read (the others are ignored)."""
+    out = []
+    for f in fields:
+        m = _INDEX.match(f)
+        if m:
+            i = int(m.group(1))
+            i = i - 1 if i > 0 else n + i
+            if 0 <= i < n:
+                out.append(i)
+    return out
+
+
+def _check_cut_off(n, polys, others, name):
+    used = np.zeros(n, bool)
+    for p in polys:
+        used[p] = True
+    used[others] = True
+    loose = int(n - used.sum())
+    if loose >= 2 and loose > CUT_OFF_SHARE * n:
+        raise MeshError(name, f"{loose} of its {n} vertices are used by no face: the faces stop early, as "
+                              f"in a file cut off ({len(polys)} faces read). Export it again (or delete "
+                              "the loose vertices)")
 
 
 def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
     """OBJ text of ``mesh`` with vertex positions ``V`` (default: the mesh's own).
 
-    A mesh read from a file keeps every non-vertex line of that file; others get plain
-    ``v``/``f`` lines with their original polygons. ``digits``: significant digits per coordinate.
+    A mesh read from a file gets that file's text back with only the three coordinates of each
+    ``v`` line replaced (``header`` is not added: nothing else changes). Others get ``# header``
+    and plain ``v``/``f`` lines with their original polygons. ``digits``: significant digits per coordinate.
     """
+    fmt = f"%.{digits}g"
     V = mesh.V if V is None else np.asarray(V, dtype=np.float64)
     if V.shape != mesh.V.shape:
         raise MeshError(mesh.name, f"cannot write {V.shape[0]} vertices into a mesh of {mesh.n_vertices}")
-    vlines = _format_vertices(V, digits)
-    out = [f"# {header}"] if header else []
     if mesh.obj_lines is not None:
-        it = iter(vlines)
-        out += [next(it) if ln.startswith("v ") else ln for ln in mesh.obj_lines]
-    else:
-        out += vlines
-        for p in mesh.polygons():
-            out.append("f " + " ".join(str(int(i) + 1) for i in p))
+        out, k = [], 0
+        for line in mesh.obj_lines:
+            if _statement(line)[0] == "v":
+                m = _V_LINE.match(line)
+                x, y, z = V[k]
+                k += 1
+                line = m.group(1) + fmt % x + m.group(3) + fmt % y + m.group(5) + fmt % z + m.group(7)
+            out.append(line)
+        return "\n".join(out)
+    out = [f"# {header}"] if header else []
+    out += ["v " + " ".join(fmt % c for c in v) for v in V]
+    for p in mesh.polygons():
+        out.append("f " + " ".join(str(int(i) + 1) for i in p))
     return "\n".join(out) + "\n"
 
 
-def write_obj(path, mesh: Mesh, V=None, header=None, digits=9):
-    """Write ``mesh`` (optionally with other vertex positions ``V``) to an OBJ file, atomically."""
-    write_text_atomic(path, obj_text(mesh, V, header, digits))
+def write_obj(path, mesh: Mesh, V=None, header=None, inputs=(), digits=9):
+    """Write ``mesh`` (optionally with other vertex positions ``V``) to an OBJ file, atomically.
+
+    ``inputs``: files the output must not be; the mesh's own file (its name) is always one.
+    """
+    write_text_atomic(path, obj_text(mesh, V, header, digits), inputs=(mesh.name, *inputs))

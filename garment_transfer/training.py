@@ -559,6 +559,15 @@ def _mean_field(fields):
     return out.astype(np.float32)
 
 
+def check_training_settings(epochs, latent):
+    """Raise SettingError unless epochs and latent are whole numbers >= 1."""
+    from .errors import SettingError
+
+    for what, value in (("epochs", epochs), ("latent", latent)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise SettingError(what, f"{value!r} must be a whole number >= 1")
+
+
 def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000, latent=30, seed=0,
                        out=None, progress=None, **options):
     """Read a dataset folder, train a model and (optionally) write it.
@@ -599,6 +608,12 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
     unknown = set(options) - allowed
     if unknown:
         raise TypeError(f"unknown training options: {', '.join(sorted(unknown))}")
+    check_training_settings(epochs=epochs, latent=latent)
+    if out is not None:
+        # Before the long work: a missing or read-only folder must not cost a whole training.
+        from .files import check_output
+
+        check_output(out, (), "the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     if isinstance(targets, str):

@@ -8,8 +8,9 @@ import json
 import os
 import sys
 
-from garment_transfer.cli import stderr_progress
-from garment_transfer.files import json_default
+from garment_transfer.errors import GarmentTransferError
+from garment_transfer.cli import number_option, stderr_progress
+from garment_transfer.files import check_output_folder, json_default
 
 #: Commands that are whole scripts with their own options: name -> (module, what it does).
 SCRIPTS = {
@@ -28,6 +29,7 @@ def _print(args, result, lines):
 
 
 def cmd_demo(args):
+    check_output_folder(args.out, "--out")
     from .demo import run_demo
 
     out = run_demo(args.out, quick=args.quick, progress=stderr_progress("demo", every=0.0),
@@ -44,6 +46,7 @@ def cmd_bench(args):
 
 
 def cmd_report(args):
+    check_output_folder(args.dir, "the report folder")
     from .report import run_report
 
     command = f"python -m lab report {args.dir}" + (" --quick" if args.quick else "")
@@ -53,18 +56,15 @@ def cmd_report(args):
            [f"wrote {path}, report.json and {', '.join(out['plots'])} in {out['seconds']['total']:.0f} s"])
 
 
+_count = number_option(int, 1, what="a whole number")
+
+
 def _sizes(text):
-    sizes = [int(x) for x in text.split(",") if x.strip()]
-    if not sizes or min(sizes) <= 0:
-        raise argparse.ArgumentTypeError("give positive triangle counts, comma-separated")
-    return sizes
-
-
-def _positive(text):
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive whole number, got {text}")
-    return value
+    parse = number_option(int, 3, what="a whole number")
+    try:
+        return [parse(x) for x in text.split(",")]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"in {text!r}: {exc} (garment triangle counts, comma-separated)")
 
 
 def build_parser():
@@ -78,8 +78,8 @@ def build_parser():
     d.set_defaults(func=cmd_demo)
     b = sub.add_parser("bench", help="transfer speed at the paper's garment sizes against the paper's times")
     b.add_argument("--sizes", type=_sizes, default=[28000, 46000, 84000, 156000], help="garment triangle counts")
-    b.add_argument("--repeats", type=_positive, default=3, help="runs per size (the best is kept)")
-    b.add_argument("--targets", type=_positive, default=6, help="bodies in the multi-target run")
+    b.add_argument("--repeats", type=_count, default=3, help="runs per size (the best is kept)")
+    b.add_argument("--targets", type=_count, default=6, help="bodies in the multi-target run")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_bench)
     r = sub.add_parser("report", help="the benchmark report: every method and baseline, speed, memory, training")
@@ -97,7 +97,11 @@ def main(argv=None):
     if argv and argv[0] in SCRIPTS:
         return importlib.import_module(SCRIPTS[argv[0]][0]).main(argv[1:]) or 0
     args = build_parser().parse_args(argv)
-    args.func(args)
+    try:
+        args.func(args)
+    except GarmentTransferError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 

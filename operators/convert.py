@@ -7,7 +7,10 @@ Which state of an object is used (the same rule for bodies, garments and results
 - ``evaluated=False``: the object's own mesh data, without modifiers; with shape keys, the basis
   shape.
 
-Positions always go through the object's ``matrix_world``: the core works in world space.
+Positions always go through the object's ``matrix_world``: the core works in world space. A
+transform with a negative determinant (a negative scale on the object or a parent: the usual way to
+mirror a character) mirrors the mesh, which turns its faces inside out in world space; their vertex
+order is then reversed (``reverse_polygons``) so that world-space faces keep pointing outward.
 """
 
 from __future__ import annotations
@@ -96,9 +99,33 @@ def mesh_arrays_from_object(obj, depsgraph, evaluated=True):
     else:
         V, fv, fs = _read_mesh_data(obj.data)
         M = matrix_array(obj.matrix_world)
+    if np.linalg.det(M[:3, :3]) < 0:
+        fv = reverse_polygons(fv, fs)
     with np.errstate(invalid="ignore", over="ignore"):
         # NaN/inf coordinates pass through; core_mesh_from_object reports them.
         return V @ M[:3, :3].T + M[:3, 3], fv, fs
+
+
+def reverse_polygons(face_vertices, face_start):
+    """The polygons with their vertex order reversed (first corner kept): ``[a, b, c, d]`` becomes
+    ``[a, d, c, b]``.
+
+    Parameters
+    ----------
+    face_vertices : (k,) int
+    face_start : (p+1,) int
+
+    Returns
+    -------
+    (k,) int64
+    """
+    fv = np.asarray(face_vertices, dtype=np.int64)
+    fs = np.asarray(face_start, dtype=np.int64)
+    sizes = np.diff(fs)
+    start = np.repeat(fs[:-1], sizes)
+    local = np.arange(fs[-1]) - start
+    turned = np.where(local == 0, 0, np.repeat(sizes, sizes) - local)
+    return fv[start + turned]
 
 
 def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh") -> Mesh:

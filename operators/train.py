@@ -8,6 +8,7 @@ only reports its progress and passes a cancel request on.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -76,7 +77,15 @@ def training_plan(settings):
     """
     from ..garment_transfer.dataset import load_dataset
     from ..garment_transfer.errors import DatasetError
+    from ..garment_transfer.files import check_output
+    from ..garment_transfer.training import check_training_settings
 
+    # Settings and output first: a missing or read-only folder must not cost a whole training.
+    out = bpy.path.abspath(settings.train_output)
+    if not out.lower().endswith(".npz") and not os.path.isdir(out):
+        out += ".npz"
+    check_output(out, (), "Save Model As")
+    check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
     folder = bpy.path.abspath(settings.dataset_path)
     dataset = load_dataset(folder)
     source = settings.dataset_source.strip() or dataset.bodies[0]
@@ -86,9 +95,6 @@ def training_plan(settings):
     targets = targets or [b for b in dataset.bodies if b != source]
     if not targets:
         raise DatasetError(folder, f"has no body besides the source body {source!r} to train for")
-    out = bpy.path.abspath(settings.train_output)
-    if not out.lower().endswith(".npz"):
-        out += ".npz"
     return dict(dataset_dir=folder, source=source, targets=targets, epochs=settings.train_epochs,
                 latent=settings.train_latent, out=out)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -36,14 +37,33 @@ class InputError(Exception):
     pass
 
 
+# The checkout's core, for the checks made before Blender imports or writes anything (the same ones
+# as the command line's); it needs numpy only.
+_ROOT = str(Path(__file__).resolve().parents[1])
+if _ROOT not in sys.path:
+    sys.path.append(_ROOT)
+
+
 @contextlib.contextmanager
-def atomic_output(path):
+def atomic_output(path, inputs=()):
     """Yield a temporary path next to ``path`` to write; it becomes ``path`` (one rename) when the block
-    ends, and is removed when the block fails or is interrupted, so that no partial file is left."""
+    ends, and is removed when the block fails or is interrupted, so that no partial file is left.
+
+    ``path`` is checked first, as every output of the core is (``garment_transfer.output``): never
+    one of ``inputs``, never a symlink, folder or special file (raises InputError).
+    """
+    from garment_transfer.errors import GarmentTransferError
+    from garment_transfer.files import check_output, new_file_mode
+
     path = Path(path)
+    try:
+        check_output(path, inputs, "--out")
+    except GarmentTransferError as exc:
+        raise InputError(str(exc)) from None
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
     try:
         yield tmp
+        os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -90,7 +110,8 @@ def parse_args(argv):
                         help="the model's label of each target body, in order "
                              "(default: the target file's name)")
     parser.add_argument("--offset", type=float,
-                        help="distance kept from the body, in the files' units (default: automatic)")
+                        help="distance kept from the body, in the files' units: >= 0 and at most 5%% of "
+                             "the body's size (default: automatic)")
     parser.add_argument("--no-fix", action="store_true", help="do not fix penetrations")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="scene units per file unit on import (0.1 for decimetre files)")
@@ -101,9 +122,32 @@ def parse_args(argv):
         parser.error("--method model needs --model FILE")
     if args.target_label and len(args.target_label) != len(args.target_body):
         parser.error("give one --target-label per --target-body")
-    if args.scale <= 0:
-        parser.error("--scale must be positive")
+    if not math.isfinite(args.scale) or args.scale <= 0:
+        parser.error("--scale must be a finite number > 0")
+    if args.offset is not None and (not math.isfinite(args.offset) or args.offset < 0):
+        parser.error(f"--offset {args.offset}: must be a finite distance >= 0")
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out}: is a file; give a folder for the results")
+    inputs = [args.source_body, *args.target_body, *args.garment, args.model]
+    for path in [args.out / "summary.json"] + ([args.blend] if args.blend else []):
+        problem = output_problem(path, inputs)
+        if problem:
+            parser.error(problem)
     return args
+
+
+def output_problem(path, inputs):
+    """The core's objection to writing ``path`` (one line), or None."""
+    from garment_transfer.errors import GarmentTransferError
+    from garment_transfer.files import check_output
+
+    if not path.parent.exists():
+        return None    # the results folder is made at the start of the run
+    try:
+        check_output(path, inputs, "--out")
+    except GarmentTransferError as exc:
+        return str(exc)
+    return None
 
 
 def script_argv(argv):
@@ -136,12 +180,25 @@ def unique_labels(paths):
     return [s if stems.count(s) == 1 else f"{p.parent.name}_{s}" for p, s in zip(paths, stems)]
 
 
+def check_obj(path):
+    """Read ``path`` with the core's OBJ reader: the checks of the command line (NaN, damaged lines, a
+    cut-off file, ...), which Blender's importer does not make (it reads NaN as 0)."""
+    from garment_transfer.errors import GarmentTransferError
+    from garment_transfer.obj import read_obj
+
+    try:
+        read_obj(path)
+    except GarmentTransferError as exc:
+        raise InputError(str(exc)) from None
+
+
 def import_obj(path, label, args):
     """Import one OBJ file as one mesh object named ``label``."""
     import bpy
 
     if not path.is_file():
         raise InputError(f"{path}: file not found")
+    check_obj(path)
     before = set(bpy.data.objects)
     try:
         bpy.ops.wm.obj_import(filepath=str(path), global_scale=args.scale, up_axis=args.up,
@@ -174,11 +231,12 @@ def remove_objects(objects):
 def export_obj(obj, path, args):
     import bpy
 
+    inputs = [args.source_body, *args.target_body, *args.garment, args.model]
     for other in bpy.context.view_layer.objects:
         other.select_set(False)
     obj.select_set(True)
     bpy.context.view_layer.objects.active = obj
-    with atomic_output(path) as tmp:
+    with atomic_output(path, inputs) as tmp:
         bpy.ops.wm.obj_export(filepath=str(tmp), export_selected_objects=True, apply_modifiers=True,
                               global_scale=1.0 / args.scale, up_axis=args.up,
                               forward_axis=args.forward, export_materials=False,
@@ -269,7 +327,12 @@ def transfer_pair(garment, target, label, args, log):
         return record, None
     result = settings.result
     output = args.out / f"{garment.name}_on_{target.name}.obj"
-    export_obj(result, output, args)
+    try:
+        export_obj(result, output, args)
+    except InputError as exc:
+        record["error"] = str(exc)
+        log(f"FAILED {garment.name} -> {target.name}: {record['error']}")
+        return record, result
     record.update(json.loads(settings.last_metrics or "{}"))
     record.update(output=str(output), seconds=round(time.perf_counter() - start, 3))
     log(f"ok {garment.name} -> {target.name}: {output} (MDC {record.get('mdc', float('nan')):.4f}, "

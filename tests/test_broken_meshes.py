@@ -87,7 +87,9 @@ def test_non_manifold_and_disconnected_pieces(bodies):
 
 def test_garment_inside_the_body_is_pushed_out(bodies):
     src, tgt = bodies
-    V, F = skirt(radius=0.95)
+    # Skin-tight: inside by 0.15% of the body scale (the placement check refuses more than 1% of
+    # the vertices deeper than 0.5%).
+    V, F = skirt(radius=0.997)
     g = mesh_from_triangles(V, F, name="inside")
     r = transfer_garment(src, tgt, g)
     assert r.info["inside_before"] > 0 and r.penetrating_vertices == 0
@@ -112,8 +114,9 @@ def test_all_zero_area_garment_is_refused(bodies):
 
 
 @pytest.mark.parametrize("text, problem", [
-    ("v 0 0 0\nv 1 0 0\nv 0 1", "3 coordinates"),          # truncated mid-line
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2", "at least 3"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1", "line 3: the file ends in the middle of a record.*cut off"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2", "line 5: the file ends in the middle of a record"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1\n", "3 coordinates"),
     ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "out of range"),
 ])

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from garment_transfer.errors import MeshError, TopologyMismatchError
+from garment_transfer.errors import GarmentTransferError, MeshError, TopologyMismatchError
 from garment_transfer.mesh import mesh_from_polygons, require_same_topology
 from garment_transfer.obj import obj_text, read_obj, write_obj
 
@@ -105,7 +105,8 @@ def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch
         raise OSError("disk full")
 
     monkeypatch.setattr(objmod.os, "replace", broken_replace)
-    with pytest.raises(OSError, match="disk full"):
+    # The message names the user's file, not the temporary one.
+    with pytest.raises(GarmentTransferError, match=r"out\.obj: cannot be written \(disk full\)"):
         write_obj(out, m)
     assert out.read_text() == "previous result\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.obj"]

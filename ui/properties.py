@@ -77,8 +77,9 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="Choose the distance kept between garment and body from the meshes' scale")
     offset: FloatProperty(
         name="Penetration Offset", subtype='DISTANCE', unit='LENGTH', default=0.002, min=0.0,
-        soft_max=0.05, precision=4,
-        description="Distance the garment keeps from the target body's surface")
+        max=1.0, soft_max=0.05, precision=4,
+        description="Distance the garment keeps from the target body's surface: the cloth thickness, "
+                    "at most 5% of the body's size (checked when transferring, as on the command line)")
     fix_penetration: BoolProperty(
         name="Fix Penetration", default=True,
         description="Push garment vertices out of the target body and spread the fix smoothly")

@@ -40,7 +40,7 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
     assert sorted(r["target"] for r in done) == ["female_pear", "female_slim_banana"]
     assert all(r["garment"] == label for r in done)
     assert any("missing.obj" in r["garment"] and "not found" in r["error"] for r in failed)
-    assert any("garbage.obj" in r["garment"] and "found 0" in r["error"] for r in failed)
+    assert any("garbage.obj" in r["garment"] and "binary content" in r["error"] for r in failed)
     assert [r["target"] for r in failed if r["garment"] == "far"] == ["female_pear", "female_slim_banana"]
     assert all("is far from the source body" in r["error"] for r in failed if r["garment"] == "far")
     assert len(failed) == 4

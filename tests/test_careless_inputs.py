@@ -1,0 +1,447 @@
+"""What a careless user's inputs do: every class of mistake gets one clean line (the file or option,
+the problem, what to do), exit code 1 (input) or 2 (usage), no traceback, and the user's files are
+left exactly as they were (bytes and mode); or, where the input is fine, the right result."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import numpy as np
+import pytest
+
+from lab.__main__ import main as lab_main
+from garment_transfer import cli
+from garment_transfer.errors import GarmentTransferError, MeshError, SettingError
+from garment_transfer.mesh import mesh_from_triangles
+from garment_transfer.metrics import evaluate
+from garment_transfer.obj import obj_text, read_obj, write_obj
+from garment_transfer.files import OutputError, check_output, write_atomic
+from garment_transfer.proximity import TriangleSurface, orientation
+from garment_transfer.transfer import transfer_garment
+from meshes import icosphere, require_makehuman
+
+
+def ellipsoid(radii, subdivisions=3):
+    V, F = icosphere(subdivisions)
+    return V * np.asarray(radii), F
+
+
+def band(radii, grow=1.04, below=0.2, subdivisions=3):
+    """A skirt-like open band around an ellipsoid body of ``radii``, slightly outside it."""
+    V, F = ellipsoid(np.asarray(radii) * grow, subdivisions)
+    keep = V[F].mean(axis=1)[:, 2] < below * radii[2]
+    used = np.unique(F[keep])
+    remap = -np.ones(V.shape[0], np.int64)
+    remap[used] = np.arange(used.size)
+    return V[used], remap[F[keep]]
+
+
+BODY = (1.0, 0.6, 1.6)
+
+
+@pytest.fixture
+def scene(tmp_path):
+    """OBJ files of a source body, a target body (same mesh, another shape) and a garment."""
+    V, F = ellipsoid(BODY)
+    GV, GF = band(BODY)
+    paths = {"source": tmp_path / "source.obj", "target": tmp_path / "target.obj",
+             "garment": tmp_path / "garment.obj"}
+    write_obj(paths["source"], mesh_from_triangles(V, F))
+    write_obj(paths["target"], mesh_from_triangles(V * [1.2, 1.15, 1.0], F))
+    write_obj(paths["garment"], mesh_from_triangles(GV, GF))
+    return paths
+
+
+def snapshot(folder):
+    """Every file under ``folder``: its bytes (or link target) and mode."""
+    out = {}
+    for root, dirs, files in os.walk(folder):
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
+            p = os.path.join(root, name)
+            st = os.lstat(p)
+            if stat.S_ISLNK(st.st_mode):
+                out[p] = ("link", os.readlink(p))
+            elif stat.S_ISREG(st.st_mode):
+                with open(p, "rb") as fh:
+                    out[p] = (fh.read(), st.st_mode)
+            else:
+                out[p] = ("special", st.st_mode)
+    return out
+
+
+def run_cli(capsys, *args, main=None):
+    """Run the command line (default: the product's) in this process; return (exit code, stdout, stderr)."""
+    try:
+        code = (main or cli.main)([str(a) for a in args])
+    except SystemExit as exc:      # argparse usage errors
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_clean_line(err, *fragments):
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(("usage:", " "))]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+    return lines[0]
+
+
+def transfer_args(scene, out, *more):
+    return ("transfer", "--source-body", scene["source"], "--target-body", scene["target"],
+            "--garment", scene["garment"], "--out", out, *more)
+
+
+# 1. Outputs: never an input, never a special file, never through a link; umask permissions.
+
+@pytest.mark.parametrize("role", ["garment", "target", "source"])
+def test_out_equal_to_an_input_is_refused(scene, tmp_path, capsys, role):
+    before = snapshot(tmp_path)
+    code, _, err = run_cli(capsys, *transfer_args(scene, scene[role]))
+    assert code == 1
+    one_clean_line(err, str(scene[role]), "refusing to overwrite an input", "another file name")
+    assert snapshot(tmp_path) == before
+
+
+def test_out_reaching_an_input_through_a_symlink_or_hard_link_is_refused(scene, tmp_path, capsys):
+    os.symlink(scene["garment"], tmp_path / "alias.obj")
+    os.link(scene["target"], tmp_path / "hard.obj")
+    before = snapshot(tmp_path)
+    for out in ("alias.obj", "hard.obj"):
+        code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / out))
+        assert code == 1
+        one_clean_line(err, str(tmp_path / out), "is the input", "another file name")
+    assert snapshot(tmp_path) == before
+
+
+def test_out_that_is_not_a_regular_file_is_refused(scene, tmp_path, capsys):
+    other = tmp_path / "elsewhere.obj"
+    other.write_text("keep me\n")
+    os.symlink(other, tmp_path / "link.obj")
+    os.mkfifo(tmp_path / "fifo.obj")
+    (tmp_path / "folder.obj").mkdir()
+    before = snapshot(tmp_path)
+    for out, problem in (("link.obj", "symbolic link"), ("fifo.obj", "not a regular file"),
+                         ("folder.obj", "is a folder")):
+        code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / out))
+        assert code == 1
+        one_clean_line(err, str(tmp_path / out), problem)
+    assert snapshot(tmp_path) == before
+
+
+def test_out_in_a_missing_or_read_only_folder_or_empty_names_the_users_path(scene, tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    existing = tmp_path / "old.obj"
+    existing.write_text("old\n")
+    existing.chmod(0o444)
+    ro.chmod(0o555)
+    try:
+        before = snapshot(tmp_path)
+        cases = [(tmp_path / "missing" / "r.obj", "does not exist"), ("", "is empty"),
+                 (existing, "read-only"), (ro / "r.obj", "not writable")]
+        for out, problem in cases:
+            code, _, err = run_cli(capsys, *transfer_args(scene, out))
+            assert code == 1
+            line = one_clean_line(err, problem)
+            assert ".tmp-" not in line and str(out) in line
+        assert snapshot(tmp_path) == before
+    finally:
+        ro.chmod(0o755)
+
+
+def test_result_folders_that_are_files_are_refused_before_the_work(tmp_path, capsys):
+    taken = tmp_path / "results"
+    taken.write_text("mine\n")
+    before = snapshot(tmp_path)
+    for args in (("demo", "--out", taken), ("report", taken)):
+        code, _, err = run_cli(capsys, *args, main=lab_main)
+        assert code == 1
+        one_clean_line(err, str(taken), "is a file, not a folder")
+    assert snapshot(tmp_path) == before
+
+
+def test_output_files_get_the_umask_permissions(tmp_path):
+    old = os.umask(0o027)
+    try:
+        write_atomic(tmp_path / "a.txt", lambda fh: fh.write("x"))
+        write_obj(tmp_path / "b.obj", mesh_from_triangles(np.eye(3), [[0, 1, 2]]))
+    finally:
+        os.umask(old)
+    for name in ("a.txt", "b.obj"):
+        assert stat.S_IMODE(os.stat(tmp_path / name).st_mode) == 0o640
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.obj"]
+
+
+def test_model_save_checks_its_output_like_every_writer(tmp_path):
+    from garment_transfer.model import save_npz_atomic
+
+    garment = tmp_path / "garment.obj"
+    garment.write_text("v 0 0 0\n")
+    with pytest.raises(OutputError, match="is the input"):
+        save_npz_atomic(garment, {"a": np.zeros(2)}, {}, inputs=[garment])
+    with pytest.raises(OutputError, match="does not exist"):
+        save_npz_atomic(tmp_path / "no" / "m.npz", {"a": np.zeros(2)}, {})
+    assert garment.read_text() == "v 0 0 0\n"
+    assert check_output(tmp_path / "new.npz") == str(tmp_path / "new.npz")
+
+
+# 2. Inside and outside do not depend on the face winding.
+
+def test_orientation_of_a_body_with_reversed_winding():
+    V, F = ellipsoid(BODY)
+    assert orientation(V, F) == 1 and orientation(V, F[:, ::-1]) == -1
+    P = np.array([[0.0, 0, 0], [2.0, 0, 0], [0.9, 0, 0], [1.1, 0, 0]])
+    right = TriangleSurface(V, F).signed_distance(P)[0]
+    turned = TriangleSurface(V, F[:, ::-1]).signed_distance(P)[0]
+    np.testing.assert_array_equal(np.sign(right), [-1, 1, -1, 1])
+    np.testing.assert_allclose(turned, right)
+
+
+def test_reversed_winding_bodies_give_the_same_transfer_and_evaluation(scene, tmp_path):
+    source, target, garment = (read_obj(scene[k]) for k in ("source", "target", "garment"))
+    flip = {k: mesh_from_triangles(m.V, m.F[:, ::-1], name=f"{k}_flipped")
+            for k, m in (("source", source), ("target", target))}
+    right = transfer_garment(source, target, garment)
+    turned = transfer_garment(flip["source"], flip["target"], garment)
+    # Deformation gradients and binding frames turn with the winding and give the same maps; only
+    # which of two triangles meeting at an edge a point binds to can differ (ties): a tiny fraction
+    # of an edge. Without the orientation check the garment would be pushed inside (offset 4%).
+    edge = np.linalg.norm(garment.V[garment.F[:, 0]] - garment.V[garment.F[:, 1]], axis=1).mean()
+    assert np.abs(turned.V - right.V).max() < 0.02 * edge
+    assert turned.penetrating_vertices == 0 and turned.info["inside_before"] == right.info["inside_before"]
+    result = garment.with_vertices(right.V, name="result")
+    a = evaluate(garment, result, target)
+    b = evaluate(garment, result, flip["target"])
+    assert a["penetration_ratio"] == b["penetration_ratio"] == 0.0
+    # A garment pushed inside is found inside whatever the winding.
+    inside = garment.with_vertices(target.V.mean(axis=0) + 0.9 * (right.V - target.V.mean(axis=0)))
+    assert evaluate(garment, inside, flip["target"])["penetration_ratio"] == \
+        evaluate(garment, inside, target)["penetration_ratio"] > 0.5
+
+
+# 3. OBJ reading: any whitespace, a BOM; every byte but the coordinates survives; cut-off files.
+
+PLAIN = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 2 2\nf 1 2 3 4\nf 1 3 5\n"
+
+
+def test_bom_tabs_and_indentation_read_the_same_mesh(tmp_path):
+    ref = read_obj(_write(tmp_path / "plain.obj", PLAIN.encode()))
+    variants = {
+        "bom": b"\xef\xbb\xbf" + PLAIN.encode(),
+        "tabs": PLAIN.replace(" ", "\t").encode(),
+        "indented": "".join("  \t" + ln + "\n" for ln in PLAIN.splitlines()).encode(),
+        "crlf_and_runs": PLAIN.replace(" ", " \t  ").replace("\n", "\r\n").encode(),
+    }
+    for name, data in variants.items():
+        m = read_obj(_write(tmp_path / f"{name}.obj", data))
+        np.testing.assert_array_equal(m.V, ref.V)
+        np.testing.assert_array_equal(m.face_vertices, ref.face_vertices)
+        np.testing.assert_array_equal(m.face_start, ref.face_start)
+        # Written back unchanged, byte for byte.
+        assert obj_text(m).encode("utf-8", "surrogateescape") == data, name
+
+
+def test_only_the_coordinates_change_colours_latin1_and_all_other_bytes_stay(tmp_path):
+    data = (b"\xef\xbb\xbf# caf\xe9 cr\xe8me (Latin-1)\r\n"
+            b"v 0 0 0 1 0 0\r\n  v\t1 0 0  0.5 0.5 0.5 # red\r\n"
+            b"v 1 1 0 0 0 1\r\nv 0 1 0 1 1 1\r\nvt 0 0\r\nusemtl m\xfc\r\nf 1/1 2/1 3/1 4/1\r\n")
+    src = _write(tmp_path / "coloured.obj", data)
+    mode = os.stat(src).st_mode
+    m = read_obj(src)
+    out = tmp_path / "moved.obj"
+    write_obj(out, m, m.V + [0, 0, 0.25])
+    written = out.read_bytes()
+    expected = data.replace(b"v 0 0 0 1", b"v 0 0 0.25 1").replace(b"v\t1 0 0  0.5", b"v\t1 0 0.25  0.5") \
+        .replace(b"v 1 1 0 0", b"v 1 1 0.25 0").replace(b"v 0 1 0 1", b"v 0 1 0.25 1")
+    assert written == expected
+    assert src.read_bytes() == data and os.stat(src).st_mode == mode
+
+
+@pytest.mark.parametrize("data, problem", [
+    (PLAIN.encode()[:-1], "ends in the middle of a record"),              # last f line cut
+    (PLAIN.encode()[:-6], "ends in the middle of a record"),
+    (b"v 0 0 0\nv 1 0 0\nv 1 1 0\n" + b"v 5 5 5\n" * 20 + b"f 1 2 3\n", "faces stop early"),
+    (b"w 0 0 0\n" + PLAIN.encode(), "not an OBJ statement"),               # a damaged keyword
+    (PLAIN.encode("utf-16"), "UTF-16"),
+    (b"v 0 0 1e300\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "too large"),
+    (b"v 0 0 \xd9\xa1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "not a number"),     # an Arabic-Indic digit
+    (b"v 0 0 1_0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "not a number"),
+])
+def test_damaged_files_are_refused_with_the_line(tmp_path, data, problem):
+    p = _write(tmp_path / "bad.obj", data)
+    with pytest.raises(MeshError, match=problem) as info:
+        read_obj(p)
+    assert str(p) in str(info.value) and "\n" not in str(info.value)
+    assert p.read_bytes() == data
+
+
+def test_a_cut_off_garment_is_refused_on_the_command_line(scene, tmp_path, capsys):
+    text = scene["garment"].read_bytes()
+    cut = tmp_path / "cut.obj"
+    cut.write_bytes(text[:int(len(text) * 0.8)])          # inside the faces, mid-line
+    cut_at_line = tmp_path / "cut_line.obj"
+    faces = text.index(b"\nf ")
+    cut_at_line.write_bytes(text[:faces + (len(text) - faces) // 2].rsplit(b"\n", 1)[0] + b"\n")
+    for path in (cut, cut_at_line):
+        code, _, err = run_cli(capsys, "transfer", "--source-body", scene["source"], "--target-body",
+                               scene["target"], "--garment", path, "--out", tmp_path / "r.obj")
+        assert code == 1
+        one_clean_line(err, str(path), "cut off")
+    assert not (tmp_path / "r.obj").exists()
+
+
+# 5. Placement: a garment not around its body is refused.
+
+def test_garment_moved_or_turned_away_from_its_body_is_refused(scene):
+    source, target, garment = (read_obj(scene[k]) for k in ("source", "target", "garment"))
+    transfer_garment(source, target, garment)          # dressed: accepted
+    a = np.pi / 2
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    turned = garment.with_vertices(garment.V @ R.T, name="turned.obj")
+    up = garment.with_vertices(garment.V + [0, 0, 1.2], name="up.obj")
+    for g in (turned, up):
+        with pytest.raises(MeshError, match=rf"{g.name}: is not around the source body"):
+            transfer_garment(source, target, g)
+
+
+def test_makehuman_garments_pass_and_misplaced_ones_do_not():
+    root = require_makehuman()
+    body = read_obj(root / "bodies" / "female_pear.obj")
+    other = read_obj(root / "bodies" / "female_average.obj")
+    for name in ("female_casualsuit01", "male_casualsuit01"):    # the most inside, the least
+        g = read_obj(root / "garments" / name / "female_pear.obj")
+        transfer_garment(body, other, g, fix_penetration=False)
+        for V in (g.V + [0, 5.0, 0], g.V[:, [2, 1, 0]] * [1, 1, -1] + body.V.mean(axis=0) * [1, 0, 1]
+                  - body.V.mean(axis=0)[[2, 1, 0]] * [1, 0, -1]):
+            with pytest.raises(MeshError, match="not around the source body"):
+                transfer_garment(body, other, g.with_vertices(V), fix_penetration=False)
+
+
+# 6. Settings: range-checked at the entry.
+
+@pytest.mark.parametrize("value, code, problem", [
+    ("nan", 2, "finite"), ("inf", 2, "finite"), ("-0.01", 2, ">= 0"), ("1e300", 1, "more than 5%"),
+    ("100", 1, "more than 5%"), ("abc", 2, "not a distance"),
+])
+def test_offset_out_of_range(scene, tmp_path, capsys, value, code, problem):
+    before = snapshot(tmp_path)
+    got, out, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--offset", value, "--json"))
+    assert got == code and out == ""
+    one_clean_line(err, "offset", problem)
+    assert snapshot(tmp_path) == before
+
+
+def test_offset_checked_in_the_core_for_every_caller(scene):
+    source, target, garment = (read_obj(scene[k]) for k in ("source", "target", "garment"))
+    for bad in (float("nan"), -1.0, 1e300):
+        with pytest.raises(SettingError, match="offset"):
+            transfer_garment(source, target, garment, offset=bad)
+    r = transfer_garment(source, target, garment, offset=0.0)
+    assert r.info["offset"] == 0.0
+
+
+@pytest.mark.parametrize("args, problem", [
+    (("bench", "--repeats", "0"), "--repeats: '0' must be >= 1"),
+    (("bench", "--sizes", "-5"), "--sizes"),
+    (("bench", "--sizes", "1000,x"), "not a whole number"),
+    (("bench", "--targets", "0"), "--targets"),
+    (("train", "--dataset", ".", "--source", "a", "--targets", "b", "--out", "m.npz", "--epochs", "0"),
+     "--epochs"),
+    (("train", "--dataset", ".", "--source", "a", "--targets", "b", "--out", "m.npz", "--latent", "-3"),
+     "--latent"),
+])
+def test_numeric_options_out_of_range_are_usage_errors(capsys, args, problem):
+    code, _, err = run_cli(capsys, *args, main=lab_main if args[0] == "bench" else None)
+    assert code == 2
+    one_clean_line(err, problem)
+
+
+def test_model_or_target_implies_the_model_method(scene, tmp_path, capsys):
+    # An OBJ given as the model: the model method is used, and the message says what the file is.
+    code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--model", scene["garment"],
+                                                  "--target", "x"))
+    assert code == 1
+    line = one_clean_line(err, str(scene["garment"]), "not a model file", "text file")
+    assert "pickled" not in line
+    code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--target", "x"))
+    assert code == 1
+    one_clean_line(err, "--model")
+    code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--method", "direct",
+                                                  "--model", scene["garment"]))
+    assert code == 2
+    one_clean_line(err, "--model and --target are for --method model")
+    assert not (tmp_path / "r.obj").exists()
+    assert "implies --method model" in cli.build_parser()._subparsers._group_actions[0] \
+        .choices["transfer"].format_help().replace("\n", " ").replace("  ", " ")
+
+
+def test_evaluate_with_a_body_of_another_topology(scene, tmp_path, capsys):
+    code, _, err = run_cli(capsys, "evaluate", "--source", scene["garment"], "--result", scene["garment"],
+                           "--target-body", scene["target"], "--source-body", scene["garment"])
+    assert code == 1
+    one_clean_line(err, "vertices", "the same mesh in different shapes")
+
+
+def test_train_checks_its_output_before_training(tmp_path, capsys, monkeypatch):
+    import garment_transfer.training as training
+
+    def no_training(*a, **k):
+        raise AssertionError("trained before the output was checked")
+
+    monkeypatch.setattr(training, "load_dataset", no_training, raising=False)
+    monkeypatch.setattr("garment_transfer.dataset.load_dataset", no_training)
+    for out, problem in ((tmp_path / "missing" / "m.npz", "does not exist"), (tmp_path, "is a folder")):
+        code, _, err = run_cli(capsys, "train", "--dataset", tmp_path, "--source", "a", "--targets", "b",
+                               "--out", out)
+        assert code == 1
+        one_clean_line(err, str(out), problem)
+    with pytest.raises(SettingError, match="epochs"):
+        training.train_from_dataset(tmp_path, "a", ["b"], epochs=0)
+
+
+def test_ctrl_c_is_one_line_exit_130_and_no_file(scene, tmp_path, capsys, monkeypatch):
+    import garment_transfer.transfer as transfer
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(transfer, "transfer_garment", interrupted)
+    before = snapshot(tmp_path)
+    code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj"))
+    assert code == 130
+    one_clean_line(err, "interrupted")
+    assert snapshot(tmp_path) == before
+
+
+def test_json_output_is_valid_json(scene, tmp_path, capsys):
+    import json
+
+    code, out, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--offset", "0", "--json"))
+    assert code == 0, err
+    json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    assert isinstance(cli._finite({"a": float("nan"), "b": [np.float64("inf"), 1.0]})["b"][1], float)
+    assert cli._finite({"a": float("nan"), "b": [np.float64("inf")]}) == {"a": None, "b": [None]}
+
+
+def test_every_error_is_a_garment_transfer_error():
+    for cls in (MeshError, SettingError, OutputError):
+        assert issubclass(cls, GarmentTransferError)
+
+
+def _write(path, data: bytes):
+    path.write_bytes(data)
+    return path
+
+
+def test_one_body_mirrored_and_the_other_not_is_named():
+    from garment_transfer.errors import TopologyMismatchError
+    from garment_transfer.mesh import mesh_from_polygons, require_same_topology
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float)
+    a = mesh_from_polygons(V, [[0, 1, 2, 3], [1, 4, 2]], name="a.obj")
+    b = mesh_from_polygons(V, [[0, 3, 2, 1], [1, 2, 4]], name="b.obj")     # each polygon turned around
+    with pytest.raises(TopologyMismatchError, match="b.obj: has the faces of a.obj turned around"):
+        require_same_topology(a, b)
