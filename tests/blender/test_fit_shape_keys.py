@@ -153,20 +153,21 @@ def test_undo_takes_the_fitted_garment_back(keyed):
     assert scene_state() == after
 
 
-def rig(body):
-    """An armature with one bone from the hips up; the body skinned to it (upper part weighted)."""
+def rig(body, garment):
+    """An armature with one bone; the body skinned to it above the garment's mid-height."""
+    z0 = float(np.median(world_of(garment, np.array([v.co for v in garment.data.vertices]))[:, 2]))
     arm_data = bpy.data.armatures.new("rig")
     arm = bpy.data.objects.new("rig", arm_data)
     bpy.context.scene.collection.objects.link(arm)
     bpy.context.view_layer.objects.active = arm
     bpy.ops.object.mode_set(mode='EDIT')
     bone = arm_data.edit_bones.new("spine")
-    bone.head = (0.0, 0.0, 0.9)
-    bone.tail = (0.0, 0.0, 1.4)
+    bone.head = (0.0, 0.0, z0)
+    bone.tail = (0.0, 0.0, z0 + 0.4)
     bpy.ops.object.mode_set(mode='OBJECT')
     z = world_of(body, np.array([v.co for v in body.data.vertices]))[:, 2]
     group = body.vertex_groups.new(name="spine")
-    for i in np.flatnonzero(z > 1.0):
+    for i in np.flatnonzero(z > z0):
         group.add([int(i)], 1.0, 'REPLACE')
     mod = body.modifiers.new(name="Armature", type='ARMATURE')
     mod.object = arm
@@ -175,7 +176,7 @@ def rig(body):
 
 def test_weights_from_the_body_and_posing_deforms_the_result(keyed):
     body, garment = keyed
-    arm = rig(body)
+    arm = rig(body, garment)
     bpy.context.view_layer.objects.active = body
     assert bpy.ops.garment_transfer.fit_shape_keys(weights_from_body=True) == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
@@ -199,7 +200,7 @@ def test_weights_from_the_body_and_posing_deforms_the_result(keyed):
 
 def test_the_garments_own_rigging_is_kept(keyed):
     body, garment = keyed
-    arm = rig(body)
+    arm = rig(body, garment)
     garment.parent = arm
     group = garment.vertex_groups.new(name="own")
     group.add(list(range(0, len(garment.data.vertices), 2)), 0.5, 'REPLACE')
