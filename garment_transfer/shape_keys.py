@@ -147,7 +147,8 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
     pairs : sequence of (str, str)
         Pairs of keys that get a corrective key (``all_pairs(shapes)`` for every pair).
     offset : float, optional
-        Distance kept from the body (default 0.25% of the body's scale, about 5 mm on a 1.7 m body).
+        Distance kept from the body (default: as ``transfer_garment``, 0.25% of each shape's scale,
+        about 5 mm on a 1.7 m body).
     margin : float
         Added to ``offset`` for the keys and correctives (not the basis): room for linear blending.
     fix_penetration, interpolate, stiffness
@@ -175,17 +176,17 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
     seconds["prepare"] = time.perf_counter() - t0
-    if offset is None:
-        offset = OFFSET_SHARE * body_scale(source_body.V)
     total = 1 + len(shapes) + len(pairs)
     info = {}
 
     def run(V_body, name, extra):
+        # The default offset is the one a single transfer to that shape uses (from its own scale).
+        kept = (OFFSET_SHARE * body_scale(V_body) if offset is None else offset) + extra
         result = transfer_garment(source_body, source_body.with_vertices(V_body, name=name), garment,
-                                  offset=offset + extra, fix_penetration=fix_penetration,
+                                  offset=kept, fix_penetration=fix_penetration,
                                   interpolate=interpolate, prepared=prepared)
         info[name] = {"seconds": result.seconds, "penetrating_vertices": result.penetrating_vertices,
-                      "offset": offset + extra}
+                      "offset": kept}
         return result.V
 
     t = time.perf_counter()

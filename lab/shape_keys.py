@@ -41,7 +41,7 @@ KEYS = (("pear_legs", "female_pear", "legs"), ("pear_hips", "female_pear", "hips
         ("male_legs", "male_average", "legs"), ("male_hips", "male_average", "hips"),
         ("male_waist", "male_average", "waist"), ("male_chest", "male_average", "chest"),
         ("slim_waist", "female_slim_banana", "waist"), ("slim_legs", "male_slim", "legs"))
-STUDY_GARMENTS = ("female_casualsuit01", "female_sportsuit01", "male_casualsuit02")
+STUDY_GARMENTS = ("female_casualsuit01",)
 
 
 def band_weights(y, fade=0.02):
@@ -114,7 +114,7 @@ def bench(folder, repeats=1):
             "cold_seconds": cold, "inside_at_keys": inside}
 
 
-def study(folder, garments, count=50, seed=0, margin_mm=(2.0, 4.0)):
+def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
     """The blending study on the MakeHuman garments: one row per garment and remedy."""
     basis, shapes = body_with_keys(folder)
     combos = combinations(shapes, count, seed)
@@ -131,7 +131,6 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0, 4.0)):
         remedies = [("none", 0.0, False, False)]
         remedies += [(f"margin {m:g} mm", m * MM, False, False) for m in margin_mm]
         remedies += [("pair correctives", 0.0, True, False),
-                     (f"pair correctives + margin {margin_mm[0]:g} mm", margin_mm[0] * MM, True, False),
                      ("keep outside (Shrinkwrap)", 0.0, False, True)]
         fits = {}
         for label, margin, pairs, outside in remedies:
@@ -149,6 +148,7 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0, 4.0)):
                 inside.append(float((sd < -MM).mean()))
                 worst.append(float(max(0.0, -sd.min())))
                 error.append(float(np.linalg.norm(V - ex, axis=1).mean()))
+            print(f"  {name}: {label} done", flush=True)
             rows.append({"garment": name, "vertices": garment.n_vertices, "remedy": label,
                          "mean_inside": float(np.mean(inside)), "max_inside": float(np.max(inside)),
                          "combinations_over_half_percent": int(np.sum(np.array(inside) > 0.005)),
