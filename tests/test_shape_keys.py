@@ -41,7 +41,7 @@ def test_each_key_at_one_is_exactly_the_transfer_to_that_shape_and_nothing_is_in
         body = basis.with_vertices(V)
         reused = transfer_garment(basis, body, garment, prepared=prepared).V
         assert np.array_equal(fit.keys[name], reused)
-        assert np.array_equal(fit.blend({name: 1.0}), fit.keys[name])
+        assert np.abs(fit.blend({name: 1.0}) - fit.keys[name]).max() < 1e-12     # rounding only
         cold = transfer_garment(basis, body, garment).V
         assert np.abs(fit.keys[name] - cold).max() < 1e-9
         assert (TriangleSurface(V, basis.F).signed_distance(fit.keys[name])[0] < 0).sum() == 0
