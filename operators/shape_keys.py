@@ -153,7 +153,19 @@ def write_key(me, key_block, V_local):
     key_block.data.foreach_set("co", np.ascontiguousarray(V_local, dtype=np.float32).reshape(-1))
 
 
-def build_result(context, garment, body, fit, garment_basis_local, weights=None):
+def add_keep_outside(obj, body):
+    """A Shrinkwrap modifier at the end of the stack (after any Armature modifier, so that posed cloth
+    meets the posed body) that moves only vertices inside the body onto its surface: what a blend of
+    keys clips, at any slider setting and pose (shape_keys.keep_outside is the same rule)."""
+    mod = obj.modifiers.new(name="Keep Outside Body", type='SHRINKWRAP')
+    mod.target = body
+    mod.wrap_method = 'NEAREST_SURFACEPOINT'
+    mod.wrap_mode = 'OUTSIDE'
+    mod.offset = 0.0
+    return mod
+
+
+def build_result(context, garment, body, fit, garment_basis_local, weights=None, keep_outside=False):
     """The new object: the garment's copy with the fitted basis, a driven key per body key and per
     corrective pair, the garment's own keys moved with the basis, its parent, modifiers and groups."""
     key_body = body.data.shape_keys
@@ -205,6 +217,8 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None)
                         new.use_vertex_groups = True
                         new.use_deform_preserve_volume = m.use_deform_preserve_volume
                         break
+        if keep_outside:
+            add_keep_outside(obj, body)
         me.update()
         for coll in convert.result_collections(garment, context.scene, context.view_layer):
             coll.objects.link(obj)
@@ -217,7 +231,7 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None)
 
 
 def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0.0,
-              weights_from_body=False, offset=None):
+              weights_from_body=False, keep_outside=False, offset=None):
     """Read the objects, transfer one key per step, then make the object: a generator.
 
     Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note)``.
@@ -260,7 +274,7 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
             fit = stop.value
             break
         yield done / total
-    result = build_result(context, garment, body, fit, garment_basis_local, weights)
+    result = build_result(context, garment, body, fit, garment_basis_local, weights, keep_outside)
     return result, fit, kept, note
 
 
@@ -293,6 +307,11 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(bpy.types.Operator):
         description="When the garment has no vertex groups, take the body's (nearest surface point, "
                     "interpolated) and its Armature modifier, so that the result follows the rig")
 
+    keep_outside: BoolProperty(
+        name="Keep Outside Body", default=True,
+        description="Add a Shrinkwrap modifier (Outside mode, last in the stack) that moves only the "
+                    "vertices a mix of sliders or a pose puts inside the body back onto its surface")
+
     _timer = None
     _steps = None
 
@@ -308,6 +327,7 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(bpy.types.Operator):
         self._steps = fit_steps(context, settings.source_body, settings.garment, names=names,
                                 correctives=self.correctives, margin=self.margin,
                                 weights_from_body=self.weights_from_body,
+                                keep_outside=self.keep_outside,
                                 offset=None if settings.auto_offset else settings.offset)
 
     def _finish(self, context, outcome):

@@ -93,8 +93,9 @@ def set_key(body, name, value):
 def test_keys_and_drivers_follow_the_body_sliders(keyed):
     body, garment = keyed
     before = scene_state()
-    assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
+    assert bpy.ops.garment_transfer.fit_shape_keys(keep_outside=False) == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
+    assert not result.modifiers
     after = scene_state()
     for name in before:
         if name.startswith("object:"):
@@ -126,7 +127,7 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
 
 def test_corrective_pair_key_makes_both_keys_at_one_exact(keyed):
     body, garment = keyed
-    assert bpy.ops.garment_transfer.fit_shape_keys(correctives=True) == {'FINISHED'}
+    assert bpy.ops.garment_transfer.fit_shape_keys(correctives=True, keep_outside=False) == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
     assert "pear+slim" in result.data.shape_keys.key_blocks
     drv = [fc.driver for fc in result.data.shape_keys.animation_data.drivers
@@ -139,6 +140,33 @@ def test_corrective_pair_key_makes_both_keys_at_one_exact(keyed):
     assert np.abs(both - fit.blend({"pear": 1.0, "slim": 1.0})).max() < 1e-5
     set_key(body, "slim", 0.0)
     assert np.abs(evaluated_world(result) - fit.keys["pear"]).max() < 1e-5
+
+
+def evaluated_body_surface(body):
+    from garment_transfer.proximity import TriangleSurface
+
+    V = evaluated_world(body)
+    return TriangleSurface(V, mesh_of(body, V).F)
+
+
+def test_keep_outside_catches_what_a_mix_clips_and_leaves_the_keys_exact(keyed):
+    body, garment = keyed
+    assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
+    result = bpy.data.objects["suit_fitted"]
+    (mod,) = result.modifiers
+    assert (mod.type, mod.wrap_mode, mod.target) == ('SHRINKWRAP', 'OUTSIDE', body)
+    fit = expected_fit(body, garment)
+    set_key(body, "pear", 1.0)
+    assert np.abs(evaluated_world(result) - fit.keys["pear"]).max() < 1e-5
+    set_key(body, "slim", 1.0)             # both at 1: a mix the keys were not made for
+    blend = fit.blend({"pear": 1.0, "slim": 1.0})
+    surface = evaluated_body_surface(body)
+    sd_blend = surface.signed_distance(blend)[0]
+    shown = evaluated_world(result)
+    sd_shown = surface.signed_distance(shown)[0]
+    assert (sd_shown < -1e-3).sum() == 0                       # nothing more than 1 mm inside
+    outside = sd_blend > 1e-4
+    assert np.abs(shown[outside] - blend[outside]).max() < 1e-5  # the rest is the blend itself
 
 
 def test_undo_takes_the_fitted_garment_back(keyed):
@@ -178,7 +206,8 @@ def test_weights_from_the_body_and_posing_deforms_the_result(keyed):
     body, garment = keyed
     arm = rig(body, garment)
     bpy.context.view_layer.objects.active = body
-    assert bpy.ops.garment_transfer.fit_shape_keys(weights_from_body=True) == {'FINISHED'}
+    # Without the Shrinkwrap, which would also move unweighted cloth where the posed body meets it.
+    assert bpy.ops.garment_transfer.fit_shape_keys(weights_from_body=True, keep_outside=False) == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
     assert [g.name for g in result.vertex_groups] == ["spine"]
     assert [(m.type, m.object) for m in result.modifiers] == [('ARMATURE', arm)]
@@ -211,7 +240,8 @@ def test_the_garments_own_rigging_is_kept(keyed):
     result = bpy.data.objects["suit_fitted"]
     assert result.parent == arm
     assert [g.name for g in result.vertex_groups] == ["own"]
-    assert [(m.name, m.object) for m in result.modifiers] == [("Skin", arm)]
+    assert [(m.name, getattr(m, "object", None) or m.target) for m in result.modifiers] == \
+        [("Skin", arm), ("Keep Outside Body", body)]
     assert np.allclose(np.array(result.matrix_world), np.array(garment.matrix_world))
 
 
