@@ -14,7 +14,8 @@ preparation, beside 10 independent cold transfers (each preparing the garment ag
 Blending study: random slider combinations of 3 to 6 keys with values in [0, 1]; for each, the linear
 blend of the garment's keys against the body at that combination (share of garment vertices more than
 1 mm inside), and the distance of the blend from a transfer to that exact body. Remedies: a margin
-(every key transferred further from the body), corrective keys for every pair of keys, and both.
+(every key transferred further from the body), corrective keys for every pair of keys, and keeping the
+blend outside the body (``shape_keys.keep_outside``: what the operator's Shrinkwrap modifier does).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import time
 
 import numpy as np
 
-from garment_transfer.mesh import Mesh
 from garment_transfer.obj import read_obj
 from garment_transfer.proximity import TriangleSurface
 from garment_transfer.shape_keys import all_pairs, body_at, fit_shape_keys, keep_outside
