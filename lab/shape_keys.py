@@ -109,7 +109,9 @@ def bench(folder, repeats=1):
         transfer_garment(basis, basis.with_vertices(V, name=name), garment)
     cold = time.perf_counter() - t
     inside = sum(fit.info[n]["penetrating_vertices"] for n in shapes)
-    return {"garment_vertices": garment.n_vertices, "garment_triangles": garment.n_triangles,
+    stages = {stage: float(np.mean([fit.info[n]["seconds"].get(stage, 0.0) for n in shapes]))
+              for stage in ("field", "bind", "embed", "solve", "fix")}
+    return {"per_key_stages": stages, "garment_vertices": garment.n_vertices, "garment_triangles": garment.n_triangles,
             "keys": len(shapes), "fit_seconds": min(fitted), "fit_stages": fit.seconds,
             "cold_seconds": cold, "inside_at_keys": inside}
 
@@ -180,6 +182,8 @@ def main(argv=None):
               f"(prepare {b['fit_stages']['prepare']:.2f} s, basis and keys {b['fit_stages']['keys']:.2f} s); "
               f"10 independent cold transfers: {b['cold_seconds']:.2f} s; "
               f"{b['inside_at_keys']} vertices inside at the keys")
+        print("per key, mean seconds by stage: " + ", ".join(f"{k} {v:.3f}" for k, v in
+                                                             b["per_key_stages"].items()))
     if not args.skip_study:
         garments = [g for g in args.garments.split(",") if g]
         rows = study(folder, garments, args.combinations, args.seed)
