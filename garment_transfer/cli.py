@@ -118,6 +118,19 @@ def cmd_transfer(args):
                       f"{result.seconds['total']:.3f} s (transfer)"])
 
 
+def cmd_shapes(args):
+    from .shape_keys import shapes_to_files
+
+    summary = shapes_to_files(args.source_body, args.target_body, args.garment, args.out,
+                              offset=args.offset, margin=args.margin or 0.0,
+                              fix_penetration=not args.no_fix, progress=stderr_progress("shapes")
+                              if args.verbose else None)
+    _emit(args, summary, [f"wrote {s['out']}: {s['penetrating_vertices']} vertices inside {s['target']}"
+                          for s in summary["shapes"]]
+          + [f"{len(summary['shapes'])} shapes, one preparation: {summary['seconds']['total']:.2f} s "
+             f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"])
+
+
 def cmd_evaluate(args):
     from .metrics import evaluate
     from .obj import read_obj
@@ -177,6 +190,24 @@ def build_parser():
                    help="nearest body triangle only when carrying the field (the paper)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
+
+    h = sub.add_parser("shapes", help="one garment onto many shapes of one body, prepared once",
+                       description="Transfer one garment to every target shape of the source body "
+                                   "(same mesh, other shapes: the body's shape keys exported one per "
+                                   "file). Writes DIR/<garment>_on_<target>.obj for each and "
+                                   "DIR/shapes.json; nothing is written unless every shape succeeds.")
+    h.add_argument("--source-body", required=True, help="OBJ: the body the garment is dressed on (the basis)")
+    h.add_argument("--target-body", required=True, action="append",
+                   help="OBJ: the same body mesh in another shape; repeat for each shape")
+    h.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
+    h.add_argument("--out", required=True, help="folder to write into (made if missing)")
+    h.add_argument("--offset", type=float, default=None,
+                   help="distance kept from the body, in the files' units (default 0.25%% of its scale)")
+    h.add_argument("--margin", type=float, default=None,
+                   help="extra distance for every shape, so that blends of the shapes clip less")
+    h.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
+    h.add_argument("--json", action="store_true", help="print one JSON object")
+    h.set_defaults(func=cmd_shapes)
 
     e = sub.add_parser("evaluate", help="quality figures of a transferred garment")
     e.add_argument("--source", required=True, help="OBJ: the garment on the source body")

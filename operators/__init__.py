@@ -2,9 +2,10 @@
 
 import bpy
 
-from . import drape, evaluate, train, transfer
+from . import drape, evaluate, shape_keys, train, transfer
 
-CLASSES = transfer.CLASSES + train.CLASSES + drape.CLASSES + evaluate.CLASSES
+CLASSES = (transfer.CLASSES + shape_keys.CLASSES + train.CLASSES + drape.CLASSES
+           + evaluate.CLASSES)
 
 
 def register():

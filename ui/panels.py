@@ -66,6 +66,7 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         row.enabled = not settings.auto_offset
         row.prop(settings, "offset")
         layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
+        layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):

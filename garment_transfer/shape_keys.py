@@ -1,0 +1,372 @@
+"""One garment fitted to many shapes of one body: shape keys that follow the body's shape keys.
+
+A body with shape keys is a basis ``B0 (n,3)`` and keys ``B_k (n,3)`` (same vertex order) mixed
+linearly by slider values ``w_k``: ``B(w) = B0 + sum_k w_k (B_k - B0)``. The garment gets one key per
+body key: ``G_k`` is the garment transferred to ``B_k``, and its basis ``G0`` the garment transferred to
+``B0`` (the garment itself, pushed out where it was inside the body). The garment is prepared once
+(binding, embedding, Poisson factor; ``transfer.prepare_garment``) and every key reuses it.
+
+Blended the same way, ``G(w) = G0 + sum_k w_k (G_k - G0)`` is exactly the transfer at a single key at
+value 1, but only close to the transfer at a mix of keys: where two keys both move the same region
+(hips that widen twice) the linear sum can clip. Two remedies are offered and measured
+(``lab/shape_keys.py``, ``docs/shape-keys.md``):
+
+- ``margin``: every key is transferred with a larger distance kept from the body;
+- corrective keys for pairs of keys: the garment transferred to ``B0 + (B_a - B0) + (B_b - B0)``, stored
+  as its difference from the linear blend, and mixed in with weight ``w_a * w_b`` (a driver of the two
+  sliders in Blender), so that both keys at 1 are exact too.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .embedding import body_scale
+from .errors import Cancelled, MeshError
+from .mesh import Mesh
+from .proximity import TriangleSurface
+from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
+
+
+@dataclass
+class ShapeKeyFit:
+    """A garment fitted to every shape key of a body.
+
+    Attributes
+    ----------
+    basis : (g,3) float64
+        The garment on the basis body.
+    keys : dict of str to (g,3) float64
+        The garment on each key's body shape (absolute positions, like a Blender shape key).
+    correctives : dict of (str, str) to (g,3) float64
+        For a pair of keys, what the garment on both keys at 1 adds to the linear blend (a difference,
+        mixed in with the product of the two values).
+    info : dict of str to dict
+        Per key (and per corrective ``"a+b"``): ``seconds`` by stage, ``penetrating_vertices``, ``offset``.
+    seconds : dict
+        ``prepare``, ``keys``, ``correctives``, ``total``.
+    """
+
+    basis: np.ndarray
+    keys: dict
+    correctives: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)
+
+    def blend(self, weights, correctives=True):
+        """The garment at slider values ``weights`` (a dict name -> value; missing keys are 0).
+
+        Returns
+        -------
+        V : (g,3) float64
+        """
+        V = self.basis.copy()
+        for name, w in weights.items():
+            if w:
+                V += w * (self.keys[name] - self.basis)
+        if correctives:
+            for (a, b), delta in self.correctives.items():
+                w = weights.get(a, 0.0) * weights.get(b, 0.0)
+                if w:
+                    V += w * delta
+        return V
+
+
+def check_shapes(basis: Mesh, shapes):
+    """Check body shapes against the basis body: same vertex count, finite, not empty.
+
+    Parameters
+    ----------
+    basis : Mesh
+    shapes : dict of str to (n,3) float
+
+    Returns
+    -------
+    dict of str to (n,3) float64
+    """
+    if not shapes:
+        raise MeshError(basis.name, "has no shape keys to fit the garment to")
+    checked = {}
+    for name, V in shapes.items():
+        V = np.asarray(V, dtype=np.float64)
+        if V.shape != basis.V.shape:
+            raise MeshError(f"{basis.name}: key {name}",
+                            f"has {V.shape[0] if V.ndim == 2 else V.size} vertices, the basis "
+                            f"{basis.n_vertices}; a shape key must move the basis mesh's own vertices")
+        if not np.isfinite(V).all():
+            raise MeshError(f"{basis.name}: key {name}", "has NaN or infinite coordinates")
+        checked[name] = V
+    return checked
+
+
+def body_at(basis_V, shapes, weights):
+    """The body at slider values ``weights``: ``B0 + sum_k w_k (B_k - B0)``.
+
+    Parameters
+    ----------
+    basis_V : (n,3) float
+    shapes : dict of str to (n,3) float
+    weights : dict of str to float
+
+    Returns
+    -------
+    V : (n,3) float64
+    """
+    V = np.array(basis_V, dtype=np.float64)
+    for name, w in weights.items():
+        if w:
+            V += w * (np.asarray(shapes[name], dtype=np.float64) - basis_V)
+    return V
+
+
+def all_pairs(names):
+    """Every unordered pair of key names, in order."""
+    return list(itertools.combinations(list(names), 2))
+
+
+def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None, margin=0.0,
+              fix_penetration=True, interpolate=True, stiffness=None, with_basis=True,
+              prepared: PreparedGarment | None = None):
+    """Fit ``garment`` to every shape, one transfer per step: a generator.
+
+    Yields ``(done, total, name)`` after each transfer (the basis first, then the keys, then the
+    corrective pairs); its return value (``StopIteration.value``) is the ShapeKeyFit. Callers that can
+    pause between steps (Blender's modal operators) advance it themselves; ``fit_shape_keys`` drains it.
+
+    Parameters
+    ----------
+    source_body : Mesh
+        The body's basis shape, the garment dressed on it.
+    shapes : dict of str to (n,3) float
+        Each key's body shape (absolute positions, the basis's vertex order).
+    garment : Mesh
+    pairs : sequence of (str, str)
+        Pairs of keys that get a corrective key (``all_pairs(shapes)`` for every pair).
+    offset : float, optional
+        Distance kept from the body (default: as ``transfer_garment``, 0.25% of each shape's scale,
+        about 5 mm on a 1.7 m body).
+    margin : float
+        Added to ``offset`` for the keys and correctives (not the basis): room for linear blending.
+    fix_penetration, interpolate, stiffness
+        As in ``transfer.transfer_garment``.
+    with_basis : bool
+        Transfer the garment to the basis shape too (the basis of the keys); False keeps the garment as
+        it is as the basis (when only the keys' shapes are wanted).
+    prepared : PreparedGarment, optional
+        Made by ``prepare_garment(source_body, garment)``; made here when not given.
+    """
+    shapes = check_shapes(source_body, shapes)
+    pairs = [tuple(p) for p in pairs]
+    for a, b in pairs:
+        for name in (a, b):
+            if name not in shapes:
+                raise ValueError(f"corrective pair ({a}, {b}): no shape key {name!r}")
+        if a == b:
+            raise ValueError(f"corrective pair ({a}, {b}) needs two different keys")
+    if margin < 0:
+        raise ValueError(f"margin must be >= 0, got {margin}")
+    t0 = time.perf_counter()
+    seconds = {}
+    if prepared is None:
+        prepared = prepare_garment(source_body, garment, interpolate=interpolate, stiffness=stiffness)
+    elif prepared.garment is not garment or prepared.source_body is not source_body:
+        raise ValueError("prepared was made for another garment or source body")
+    seconds["prepare"] = time.perf_counter() - t0
+    total = 1 + len(shapes) + len(pairs)
+    info = {}
+
+    def run(V_body, name, extra):
+        # The default offset is the one a single transfer to that shape uses (from its own scale).
+        kept = (OFFSET_SHARE * body_scale(V_body) if offset is None else offset) + extra
+        result = transfer_garment(source_body, source_body.with_vertices(V_body, name=name), garment,
+                                  offset=kept, fix_penetration=fix_penetration,
+                                  interpolate=interpolate, prepared=prepared)
+        info[name] = {"seconds": result.seconds, "penetrating_vertices": result.penetrating_vertices,
+                      "offset": kept}
+        return result.V
+
+    t = time.perf_counter()
+    if with_basis:
+        basis = run(source_body.V, "Basis", 0.0)
+    else:
+        basis = np.array(garment.V, dtype=np.float64)
+    yield 1, total, "Basis"
+    keys = {}
+    for i, (name, V) in enumerate(shapes.items()):
+        keys[name] = run(V, name, margin)
+        yield 2 + i, total, name
+    seconds["keys"] = time.perf_counter() - t
+    t = time.perf_counter()
+    correctives = {}
+    for i, (a, b) in enumerate(pairs):
+        both = body_at(source_body.V, shapes, {a: 1.0, b: 1.0})
+        exact = run(both, f"{a}+{b}", margin)
+        correctives[(a, b)] = exact - (keys[a] + keys[b] - basis)
+        yield 2 + len(shapes) + i, total, f"{a}+{b}"
+    seconds["correctives"] = time.perf_counter() - t
+    seconds["total"] = time.perf_counter() - t0
+    return ShapeKeyFit(basis, keys, correctives, info, seconds)
+
+
+def drain(steps, progress=None):
+    """Run a ``fit_steps`` generator to its end; ``progress(fraction, name)`` returning True cancels.
+
+    Returns
+    -------
+    ShapeKeyFit
+    """
+    while True:
+        try:
+            done, total, name = next(steps)
+        except StopIteration as stop:
+            return stop.value
+        if progress is not None and progress(done / total, name):
+            steps.close()
+            raise Cancelled(f"fitting to shape keys cancelled after {name}")
+
+
+def fit_shape_keys(source_body: Mesh, shapes, garment: Mesh, *, progress=None, **options) -> ShapeKeyFit:
+    """Fit ``garment`` to every shape key of ``source_body`` with one preparation.
+
+    Parameters
+    ----------
+    source_body : Mesh
+    shapes : dict of str to (n,3) float
+    garment : Mesh
+    progress : callable, optional
+        ``progress(fraction, name)``; returning True cancels (raises Cancelled).
+    **options
+        See ``fit_steps``.
+
+    Returns
+    -------
+    ShapeKeyFit
+    """
+    return drain(fit_steps(source_body, shapes, garment, **options), progress)
+
+
+def transfer_to_shapes(source_body: Mesh, shapes, garment: Mesh, **options):
+    """The garment on each of ``shapes`` (one preparation for all).
+
+    Returns
+    -------
+    positions : dict of str to (g,3) float64
+    info : dict of str to dict
+        Per shape: ``seconds`` by stage, ``penetrating_vertices``, ``offset``; ``"prepare"``: seconds.
+    """
+    fit = fit_shape_keys(source_body, shapes, garment, **options)
+    info = {name: fit.info[name] for name in fit.keys}
+    info["prepare"] = {"seconds": fit.seconds["prepare"]}
+    return fit.keys, info
+
+
+def inside_share(V, body_V, body_F, depth, surface=None):
+    """Share of garment vertices more than ``depth`` inside the body, and the deepest.
+
+    Parameters
+    ----------
+    V : (g,3) float
+    body_V : (n,3) float
+    body_F : (m,3) int
+    depth : float
+        In the body's units (1 mm is 0.001 on a body in metres, 0.01 in decimetres).
+
+    Returns
+    -------
+    share : float
+    deepest : float
+        Depth of the deepest vertex (0 when none is inside).
+    """
+    surface = surface or TriangleSurface(body_V, body_F)
+    sd = surface.signed_distance(np.asarray(V, dtype=np.float64))[0]
+    return float((sd < -depth).mean()), float(max(0.0, -sd.min()))
+
+
+def keep_outside(V, surface: TriangleSurface, distance=0.0):
+    """Vertices closer to the body than ``distance`` (or inside it) moved to that distance along the
+    body's normal; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode,
+    which the Blender operator can add after the shape keys to catch what linear blending clips.
+
+    Parameters
+    ----------
+    V : (g,3) float
+    surface : TriangleSurface
+        The body in the blended shape.
+    distance : float
+
+    Returns
+    -------
+    V : (g,3) float64
+        A new array.
+    """
+    V = np.array(V, dtype=np.float64)
+    sd, closest, normal, _ = surface.signed_distance(V)
+    bad = sd < distance
+    V[bad] = closest[bad] + distance * normal[bad]
+    return V
+
+
+def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, **options):
+    """OBJ files in, OBJ files out: the garment on every target shape, with one preparation.
+
+    Every input is read and every transfer made before anything is written; each file is written
+    atomically, then ``shapes.json`` (the summary).
+
+    Parameters
+    ----------
+    source_body_path : path
+    target_body_paths : list of path
+        The source body's mesh in other shapes (same vertices and faces).
+    garment_path : path
+    out_dir : path
+        Made if missing; receives ``<garment>_on_<target>.obj`` and ``shapes.json``.
+    **options
+        See ``fit_steps`` (``offset``, ``margin``, ``fix_penetration``, ``progress``).
+
+    Returns
+    -------
+    dict
+        The summary written to ``shapes.json``.
+    """
+    import os
+    from pathlib import Path
+
+    from .files import write_json_atomic
+    from .mesh import require_same_topology
+    from .obj import read_obj, write_obj
+
+    source = read_obj(source_body_path)
+    garment = read_obj(garment_path)
+    shapes, paths = {}, {}
+    for path in target_body_paths:
+        name = Path(path).stem
+        if name in shapes:
+            raise MeshError(str(path), f"has the same name as {paths[name]}; each target shape needs "
+                                       "its own file name (it names the output)")
+        body = read_obj(path)
+        require_same_topology(source, body)
+        shapes[name], paths[name] = body.V, str(path)
+    fit = fit_shape_keys(source, shapes, garment, with_basis=False, **options)
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise MeshError(str(out_dir), "is a file; --out must be a folder")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    g = Path(garment_path).stem
+    rows = []
+    for name, V in fit.keys.items():
+        out = out_dir / f"{g}_on_{name}.obj"
+        write_obj(out, garment, V, header=f"Garment Transfer: {os.path.basename(garment_path)} on "
+                                          f"{os.path.basename(paths[name])} (one of {len(shapes)} shapes)")
+        info = fit.info[name]
+        rows.append({"target": name, "target_body": paths[name], "out": str(out),
+                     "penetrating_vertices": info["penetrating_vertices"], "offset": info["offset"],
+                     "seconds": info["seconds"]})
+    summary = {"source_body": str(source_body_path), "garment": str(garment_path),
+               "vertices": garment.n_vertices, "faces": garment.n_faces, "shapes": rows,
+               "seconds": fit.seconds, "summary": str(out_dir / "shapes.json")}
+    write_json_atomic(out_dir / "shapes.json", summary)
+    return summary

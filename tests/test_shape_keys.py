@@ -1,0 +1,155 @@
+"""Shape keys in the core: one preparation, every key exactly its transfer, correctives, weights, CLI."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from garment_transfer.errors import MeshError
+from garment_transfer.mesh import mesh_from_triangles
+from garment_transfer.obj import read_obj
+from garment_transfer.proximity import TriangleSurface
+from garment_transfer.shape_keys import (body_at, fit_shape_keys, keep_outside, transfer_to_shapes)
+from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.weights import surface_weights
+from lab.paths import makehuman_folder
+from meshes import icosphere
+
+ROOT = Path(__file__).resolve().parents[1]
+KEYS = ("female_pear", "male_slim")
+
+
+@pytest.fixture(scope="module")
+def keyed():
+    folder = makehuman_folder()
+    if folder is None:
+        pytest.skip("MakeHuman fixtures not found")
+    basis = read_obj(folder / "bodies" / "female_average.obj")
+    shapes = {k: read_obj(folder / "bodies" / f"{k}.obj").V for k in KEYS}
+    garment = read_obj(folder / "garments" / "female_casualsuit01" / "female_average.obj")
+    prepared = prepare_garment(basis, garment)
+    fit = fit_shape_keys(basis, shapes, garment, prepared=prepared, pairs=[KEYS])
+    return basis, shapes, garment, prepared, fit, folder
+
+
+def test_each_key_at_one_is_exactly_the_transfer_to_that_shape_and_nothing_is_inside(keyed):
+    basis, shapes, garment, prepared, fit, _ = keyed
+    for name, V in shapes.items():
+        body = basis.with_vertices(V)
+        reused = transfer_garment(basis, body, garment, prepared=prepared).V
+        assert np.array_equal(fit.keys[name], reused)
+        assert np.abs(fit.blend({name: 1.0}) - fit.keys[name]).max() < 1e-12     # rounding only
+        cold = transfer_garment(basis, body, garment).V
+        assert np.abs(fit.keys[name] - cold).max() < 1e-9
+        assert (TriangleSurface(V, basis.F).signed_distance(fit.keys[name])[0] < 0).sum() == 0
+    # Every slider at 0: the garment on the basis, which had vertices inside (the fixture's skin-tight
+    # parts) and now has none.
+    assert (TriangleSurface(basis.V, basis.F).signed_distance(garment.V)[0] < 0).sum() > 0
+    assert np.array_equal(fit.blend({}), fit.basis)
+    assert (TriangleSurface(basis.V, basis.F).signed_distance(fit.basis)[0] < 0).sum() == 0
+
+
+def test_a_corrective_pair_makes_both_keys_at_one_exact(keyed):
+    basis, shapes, garment, prepared, fit, _ = keyed
+    both = body_at(basis.V, shapes, {k: 1.0 for k in KEYS})
+    exact = transfer_garment(basis, basis.with_vertices(both), garment, prepared=prepared).V
+    assert np.abs(fit.blend({k: 1.0 for k in KEYS}) - exact).max() < 1e-12
+    linear = fit.blend({k: 1.0 for k in KEYS}, correctives=False)
+    assert np.abs(linear - exact).max() > 1e-4              # the linear blend alone is not exact
+    half = fit.blend({k: 0.5 for k in KEYS})
+    assert np.allclose(half, fit.blend({k: 0.5 for k in KEYS}, correctives=False)
+                       + 0.25 * fit.correctives[KEYS])
+
+
+def test_transfer_to_shapes_gives_positions_per_shape(keyed):
+    basis, shapes, garment, prepared, fit, _ = keyed
+    positions, info = transfer_to_shapes(basis, shapes, garment, prepared=prepared)
+    assert set(positions) == set(KEYS)
+    for k in KEYS:
+        assert np.array_equal(positions[k], fit.keys[k])
+        assert info[k]["penetrating_vertices"] == 0
+    margin = fit_shape_keys(basis, {"female_pear": shapes["female_pear"]}, garment, prepared=prepared,
+                            margin=0.02)
+    d = TriangleSurface(shapes["female_pear"], basis.F).signed_distance(margin.keys["female_pear"])[0]
+    assert d.min() > fit.info["female_pear"]["offset"] + 0.02 - 1e-6
+
+
+def test_shapes_are_checked_against_the_basis(keyed):
+    basis, shapes, garment, prepared, _, _ = keyed
+    with pytest.raises(MeshError, match="key short: has 10 vertices"):
+        fit_shape_keys(basis, {"short": basis.V[:10]}, garment, prepared=prepared)
+    bad = basis.V.copy()
+    bad[3, 0] = np.nan
+    with pytest.raises(MeshError, match="key nan: has NaN"):
+        fit_shape_keys(basis, {"nan": bad}, garment, prepared=prepared)
+    with pytest.raises(MeshError, match="has no shape keys"):
+        fit_shape_keys(basis, {}, garment, prepared=prepared)
+    with pytest.raises(ValueError, match="no shape key 'hips'"):
+        fit_shape_keys(basis, shapes, garment, prepared=prepared, pairs=[("female_pear", "hips")])
+
+
+def test_keep_outside_moves_only_what_is_too_close():
+    V, F = icosphere(3)
+    surface = TriangleSurface(V, F)
+    P = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 1.5], [0.0, 0.0, 1.01]])
+    out = keep_outside(P, surface, 0.05)
+    assert np.array_equal(out[1], P[1])
+    sd = surface.signed_distance(out)[0]
+    assert np.allclose(sd[[0, 2]], 0.05)
+
+
+def test_surface_weights_are_exact_at_vertices_and_for_linear_fields():
+    V, F = icosphere(2)
+    W = np.stack([V[:, 0], V[:, 1] ** 2, np.ones(len(V))], axis=1)
+    assert np.allclose(surface_weights(V, F, W, V), W)
+    # Points on the triangles: barycentric interpolation reproduces a linear field exactly.
+    rng = np.random.default_rng(0)
+    tri = rng.integers(0, len(F), 50)
+    bary = rng.dirichlet(np.ones(3), 50)
+    P = np.einsum("pk,pkj->pj", bary, V[F[tri]])
+    lin = 2.0 * V[:, :1] - V[:, 2:3] + 0.5
+    assert np.allclose(surface_weights(V, F, lin, P), 2.0 * P[:, :1] - P[:, 2:3] + 0.5)
+    with pytest.raises(ValueError, match="weights must be"):
+        surface_weights(V, F, W[:5], P)
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "garment_transfer", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_cli_writes_one_garment_per_shape_and_a_summary(tmp_path, keyed):
+    _, _, _, _, fit, folder = keyed
+    out = tmp_path / "sizes"
+    r = run("shapes", "--source-body", folder / "bodies" / "female_average.obj",
+            *[a for k in KEYS for a in ("--target-body", folder / "bodies" / f"{k}.obj")],
+            "--garment", folder / "garments" / "female_casualsuit01" / "female_average.obj",
+            "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    assert json.loads((out / "shapes.json").read_text()) == summary
+    assert [s["target"] for s in summary["shapes"]] == list(KEYS)
+    for s in summary["shapes"]:
+        written = read_obj(s["out"]).V
+        assert np.abs(written - fit.keys[s["target"]]).max() < 1e-6
+        assert s["penetrating_vertices"] == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["shapes.json"] + [f"female_average_on_{k}.obj" for k in KEYS])
+
+
+def test_cli_bad_shape_exits_1_and_writes_nothing(tmp_path, keyed):
+    folder = keyed[5]
+    V, F = icosphere(1)
+    other = tmp_path / "sphere.obj"
+    from garment_transfer.obj import write_obj
+    write_obj(other, mesh_from_triangles(V, F))
+    out = tmp_path / "sizes"
+    r = run("shapes", "--source-body", folder / "bodies" / "female_average.obj",
+            "--target-body", folder / "bodies" / "female_pear.obj", "--target-body", other,
+            "--garment", folder / "garments" / "female_sportsuit01" / "female_average.obj", "--out", out)
+    assert r.returncode == 1
+    assert "sphere" in r.stderr
+    assert not out.exists()
