@@ -138,6 +138,12 @@ def cmd_demo(args):
     _emit(args, out, [f"results in {args.out}"] + out.get("summary_lines", []))
 
 
+def cmd_batch(args):
+    from .batch_cli import batch_main
+
+    return batch_main(args)
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
                                 description="Design-preserving garment transfer between body shapes.")
@@ -197,6 +203,12 @@ def build_parser():
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_bench)
 
+    from .batch_cli import add_batch_arguments
+
+    add_batch_arguments(sub.add_parser(
+        "batch", help="every garment of a catalogue on every target body, resumable, on this machine "
+                      "or a Dask cluster"))
+
     d = sub.add_parser("demo", help="the whole method on the built-in demo data")
     d.add_argument("--out", default="results", help="results folder (default: results)")
     d.add_argument("--quick", action="store_true", help="fewer garments and epochs")
@@ -210,11 +222,11 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        args.func(args)
+        code = args.func(args)
     except GarmentTransferError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    return 0
+    return code or 0
