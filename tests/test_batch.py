@@ -86,6 +86,12 @@ def metrics(out):
             for p in sorted(Path(out).glob("*/*.json"))}
 
 
+def records_of(folder):
+    """{target: record} of the whole records in a garment's results folder."""
+    return {p.stem: batch.read_record(p) for p in sorted(Path(folder).glob("*.json"))
+            if not p.name.startswith(batch.PARTIAL_PREFIX)}
+
+
 def leftovers(out):
     return [p for p in Path(out).rglob("*") if p.name.startswith(batch.PARTIAL_PREFIX)]
 
@@ -275,7 +281,7 @@ def test_a_stopped_run_records_what_it_did_and_resumes(dataset, tmp_path):
 
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_ctrl_c_stops_cleanly_with_exit_130_and_only_whole_files(tmp_path, workers):
-    ds = make_dataset(tmp_path / "data", subdivisions=4)
+    ds = make_dataset(tmp_path / "data")
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "garment_transfer", "batch", str(ds), "--source", "round",
            "--out", str(out), "--workers", workers]
@@ -321,6 +327,7 @@ def dask_client():
     cluster.close()
 
 
+@pytest.mark.slow
 def test_a_two_worker_dask_cluster_gives_the_same_bits_as_a_serial_run(dataset, tmp_path, dask_client):
     cat = read_catalogue(dataset, source="round")
     serial = run_batch(cat, tmp_path / "serial", workers=1)
@@ -333,21 +340,23 @@ def test_a_two_worker_dask_cluster_gives_the_same_bits_as_a_serial_run(dataset, 
     assert len({r["worker"] for r in dask.records}) == 2
 
 
+@pytest.mark.slow
 def test_makehuman_on_dask_matches_serial_bit_for_bit(tmp_path, dask_client):
     root = require_makehuman()
-    cat = read_catalogue(root, source="female_average", targets=["female_pear", "male_slim"],
+    cat = read_catalogue(root, source="female_average", targets=["female_pear"],
                          garments=["female_sportsuit01", "male_casualsuit04"])
     serial = run_batch(cat, tmp_path / "serial", workers=1)
     dask = run_batch(cat, tmp_path / "dask", client=dask_client)
-    assert serial.ok and dask.ok and dask.counts["done"] == 4
+    assert serial.ok and dask.ok and dask.counts["done"] == 2
     assert results(tmp_path / "dask") == results(tmp_path / "serial")
     assert metrics(tmp_path / "dask") == metrics(tmp_path / "serial")
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_garment_the_batch_completes_with_every_pair_done_once(tmp_path, dask_client):
-    targets = {f"t{i}": (1.0 + 0.04 * i, 1.0, 1.0 + 0.03 * i) for i in range(1, 9)}
+    targets = {f"t{i}": (1.0 + 0.04 * i, 1.0, 1.0 + 0.03 * i) for i in range(1, 7)}
     ds = make_dataset(tmp_path / "data", shapes={"round": (1.0, 1.0, 1.0), **targets},
-                      garments={"band": (-0.5, 0.5), "top": (0.2, 1.1)}, subdivisions=4)
+                      garments={"band": (-0.5, 0.5), "top": (0.2, 1.1)})
     cat = read_catalogue(ds, source="round")
     out = tmp_path / "dask"
     pids = dask_client.run(os.getpid)
@@ -357,27 +366,24 @@ def test_a_worker_killed_mid_garment_the_batch_completes_with_every_pair_done_on
     victim, garment, before = None, None, []
     deadline = time.monotonic() + 120
     while victim is None and time.monotonic() < deadline and runner.is_alive():
-        for p in out.glob("*/*.json"):
-            record = batch.read_record(p)
-            pid = int(record["worker"].rsplit(":", 1)[1]) if record else None
-            if pid in pids.values():
-                victim, garment = pid, p.parent.name
-                os.kill(pid, signal.SIGSTOP)
+        for folder in out.glob("*"):
+            seen = {int(r["worker"].rsplit(":", 1)[1]) for r in records_of(folder).values() if r}
+            if seen & set(pids.values()):
+                victim, garment = (seen & set(pids.values())).pop(), folder.name
+                os.kill(victim, signal.SIGSTOP)
                 break
         time.sleep(0.005)
     assert victim is not None, "no result appeared"
-    before = sorted(p.stem for p in (out / garment).glob("*.json")
-                    if batch.read_record(p)["worker"].endswith(f":{victim}"))
+    before = sorted(t for t, r in records_of(out / garment).items() if r["worker"].endswith(f":{victim}"))
     os.kill(victim, signal.SIGKILL)
     runner.join(300)
     summary = box["s"]
     # The victim was in the middle of its garment.
     assert 0 < len(before) < len(targets)
-    assert summary.ok and summary.counts == {"done": 16, "skipped": 0, "failed": 0, "not run": 0}
+    assert summary.ok and summary.counts == {"done": 12, "skipped": 0, "failed": 0, "not run": 0}
     assert sorted((r["garment"], r["target"]) for r in summary.records) == sorted(cat.pairs())
     # What the victim wrote was kept, not done again; the rest was done by the living worker.
-    after = sorted(p.stem for p in (out / garment).glob("*.json")
-                   if batch.read_record(p)["worker"].endswith(f":{victim}"))
+    after = sorted(t for t, r in records_of(out / garment).items() if r["worker"].endswith(f":{victim}"))
     assert after == before
     assert not leftovers(out)
     run_batch(cat, tmp_path / "serial", workers=1)
