@@ -670,8 +670,9 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                                       target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
                                       interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
             reference = _read_garment(t.reference) if t.reference is not None else None
-            metrics = evaluate(garment, garment.with_vertices(result.V), target_body, reference=reference,
-                               source_body=None if reference is not None else source_body)
+            # Without a reference: the design (MDC) and penetration only; the drape error against the
+            # body-driven fit would cost as much again and judge nothing the transfer did not aim at.
+            metrics = evaluate(garment, garment.with_vertices(result.V), target_body, reference=reference)
             text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} "
                                                       f"({s.method})").encode("utf-8")
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
