@@ -86,7 +86,8 @@ def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.batch_throughput", description=__doc__.split("\n\n")[0])
     p.add_argument("--garments", type=int, default=4, help="MakeHuman garments to use (1-8; default 4)")
     p.add_argument("--json", help="also write the figures to this JSON file")
-    p.add_argument("--data", type=Path, default=MAKEHUMAN, help=f"the MakeHuman fixtures (default {MAKEHUMAN})")
+    p.add_argument("--data", type=Path, default=MAKEHUMAN,
+                   help=f"the MakeHuman fixtures (default {MAKEHUMAN})")
     args = p.parse_args(argv)
     if not (args.data / "bodies").is_dir():
         raise SystemExit(f"the MakeHuman fixtures are needed: {args.data} (--data)")
@@ -136,8 +137,9 @@ def main(argv=None):
     for name, r in runs.items():
         print(f"{name:8} {r['wall']:8.1f} {r['per_hour']:11.0f} {serial['wall'] / r['wall']:19.2f}")
     print()
-    print(f"per pair (serial): {per_pair:.3f} s reading, transfer, metrics, writing; per garment: {prepare:.3f} s "
-          f"preparation (binding, factor), shared by its {len(cat.jobs[0].targets)} targets")
+    print(f"per pair (serial): {per_pair:.3f} s reading, transfer, metrics, writing; "
+          f"per garment: {prepare:.3f} s preparation (binding, factor), shared by its "
+          f"{len(cat.jobs[0].targets)} targets")
     print(f"speed-up 2 Dask workers vs 1: {speedup:.2f}x (parallel efficiency {efficiency:.0%})")
     print(f"Dask overhead per pair (dask-1 - serial): {1000 * overhead_pair:+.1f} ms; "
           f"per empty task round trip: {1000 * task_overhead:.2f} ms")
