@@ -848,8 +848,13 @@ class _Dask:
         else:
             # One thread per worker process: garments run side by side in processes (the GIL), and
             # each keeps its own cache of bodies.
-            self.cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                                    processes=True, dashboard_address=None)
+            import dask
+
+            # No dashboard, so nobody reads the workers' statistical profile: its sampling thread
+            # takes the GIL every 10 ms from the transfer, which costs most on a busy machine.
+            with dask.config.set({"distributed.worker.profile.enabled": False}):
+                self.cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
+                                                        processes=True, dashboard_address=None)
             self.client, self.own_client = distributed.Client(self.cluster), True
         self.workers = sum(w.get("nthreads", 1) for w in
                            self.client.scheduler_info(n_workers=-1)["workers"].values())

@@ -60,8 +60,12 @@ def _timed_run(cat, out, **kw):
 def _cluster(workers):
     import distributed
 
-    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+    import dask
+
+    # As the batch command's own local cluster (garment_transfer.batch): no profiler sampling.
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=None)
     client = distributed.Client(cluster)
     client.wait_for_workers(workers)
     return cluster, client
