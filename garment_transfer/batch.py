@@ -171,7 +171,8 @@ def read_catalogue(path, *, source=None, targets=None, garments=None, settings=N
         Naming the file and the entry: unreadable or malformed file, unknown key, body or method,
         bad value, a garment listed twice, a model method without a model.
     """
-    path = Path(os.fspath(path))
+    # Absolute: workers on other machines, or in another folder, read the same paths.
+    path = Path(os.fspath(path)).absolute()
     if path.is_dir():
         return catalogue_from_dataset(path, source=source, targets=targets, garments=garments,
                                       settings=settings)
@@ -398,7 +399,7 @@ def catalogue_from_dataset(folder, *, source=None, targets=None, garments=None, 
     from .dataset import load_dataset
 
     try:
-        ds = load_dataset(folder)
+        ds = load_dataset(Path(os.fspath(folder)).absolute())
     except DatasetError as exc:
         raise CatalogueError(exc.name, exc.problem) from None
     origin = str(ds.folder)
@@ -610,7 +611,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         ``seconds``, ``prepare_seconds``, the metrics of ``metrics.evaluate``, ``output``, ``key``,
         ``worker`` and ``error``.
     """
-    t_start = time.perf_counter()
+    t_start = (time.perf_counter(), time.process_time())
     out = Path(os.fspath(out))
     records = [{"garment": job.name, "target": t.name, "label": t.label, "outcome": "not run"}
                for t in job.targets]
@@ -713,9 +714,12 @@ def _fail_all(records, error, t_start):
 
 
 def _finish(records, t_start):
-    elapsed = time.perf_counter() - t_start
+    # Wall and CPU time of the whole garment on its worker (the CPU time counts every thread of the
+    # worker process: what the garment costs in core-seconds on a machine that is not shared).
+    elapsed, cpu = time.perf_counter() - t_start[0], time.process_time() - t_start[1]
     for rec in records:
         rec["garment_seconds"] = elapsed
+        rec["garment_cpu_seconds"] = cpu
     return records
 
 
@@ -980,7 +984,7 @@ def run_batch(catalogue: Catalogue, out, *, workers=None, scheduler=None, dask=F
     garments are dropped, running ones stop after their current pair, temporary files are removed,
     and the summary lists what was done (``interrupted`` True; pairs not reached are ``not run``).
     """
-    out = Path(os.fspath(out))
+    out = Path(os.fspath(out)).absolute()
     out.mkdir(parents=True, exist_ok=True)
     removed = remove_partial_files(out)
     if removed:

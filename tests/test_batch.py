@@ -390,3 +390,13 @@ def test_a_worker_killed_mid_garment_the_batch_completes_with_every_pair_done_on
     assert not leftovers(out)
     run_batch(cat, tmp_path / "serial", workers=1)
     assert results(out) == results(tmp_path / "serial")
+
+
+def test_dask_runs_without_dask_installed_say_what_to_install(dataset, tmp_path, monkeypatch, capsys):
+    from garment_transfer.cli import main
+
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    code = main(["batch", str(dataset), "--source", "round", "--out", str(tmp_path / "out"), "--dask"])
+    assert code == 1
+    assert "pip install 'dask[distributed]'" in capsys.readouterr().err
+    assert not list((tmp_path / "out").glob("*/*.obj"))
