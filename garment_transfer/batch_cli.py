@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -112,6 +113,14 @@ class _Bar:
             print(file=sys.stderr)
 
 
+def _has_tqdm():
+    try:
+        import tqdm  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def _sigterm(_signum, _frame):
     # A batch system's stop (SIGTERM) ends the run as cleanly as Ctrl+C.
     raise KeyboardInterrupt
@@ -139,7 +148,7 @@ def batch_main(args):
     bar = _Bar(not args.no_progress)
     previous = signal.signal(signal.SIGTERM, _sigterm)
     try:
-        redirect = _tqdm_logging() if bar.enabled else None
+        redirect = _tqdm_logging() if bar.enabled and _has_tqdm() else None
         if redirect is not None:
             with redirect:
                 summary = run_batch(catalogue, out, workers=args.workers, scheduler=args.scheduler,
@@ -166,9 +175,33 @@ def batch_main(args):
     return 0 if summary.ok else 1
 
 
+class _AboveBar(logging.Handler):
+    """Log lines printed above the progress bar instead of through it."""
+
+    def __init__(self, original):
+        super().__init__(original.level)
+        self.setFormatter(original.formatter)
+
+    def emit(self, record):
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=sys.stderr)
+        except Exception:  # noqa: BLE001 - logging must not stop the run
+            self.handleError(record)
+
+
+@contextlib.contextmanager
 def _tqdm_logging():
+    root = logging.getLogger()
+    swapped = [(h, _AboveBar(h)) for h in root.handlers
+               if type(h) is logging.StreamHandler and h.stream in (sys.stderr, sys.stdout)]
+    for old, new in swapped:
+        root.removeHandler(old)
+        root.addHandler(new)
     try:
-        from tqdm.contrib.logging import logging_redirect_tqdm
-    except ImportError:
-        return None
-    return logging_redirect_tqdm()
+        yield
+    finally:
+        for old, new in swapped:
+            root.removeHandler(new)
+            root.addHandler(old)
