@@ -163,6 +163,12 @@ def cmd_train(args):
                           f"{summary.get('final_loss')}, {summary.get('seconds', 0):.1f} s"])
 
 
+def cmd_batch(args):
+    from .batch_cli import batch_main
+
+    return batch_main(args)
+
+
 def build_parser():
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
                                 description="Design-preserving garment transfer between body shapes.",
@@ -233,6 +239,12 @@ def build_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
+    from .batch_cli import add_batch_arguments
+
+    add_batch_arguments(sub.add_parser(
+        "batch", help="every garment of a catalogue on every target body, resumable, on this machine "
+                      "or a Dask cluster"))
+
     return p
 
 
@@ -247,7 +259,7 @@ def main(argv=None):
                 parser.error(f"--model and --target are for --method model, not --method {args.method}")
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
-        args.func(args)
+        code = args.func(args)
     except KeyboardInterrupt:
         # Every writer renames a complete temporary file at the end: nothing is half-written.
         print("interrupted (Ctrl+C); no partial file written", file=sys.stderr)
@@ -258,4 +270,4 @@ def main(argv=None):
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    return 0
+    return code or 0

@@ -6,9 +6,13 @@ In Blender:
         --out DIR [--blend out.blend]
 With the bpy module (same arguments, ``--`` optional):
     .venv/bin/python scripts/batch_transfer.py --source-body S.obj ... --out DIR
+From a catalogue (the format of ``python -m garment_transfer batch``, docs/batch.md: JSON, TOML or a
+dataset folder, with each garment's source body, targets, method and settings):
+    blender --background --python scripts/batch_transfer.py -- --catalogue CAT.toml --out DIR --scale 0.1
 
 Every (garment, target) pair goes through the add-on's own operator (bpy.ops.garment_transfer.transfer)
-and is written to DIR/<garment>_on_<target>.obj, in the input files' axes and units. A file that cannot
+and is written to DIR/<garment>_on_<target>.obj (with a catalogue: DIR/<garment>/<target>.obj, the
+core batch's layout), in the input files' axes and units. A file that cannot
 be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
 exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Every file is written whole or not
 at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -49,24 +54,17 @@ def atomic_output(path, inputs=()):
     """Yield a temporary path next to ``path`` to write; it becomes ``path`` (one rename) when the block
     ends, and is removed when the block fails or is interrupted, so that no partial file is left.
 
-    ``path`` is checked first, as every output of the core is (``garment_transfer.output``): never
-    one of ``inputs``, never a symlink, folder or special file (raises InputError).
+    The core's ``files.atomic_path``: ``path`` is checked first, as every output of the core is (never
+    one of ``inputs``, never a symlink, folder or special file: raises InputError).
     """
     from garment_transfer.errors import GarmentTransferError
-    from garment_transfer.files import check_output, new_file_mode
+    from garment_transfer.files import atomic_path
 
-    path = Path(path)
     try:
-        check_output(path, inputs, "--out")
+        with atomic_path(path, inputs, "--out") as tmp:
+            yield Path(tmp)
     except GarmentTransferError as exc:
         raise InputError(str(exc)) from None
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
-    try:
-        yield tmp
-        os.chmod(tmp, new_file_mode())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 _interrupted = False
@@ -94,17 +92,22 @@ def parse_args(argv):
     parser = argparse.ArgumentParser(
         prog="batch_transfer.py",
         description="Transfer garments (OBJ) from a source body to target bodies with Garment Transfer.")
-    parser.add_argument("--source-body", type=Path, required=True,
+    parser.add_argument("--catalogue", type=Path,
+                        help="a catalogue (.json, .toml or dataset folder; see docs/batch.md) instead of "
+                             "--source-body/--target-body/--garment; --method, --model, --offset and "
+                             "--no-fix replace its [settings], a garment's own settings win")
+    parser.add_argument("--source", help="with a dataset folder as --catalogue: the source body's name")
+    parser.add_argument("--source-body", type=Path,
                         help="the body the garments were made on (OBJ)")
-    parser.add_argument("--target-body", type=Path, action="append", required=True,
+    parser.add_argument("--target-body", type=Path, action="append",
                         help="a body to transfer to (OBJ; repeatable)")
-    parser.add_argument("--garment", type=Path, action="append", required=True,
+    parser.add_argument("--garment", type=Path, action="append",
                         help="a garment on the source body (OBJ; repeatable)")
     parser.add_argument("--out", type=Path, required=True, help="folder for the results")
     parser.add_argument("--blend", type=Path, help="also save every body, garment and result here")
-    parser.add_argument("--method", choices=["direct", "model", "surface"], default="direct",
-                        help="direct: the body's own deformation; model: a trained model (--model); "
-                             "surface: baseline, the garment follows the body surface only")
+    parser.add_argument("--method", choices=["direct", "model", "surface"], default=None,
+                        help="direct (default): the body's own deformation; model: a trained model "
+                             "(--model); surface: baseline, the garment follows the body surface only")
     parser.add_argument("--model", type=Path, help="model file (.npz) for --method model")
     parser.add_argument("--target-label", action="append",
                         help="the model's label of each target body, in order "
@@ -118,7 +121,20 @@ def parse_args(argv):
     parser.add_argument("--up", choices=AXES, default="Y", help="the files' up axis")
     parser.add_argument("--forward", choices=AXES, default="NEGATIVE_Z", help="the files' forward axis")
     args = parser.parse_args(argv)
-    if args.method == "model" and args.model is None:
+    if args.catalogue is not None:
+        given = [o for o, v in (("--source-body", args.source_body), ("--target-body", args.target_body),
+                                ("--garment", args.garment), ("--target-label", args.target_label))
+                 if v]
+        if given:
+            parser.error(f"--catalogue lists the bodies and garments: drop {', '.join(given)}")
+    else:
+        missing = [o for o, v in (("--source-body", args.source_body), ("--target-body", args.target_body),
+                                  ("--garment", args.garment)) if not v]
+        if missing:
+            parser.error(f"the following arguments are required: {', '.join(missing)} (or --catalogue)")
+    args.method_given = args.method is not None
+    args.method = args.method or "direct"
+    if args.method == "model" and args.model is None and args.catalogue is None:
         parser.error("--method model needs --model FILE")
     if args.target_label and len(args.target_label) != len(args.target_body):
         parser.error("give one --target-label per --target-body")
@@ -148,6 +164,68 @@ def output_problem(path, inputs):
     except GarmentTransferError as exc:
         return str(exc)
     return None
+
+
+def core_batch():
+    """The core's batch module (catalogue reader, result layout), from this script's own checkout or
+    extension folder (on ``sys.path`` above): the same code as ``python -m garment_transfer batch``."""
+    from garment_transfer import batch
+
+    return batch
+
+
+@dataclasses.dataclass
+class Job:
+    """One garment and its targets, from the options or from a catalogue entry."""
+
+    name: str
+    garment: Path
+    source_name: str
+    source: Path
+    targets: list          # (name, path, model label or "")
+    method: str
+    model: Path | None
+    offset: float | None
+    fix: bool
+    catalogue: bool = False
+
+    def output(self, out, target):
+        if self.catalogue:
+            return core_batch().result_paths(out, self.name, target)[0]
+        return out / f"{self.name}_on_{target}.obj"
+
+
+def plan(args):
+    """The jobs of a run: one per garment."""
+    if args.catalogue is None:
+        paths = [args.source_body, *args.target_body, *args.garment]
+        labels = dict(zip(map(str, paths), unique_labels(paths)))
+        targets = [(labels[str(p)], p, args.target_label[i] if args.target_label else p.stem)
+                   for i, p in enumerate(args.target_body)]
+        return [Job(labels[str(g)], g, labels[str(args.source_body)], args.source_body, targets,
+                    args.method, args.model, args.offset, not args.no_fix) for g in args.garment]
+    batch = core_batch()
+    options = {"method": args.method} if args.method_given else {}
+    if args.model is not None:
+        options["model"] = str(args.model.resolve())
+    if args.offset is not None:
+        options["offset"] = args.offset
+    if args.no_fix:
+        options["fix_penetration"] = False
+    try:
+        cat = batch.read_catalogue(args.catalogue, source=args.source, settings=options)
+    except batch.CatalogueError as exc:
+        raise InputError(str(exc)) from None
+    jobs = []
+    for j in cat.jobs:
+        s = j.settings
+        if not s.interpolate or s.stiffness is not None:
+            raise InputError(f"{j.entry} of {cat.origin}: interpolate and stiffness are not settings of "
+                             "the Blender operator; run it with python -m garment_transfer batch")
+        jobs.append(Job(j.name, Path(j.file), j.source, Path(j.source_file),
+                        [(t.name, Path(t.body), t.label or t.name) for t in j.targets], s.method,
+                        None if s.model is None else Path(s.model), s.offset, s.fix_penetration, True))
+    return jobs
 
 
 def script_argv(argv):
@@ -251,46 +329,65 @@ def run(args, log, records=None):
     """
     import bpy
 
+    jobs = plan(args)
     bpy.ops.wm.read_homefile(use_empty=True)
     ensure_operators()
     args.out.mkdir(parents=True, exist_ok=True)
-    paths = [args.source_body, *args.target_body, *args.garment]
-    labels = dict(zip(map(str, paths), unique_labels(paths)))
     records = [] if records is None else records
-
-    source = import_obj(args.source_body, labels[str(args.source_body)], args)
-    targets = []
-    for i, path in enumerate(args.target_body):
-        try:
-            obj = import_obj(path, labels[str(path)], args)
-        except InputError as exc:
-            log(f"FAILED {exc}")
-            records.append({"target": str(path), "error": str(exc)})
-            continue
-        label = args.target_label[i] if args.target_label else path.stem
-        targets.append((obj, label))
-
     settings = bpy.context.scene.garment_transfer
-    settings.source_body = source
-    settings.method = args.method.upper()
-    settings.model_path = str(args.model) if args.model else ""
-    settings.fix_penetration = not args.no_fix
-    settings.auto_offset = args.offset is None
-    if args.offset is not None:
-        settings.offset = args.offset * args.scale
+    bodies = {}
 
-    for path in args.garment:
+    def body(path, label, role):
+        """The body object of a file, imported once; raises InputError when it cannot be."""
+        key = str(path)
+        if key not in bodies:
+            try:
+                bodies[key] = import_obj(path, label, args)
+            except InputError as exc:
+                bodies[key] = exc
+                log(f"FAILED {exc}")
+                if role == "target" and not args.catalogue:
+                    records.append({"target": key, "error": str(exc)})
+        if isinstance(bodies[key], InputError):
+            raise bodies[key]
+        return bodies[key]
+
+    for job in jobs:
         try:
-            garment = import_obj(path, labels[str(path)], args)
+            source = body(job.source, job.source_name, "source")
+        except InputError as exc:
+            if not args.catalogue:
+                raise
+            records.extend({"garment": job.name, "target": t, "error": str(exc)} for t, _, _ in job.targets)
+            continue
+        targets = []
+        for name, path, label in job.targets:
+            try:
+                targets.append((body(path, name, "target"), name, label))
+            except InputError as exc:
+                if args.catalogue:
+                    records.append({"garment": job.name, "target": name, "error": str(exc)})
+        try:
+            garment = import_obj(job.garment, job.name, args)
         except InputError as exc:
             log(f"FAILED {exc}")
-            records.append({"garment": str(path), "error": str(exc)})
+            records.append({"garment": str(job.garment), "error": str(exc)})
             continue
+        settings.source_body = source
+        settings.method = job.method.upper()
+        settings.model_path = str(job.model) if job.model else ""
+        settings.fix_penetration = job.fix
+        settings.auto_offset = job.offset is None
+        if job.offset is not None:
+            settings.offset = job.offset * args.scale
         settings.garment = garment
         results = []
-        for target, label in targets:
+        for target, name, label in targets:
             stop_if_interrupted()
-            record, result = transfer_pair(garment, target, label, args, log)
+            record, result = transfer_pair(garment, target, label, args, log,
+                                           job.output(args.out, name), job.method)
+            if args.catalogue:
+                record.update(garment=job.name, target=name)
             records.append(record)
             results += [result] if result is not None else []
         if args.blend is None:
@@ -302,7 +399,7 @@ def run(args, log, records=None):
     return records
 
 
-def transfer_pair(garment, target, label, args, log):
+def transfer_pair(garment, target, label, args, log, output, method):
     """Transfer one garment to one target with the operator and export the result.
 
     Returns
@@ -315,7 +412,7 @@ def transfer_pair(garment, target, label, args, log):
 
     settings = bpy.context.scene.garment_transfer
     settings.target_body = target
-    settings.target_label = label if args.method == "model" else ""
+    settings.target_label = label if method == "model" else ""
     record = {"garment": garment.name, "target": target.name}
     start = time.perf_counter()
     try:
@@ -326,7 +423,7 @@ def transfer_pair(garment, target, label, args, log):
         log(f"FAILED {garment.name} -> {target.name}: {record['error']}")
         return record, None
     result = settings.result
-    output = args.out / f"{garment.name}_on_{target.name}.obj"
+    output.parent.mkdir(parents=True, exist_ok=True)
     try:
         export_obj(result, output, args)
     except InputError as exc:

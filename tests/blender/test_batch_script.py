@@ -60,3 +60,41 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
         gap = np.linalg.norm(result - expected, axis=1)
         assert np.percentile(gap, 99) < 1e-3 and gap.max() < 0.1, (target, gap.max())
     assert "2 transferred, 4 failed" in proc.stderr
+
+
+def test_batch_reads_the_core_catalogue_and_matches_the_core_batch(makehuman, tmp_path):
+    """--catalogue: the same TOML that python -m garment_transfer batch runs, the same result layout and
+    (up to the float32 of Blender meshes) the same results; a missing body fails its pairs only."""
+    from garment_transfer.batch import read_catalogue, run_batch
+
+    catalogue = tmp_path / "cat.toml"
+    catalogue.write_text(
+        f'source = "female_average"\ntargets = ["female_pear", "gone"]\n'
+        f'[bodies]\nfemale_average = "{makehuman}/bodies/female_average.obj"\n'
+        f'female_pear = "{makehuman}/bodies/female_pear.obj"\ngone = "missing/gone.obj"\n'
+        f'[[garments]]\nname = "suit"\nfile = "{makehuman}/garments/{GARMENT}/female_average.obj"\n')
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "batch_transfer.py"), "--",
+                           "--catalogue", str(catalogue), "--out", str(out), "--scale", "0.1"],
+                          capture_output=True, encoding="utf-8", errors="replace", timeout=300, cwd=tmp_path)
+    assert proc.returncode == 1, proc.stderr
+    records = json.loads((out / "summary.json").read_text())
+    assert [(r["garment"], r["target"], "error" in r) for r in records] == [
+        ("suit", "gone", True), ("suit", "female_pear", False)]
+    assert f"{tmp_path / 'missing' / 'gone.obj'}: file not found" in records[0]["error"]
+    core = run_batch(read_catalogue(catalogue), tmp_path / "core", workers=1)
+    assert [r["outcome"] for r in core.records] == ["done", "failed"]
+    gap = np.linalg.norm(read_obj_vertices(out / "suit" / "female_pear.obj")
+                         - read_obj_vertices(tmp_path / "core" / "suit" / "female_pear.obj"), axis=1)
+    assert np.percentile(gap, 99) < 1e-3 and gap.max() < 0.1, gap.max()
+
+
+def test_batch_catalogue_and_file_options_do_not_mix(tmp_path):
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "batch_transfer.py"), "--catalogue",
+                           str(tmp_path / "cat.toml"), "--garment", "g.obj", "--out", str(tmp_path)],
+                          capture_output=True, encoding="utf-8", timeout=120)
+    assert proc.returncode == 2 and "drop --garment" in proc.stderr
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "batch_transfer.py"), "--catalogue",
+                           str(tmp_path / "nothing.toml"), "--out", str(tmp_path / "o")],
+                          capture_output=True, encoding="utf-8", timeout=120)
+    assert proc.returncode == 1 and "nothing.toml: catalogue not found" in proc.stderr

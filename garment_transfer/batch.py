@@ -1,0 +1,1106 @@
+"""A whole catalogue: every garment on every target body, resumable, on one machine or a Dask cluster.
+
+A *catalogue* lists garments, each dressed on a source body, the target bodies to transfer it to, and
+the method and settings. It is a JSON or TOML file (see ``catalogue_from_dict`` for the keys), or a
+dataset folder (``bodies/<body>.obj``, ``garments/<garment>/<body>.obj``; see ``dataset``).
+
+The unit of work is one garment with all its targets (``run_garment``): the garment is read and
+prepared (binding, Poisson factor) once and reused for every target. Each result is written by the
+worker that made it, next to its record::
+
+    <out>/<garment>/<target>.obj     the garment on the target body (the garment file's own faces)
+    <out>/<garment>/<target>.json    settings, the key, metrics, seconds, where it was computed
+
+Both are written whole or not at all (a temporary file, then a rename; the ``.json`` last, so a
+result counts only once both are there). The key is a SHA-256 of the input files' bytes, the settings
+and the code version: a re-run skips every pair whose record holds the same key and whose ``.obj``
+is intact, so an interrupted or partly failed run is resumed by running it again.
+
+The driver (``run_batch``) sends garments to an executor, collects the records, and writes
+``summary.json`` and ``summary.csv`` (one row per pair, catalogue order). The executors share that
+code path: in this process (``workers=1``), a local process pool, a local Dask cluster, or a Dask
+scheduler's cluster (``scheduler="tcp://host:8786"``). Dask is imported only here, when asked for.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import logging
+import math
+import os
+import re
+import socket
+import time
+import uuid
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+from .errors import DatasetError, GarmentTransferError
+
+log = logging.getLogger(__name__)
+
+METHODS = ("direct", "model", "surface")
+SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness")
+ENTRY_KEYS = ("name", "file", "source", "targets", "labels", "references", *SETTING_KEYS)
+TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels")
+CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seconds", "mdc",
+               "penetration_ratio", "max_penetration_depth", "penetrating_vertices", "drape_reference",
+               "drape_error", "drape_error_relative", "vertex_error_mean", "vertex_error_max",
+               "output", "worker", "error")
+METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetration_depth",
+               "penetrating_vertices", "drape_reference", "drape_error", "drape_error_source",
+               "drape_error_relative", "vertex_error_mean", "vertex_error_max")
+#: Outcomes of a pair: transferred now, found from an earlier run, failed, or not reached.
+OUTCOMES = ("done", "skipped", "failed", "not run")
+PARTIAL_PREFIX = ".partial-"
+_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
+# The modules whose code decides a result's vertices or metrics: a change to any of them makes
+# every earlier result stale.
+_RESULT_MODULES = ("binding", "embedding", "gradients", "mesh", "metrics", "model", "obj",
+                   "penetration", "poisson", "proximity", "transfer")
+
+
+class CatalogueError(DatasetError):
+    """A catalogue that cannot be run as written: names the file and the entry."""
+
+
+class MissingDependency(GarmentTransferError):
+    """An optional package that the asked-for executor needs is not installed."""
+
+
+# ----------------------------------------------------------------------------------------------
+# The catalogue
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How every pair of a garment is transferred (see ``transfer.transfer_garment``)."""
+
+    method: str = "direct"
+    model: str | None = None
+    offset: float | None = None
+    fix_penetration: bool = True
+    interpolate: bool = True
+    stiffness: float | None = None
+
+
+@dataclass(frozen=True)
+class Target:
+    """One target body of a garment: its name (the result's file name), file, model label, reference."""
+
+    name: str
+    body: str
+    label: str | None = None
+    reference: str | None = None
+
+
+@dataclass(frozen=True)
+class GarmentJob:
+    """One garment and all its targets: the unit of work.
+
+    Attributes
+    ----------
+    name : str
+        The garment's name: its results go to ``<out>/<name>/``.
+    file : str
+        The garment on the source body (OBJ).
+    source : str
+        The source body's name.
+    source_file : str
+        The source body (OBJ).
+    targets : tuple of Target
+    settings : Settings
+    entry : str
+        Where the catalogue defines it (for messages).
+    """
+
+    name: str
+    file: str
+    source: str
+    source_file: str
+    targets: tuple
+    settings: Settings
+    entry: str = ""
+
+
+@dataclass
+class Catalogue:
+    """Garments to transfer, in order.
+
+    Attributes
+    ----------
+    origin : str
+        The catalogue file or dataset folder.
+    jobs : list of GarmentJob
+    """
+
+    origin: str
+    jobs: list
+
+    @property
+    def n_pairs(self) -> int:
+        return sum(len(j.targets) for j in self.jobs)
+
+    def pairs(self):
+        """``(garment, target)`` names of every pair, in catalogue order."""
+        return [(j.name, t.name) for j in self.jobs for t in j.targets]
+
+
+def read_catalogue(path, *, source=None, targets=None, garments=None, settings=None) -> Catalogue:
+    """Read and check a catalogue: a ``.json`` or ``.toml`` file, or a dataset folder.
+
+    Parameters
+    ----------
+    path : str or Path
+    source : str, optional
+        For a dataset folder: the source body's name (else the manifest's ``"source"``).
+    targets : list of str, optional
+        For a dataset folder: target bodies (default: every other body).
+    garments : list of str, optional
+        For a dataset folder: garments (default: every garment dressed on the source body).
+    settings : dict, optional
+        Settings (``SETTING_KEYS``) over the catalogue's own defaults, for every garment that does
+        not set them itself.
+
+    Raises
+    ------
+    CatalogueError
+        Naming the file and the entry: unreadable or malformed file, unknown key, body or method,
+        bad value, a garment listed twice, a model method without a model.
+    """
+    # Absolute: workers on other machines, or in another folder, read the same paths.
+    path = Path(os.fspath(path)).absolute()
+    if path.is_dir():
+        return catalogue_from_dataset(path, source=source, targets=targets, garments=garments,
+                                      settings=settings)
+    if not path.is_file():
+        raise CatalogueError(str(path), "catalogue not found (a .json or .toml file, or a dataset folder)")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise CatalogueError(str(path), f"cannot be read ({exc.strerror or exc})") from None
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".json":
+            data = json.loads(raw.decode("utf-8"))
+        elif suffix == ".toml":
+            import tomllib
+
+            data = tomllib.loads(raw.decode("utf-8"))
+        else:
+            raise CatalogueError(str(path), "a catalogue file must end in .json or .toml")
+    except UnicodeDecodeError:
+        raise CatalogueError(str(path), "is not UTF-8 text") from None
+    except ValueError as exc:
+        if isinstance(exc, CatalogueError):
+            raise
+        raise CatalogueError(str(path), f"is not valid {suffix[1:].upper()} ({exc})") from None
+    if not isinstance(data, dict):
+        raise CatalogueError(str(path), "must hold an object (a table) at the top")
+    if settings:
+        data = dict(data, settings={**(data.get("settings") or {}), **settings})
+    if source is not None:
+        data = dict(data, source=source)
+    if targets is not None:
+        data = dict(data, targets=list(targets))
+    cat = catalogue_from_dict(data, base=path.parent, origin=str(path))
+    if garments is not None:
+        cat = _select(cat, garments)
+    return cat
+
+
+def _select(cat, garments):
+    known = {j.name: j for j in cat.jobs}
+    unknown = [g for g in garments if g not in known]
+    if unknown:
+        raise CatalogueError(cat.origin, f"has no garment {', '.join(map(repr, unknown))}")
+    return Catalogue(cat.origin, [known[g] for g in garments])
+
+
+def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
+    """A catalogue from its JSON/TOML content.
+
+    Keys (``?`` optional)::
+
+        format?    1
+        settings?  {method?, model?, offset?, fix_penetration?, interpolate?, stiffness?}
+                   defaults for every garment (method "direct"; model: a .npz file, for "model")
+        bodies     {name: "path/to/body.obj", ...}  every body, source and targets, one topology
+        source?    default source body name
+        targets?   default target body names
+        labels?    {body: model label} for method "model" (default: the body's name)
+        garments   [{name, file, source?, targets?, labels?, references?, <any setting>?}, ...]
+                   targets: body names, or {body, label?, reference?};
+                   references: {body: "garment simulated or fitted on that body.obj"} (metrics)
+
+    Relative paths are relative to ``base`` (the catalogue's folder).
+
+    Raises
+    ------
+    CatalogueError
+        Naming ``origin`` and the entry (``garments[3] 'shirt'``).
+    """
+    base = Path(os.fspath(base))
+
+    def fail(where, problem):
+        raise CatalogueError(f"{origin}: {where}" if where else origin, problem)
+
+    _unknown_keys(data, TOP_KEYS, "", fail)
+    if data.get("format", 1) != 1:
+        fail("format", f"format {data.get('format')!r} is not known to this version (1)")
+    defaults = _settings(data.get("settings") or {}, Settings(), base, "settings", fail)
+    bodies_raw = data.get("bodies")
+    if not isinstance(bodies_raw, dict) or not bodies_raw:
+        fail("bodies", "a table of body name = OBJ path is needed (every body: source and targets)")
+    bodies = {}
+    for name, p in bodies_raw.items():
+        _check_name(name, f"bodies.{name}", fail)
+        bodies[name] = _path(p, base, f"bodies.{name}", fail)
+    top_labels = _labels(data.get("labels"), bodies, "labels", fail)
+    entries = data.get("garments")
+    if not isinstance(entries, list) or not entries:
+        fail("garments", "a list of garments is needed (each with name and file)")
+    jobs, seen = [], {}
+    for i, entry in enumerate(entries):
+        where = f"garments[{i}]"
+        if not isinstance(entry, dict):
+            fail(where, "must be a table with name and file")
+        name = entry.get("name")
+        if name is not None:
+            where = f"garments[{i}] {name!r}"
+        _unknown_keys(entry, ENTRY_KEYS, where, fail)
+        _check_name(name, where + " name", fail)
+        if name in seen:
+            fail(where, f"the name is already used by garments[{seen[name]}]; results would collide")
+        seen[name] = i
+        if "file" not in entry:
+            fail(where, "has no file (the garment on its source body, OBJ)")
+        gfile = _path(entry["file"], base, where + " file", fail)
+        settings = _settings(entry, defaults, base, where, fail)
+        source = entry.get("source", data.get("source"))
+        if source is None:
+            fail(where, "has no source body (set source here or at the top)")
+        source_name, source_file = _body(source, bodies, base, where + " source", fail)
+        raw_targets = entry.get("targets", data.get("targets"))
+        if not isinstance(raw_targets, list) or not raw_targets:
+            fail(where, "has no targets (a list of body names, here or at the top)")
+        labels = {**top_labels, **_labels(entry.get("labels"), bodies, where + " labels", fail)}
+        refs = entry.get("references") or {}
+        if not isinstance(refs, dict):
+            fail(where + " references", "must be a table of body name = OBJ path")
+        targets, names = [], set()
+        for k, t in enumerate(raw_targets):
+            twhere = f"{where} targets[{k}]"
+            label, ref = None, None
+            if isinstance(t, dict):
+                _unknown_keys(t, ("body", "label", "reference"), twhere, fail)
+                label, ref, t = t.get("label"), t.get("reference"), t.get("body")
+            tname, tfile = _body(t, bodies, base, twhere, fail)
+            if tname in names:
+                fail(twhere, f"{tname!r} is listed twice")
+            if tname == source_name:
+                fail(twhere, f"{tname!r} is the source body")
+            names.add(tname)
+            label = label if label is not None else labels.get(tname)
+            if label is not None and not isinstance(label, str):
+                fail(twhere, "label must be a string")
+            ref = ref if ref is not None else refs.get(tname)
+            ref = None if ref is None else _path(ref, base, twhere + " reference", fail)
+            if settings.method == "model" and label is None:
+                label = tname
+            targets.append(Target(tname, tfile, label, ref))
+        for body in refs:
+            if body not in names:
+                fail(where + " references", f"{body!r} is not one of its targets")
+        jobs.append(GarmentJob(name, gfile, source_name, source_file, tuple(targets), settings, where))
+    return Catalogue(origin, jobs)
+
+
+def _unknown_keys(d, allowed, where, fail):
+    unknown = [k for k in d if k not in allowed]
+    if unknown:
+        fail(where, f"unknown key {', '.join(map(repr, unknown))}; known keys: {', '.join(allowed)}")
+
+
+def _check_name(name, where, fail):
+    if not isinstance(name, str) or not _NAME.match(name):
+        fail(where, f"{name!r} is not a usable name: letters, digits, _ . + - (it names result files)")
+
+
+def _path(p, base, where, fail) -> str:
+    if not isinstance(p, str) or not p:
+        fail(where, "must be a file path (a string)")
+    if re.match(r"^[a-zA-Z][a-zA-Z0-9+.-]*://", p):
+        fail(where, f"{p!r}: URLs are not read; give a path every worker sees (a shared filesystem, "
+                    "or the object store mounted as one: see docs/batch.md)")
+    return str(base / os.path.expanduser(p))
+
+
+def _body(ref, bodies, base, where, fail):
+    """A body given by name (``bodies`` table) or as an OBJ path (named by its file name)."""
+    if isinstance(ref, str) and ref in bodies:
+        return ref, bodies[ref]
+    if isinstance(ref, str) and ref.lower().endswith(".obj"):
+        name = Path(ref).stem
+        _check_name(name, where, fail)
+        return name, _path(ref, base, where, fail)
+    fail(where, f"{ref!r} is not a body of the catalogue; its bodies are: {', '.join(bodies)}")
+
+
+def _labels(raw, bodies, where, fail):
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict) or not all(isinstance(v, str) for v in raw.values()):
+        fail(where, "must be a table of body name = model label")
+    return dict(raw)
+
+
+def _settings(d, defaults: Settings, base, where, fail) -> Settings:
+    if where == "settings":
+        _unknown_keys(d, SETTING_KEYS, where, fail)
+    values = {}
+    for key in SETTING_KEYS:
+        if key not in d:
+            continue
+        v = d[key]
+        if key == "method":
+            if v not in METHODS:
+                fail(where, f"method {v!r} is unknown; choose one of {', '.join(METHODS)}")
+        elif key == "model":
+            v = None if v is None else _path(v, base, f"{where} model", fail)
+        elif key in ("offset", "stiffness"):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or not math.isfinite(v) or v < 0 or (key == "stiffness" and v == 0)):
+                fail(where, f"{key} must be a {'non-negative' if key == 'offset' else 'positive'} "
+                            f"number in the files' units, not {v!r}")
+            v = None if v is None else float(v)
+        elif not isinstance(v, bool):
+            fail(where, f"{key} must be true or false, not {v!r}")
+        values[key] = v
+    s = replace(defaults, **values)
+    if s.method == "model" and not s.model:
+        fail(where, "method 'model' needs a model file (settings.model)")
+    return s
+
+
+def catalogue_from_dataset(folder, *, source=None, targets=None, garments=None, settings=None) -> Catalogue:
+    """A catalogue from a dataset folder: its garments on ``source``, to every other body (or ``targets``).
+
+    A garment file on a target body, where there is one, is the pair's reference for the metrics.
+
+    Raises
+    ------
+    CatalogueError
+        No source body given, an unknown body or garment, a garment not dressed on the source body.
+    """
+    from .dataset import load_dataset
+
+    try:
+        ds = load_dataset(Path(os.fspath(folder)).absolute())
+    except DatasetError as exc:
+        raise CatalogueError(exc.name, exc.problem) from None
+    origin = str(ds.folder)
+    source = source or ds.manifest.get("source")
+    if not source:
+        raise CatalogueError(origin, f"say which body the garments are dressed on (--source); "
+                                     f"its bodies are: {', '.join(ds.bodies)}")
+    targets = [b for b in ds.bodies if b != source] if targets is None else list(targets)
+    try:
+        for b in [source, *targets]:
+            ds.require_body(b)
+        for g in garments or []:
+            ds.require_garment(g)
+    except DatasetError as exc:
+        raise CatalogueError(exc.name, exc.problem) from None
+    if garments is None:
+        garments = [g for g in ds.garments if ds.has_garment(g, source)]
+        if not garments:
+            raise CatalogueError(origin, f"no garment is dressed on the source body {source!r}")
+    entries = []
+    for g in garments:
+        refs = {t: os.fspath(ds.garment_path(g, t)) for t in targets if ds.has_garment(g, t)}
+        entries.append({"name": g, "file": os.fspath(ds.garment_path(g, source)), "references": refs})
+    data = {"bodies": {b: os.fspath(ds.folder / "bodies" / f"{b}.obj") for b in ds.bodies},
+            "source": source, "targets": targets, "garments": entries, "settings": settings or {}}
+    return catalogue_from_dict(data, base=ds.folder, origin=origin)
+
+
+# ----------------------------------------------------------------------------------------------
+# Keys and files
+
+
+def code_version() -> str:
+    """The package version and a hash of the modules that compute results."""
+    global _CODE_VERSION
+    if _CODE_VERSION is None:
+        from . import __version__
+
+        h = hashlib.sha256()
+        here = Path(__file__).resolve().parent
+        for m in _RESULT_MODULES:
+            h.update(m.encode())
+            h.update((here / f"{m}.py").read_bytes())
+        _CODE_VERSION = f"{__version__}+{h.hexdigest()[:12]}"
+    return _CODE_VERSION
+
+
+_CODE_VERSION = None
+
+
+def file_digest(path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def pair_key(settings: Settings, target: Target, digests: dict) -> str:
+    """The key of one pair's result: inputs' SHA-256, settings, label and code version."""
+    blob = json.dumps({"code": code_version(), "settings": _settings_record(settings),
+                       "label": target.label, "inputs": digests}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _settings_record(s: Settings) -> dict:
+    # The model's path may differ between machines; its content is in the inputs' digests.
+    d = asdict(s)
+    d["model"] = None if s.model is None else os.path.basename(s.model)
+    return d
+
+
+def result_paths(out, garment, target):
+    """``(<out>/<garment>/<target>.obj, .json)``."""
+    folder = Path(os.fspath(out)) / garment
+    return folder / f"{target}.obj", folder / f"{target}.json"
+
+
+def write_atomic(path, data: bytes):
+    """Write ``data`` to ``path`` whole or not at all: a temporary file beside it, then a rename."""
+    path = Path(path)
+    tmp = path.with_name(f"{PARTIAL_PREFIX}{uuid.uuid4().hex[:12]}-{path.name}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def remove_partial_files(out) -> int:
+    """Remove temporary files a stopped writer left under ``out``; how many there were."""
+    n = 0
+    out = Path(os.fspath(out))
+    if not out.is_dir():
+        return 0
+    for p in out.rglob(f"{PARTIAL_PREFIX}*"):
+        try:
+            p.unlink()
+            n += 1
+        except FileNotFoundError:
+            pass
+    return n
+
+
+def read_record(json_path):
+    """The record beside a result, or None when it is missing or unreadable."""
+    try:
+        rec = json.loads(Path(json_path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) else None
+
+
+def _intact(obj_path, record) -> bool:
+    try:
+        return file_digest(obj_path) == record.get("output_sha256")
+    except OSError:
+        return False
+
+
+# ----------------------------------------------------------------------------------------------
+# The work on a worker
+
+
+class _Inputs:
+    """Meshes, digests and models read by one worker process, kept across garments.
+
+    Bodies and models are shared by many garments: read and hashed once per process, and read again
+    only when the file changes (size or modification time).
+    """
+
+    def __init__(self, limit=64):
+        self.limit = limit
+        self.cache = {}
+
+    def _stat(self, path):
+        st = os.stat(path)
+        return (os.path.abspath(path), st.st_size, st.st_mtime_ns)
+
+    def digest(self, path):
+        return self._get(path, "digest", lambda: file_digest(path))
+
+    def mesh(self, path, name):
+        from .obj import read_obj
+
+        return self._get(path, ("mesh", name), lambda: read_obj(path, name=name))
+
+    def model(self, path):
+        from .model import load_model
+
+        return self._get(path, "model", lambda: load_model(path))
+
+    def _get(self, path, what, make):
+        key = (self._stat(path), what)
+        if key not in self.cache:
+            if len(self.cache) >= self.limit:
+                self.cache.pop(next(iter(self.cache)))
+            self.cache[key] = make()
+        return self.cache[key]
+
+
+_INPUTS = _Inputs()
+
+
+def _error_text(exc) -> str:
+    if isinstance(exc, FileNotFoundError):
+        return f"{exc.filename}: file not found"
+    if isinstance(exc, OSError):
+        return f"{exc.filename}: cannot be read ({exc.strerror or exc})"
+    if isinstance(exc, (GarmentTransferError, ValueError)):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _where() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
+    """Transfer one garment to all its targets; write each result; return one record per target.
+
+    Runs on a worker (or in the calling process). Pairs whose result is present with the same key are
+    not done again: ``skipped``, or ``done`` when an earlier attempt of this same run (``run_id``)
+    made them, as after a worker was lost. A failing pair is recorded with its error and the others
+    go on; a garment or source body that cannot be used fails all its pairs.
+
+    Parameters
+    ----------
+    job : GarmentJob
+    out : str or Path
+        The results folder (seen by every worker at the same path).
+    run_id : str
+        Identifies the run in each written record.
+    stop : callable, optional
+        Called before each pair; True stops the garment (its remaining pairs are ``not run``).
+
+    Returns
+    -------
+    list of dict
+        Per target, in order: ``garment``, ``target``, ``label``, ``outcome`` (see ``OUTCOMES``),
+        ``seconds``, ``prepare_seconds``, the metrics of ``metrics.evaluate``, ``output``, ``key``,
+        ``worker`` and ``error``.
+    """
+    t_start = (time.perf_counter(), time.process_time())
+    out = Path(os.fspath(out))
+    records = [{"garment": job.name, "target": t.name, "label": t.label, "outcome": "not run"}
+               for t in job.targets]
+    s = job.settings
+    todo = []
+    try:
+        common = {"garment": _INPUTS.digest(job.file), "source_body": _INPUTS.digest(job.source_file)}
+        if s.method == "model":
+            common["model"] = _INPUTS.digest(s.model)
+    except OSError as exc:
+        return _fail_all(records, _error_text(exc), t_start)
+    for rec, t in zip(records, job.targets):
+        try:
+            digests = dict(common, target_body=_INPUTS.digest(t.body))
+            if t.reference is not None:
+                digests["reference"] = _INPUTS.digest(t.reference)
+        except OSError as exc:
+            rec.update(outcome="failed", error=_error_text(exc))
+            continue
+        rec["key"] = pair_key(s, t, digests)
+        obj_path, json_path = result_paths(out, job.name, t.name)
+        old = read_record(json_path)
+        if old is not None and old.get("key") == rec["key"] and _intact(obj_path, old):
+            rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", *METRIC_KEYS)
+                        if k in old})
+            rec.update(outcome="done" if run_id and old.get("run_id") == run_id else "skipped",
+                       output=str(obj_path))
+            continue
+        todo.append((rec, t, digests))
+    if not todo:
+        return _finish(records, t_start)
+
+    from .metrics import evaluate
+    from .obj import obj_text
+    from .transfer import prepare_garment, transfer_garment
+
+    t0 = time.perf_counter()
+    try:
+        source_body = _INPUTS.mesh(job.source_file, job.source)
+        garment = _read_garment(job.file)
+        model = _INPUTS.model(s.model) if s.method == "model" else None
+        prepared = prepare_garment(source_body, garment, interpolate=s.interpolate,
+                                   stiffness=s.stiffness, need_solver=s.method != "surface")
+    except Exception as exc:  # noqa: BLE001 - any failure of the garment is recorded for its pairs
+        for rec, _, _ in todo:
+            rec.update(outcome="failed", error=_error_text(exc))
+        return _finish(records, t_start)
+    prepare_seconds = time.perf_counter() - t0
+    (out / job.name).mkdir(parents=True, exist_ok=True)
+    for rec, t, digests in todo:
+        if stop is not None and stop():
+            break
+        t1 = time.perf_counter()
+        try:
+            target_body = _INPUTS.mesh(t.body, t.name)
+            result = transfer_garment(source_body, target_body, garment, method=s.method, model=model,
+                                      target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
+                                      interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
+            reference = _read_garment(t.reference) if t.reference is not None else None
+            # Without a reference: the design (MDC) and penetration only; the drape error against the
+            # body-driven fit would cost as much again and judge nothing the transfer did not aim at.
+            metrics = evaluate(garment, garment.with_vertices(result.V), target_body, reference=reference)
+            text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} "
+                                                      f"({s.method})").encode("utf-8")
+        except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
+            rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
+            continue
+        obj_path, json_path = result_paths(out, job.name, t.name)
+        rec.update({k: _plain(metrics.get(k)) for k in METRIC_KEYS})
+        rec.update(outcome="done", output=str(obj_path), worker=_where(),
+                   seconds=time.perf_counter() - t1, prepare_seconds=prepare_seconds)
+        record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s),
+                      inputs=digests, stage_seconds=result.seconds,
+                      output_sha256=hashlib.sha256(text).hexdigest())
+        write_atomic(obj_path, text)
+        write_atomic(json_path, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
+    return _finish(records, t_start)
+
+
+def _read_garment(path):
+    from .obj import read_obj
+
+    return read_obj(path)
+
+
+def _plain(x):
+    if x is None or isinstance(x, (str, bool, int)):
+        return x
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    return v if math.isfinite(v) else None
+
+
+def _fail_all(records, error, t_start):
+    for rec in records:
+        rec.update(outcome="failed", error=error)
+    return _finish(records, t_start)
+
+
+def _finish(records, t_start):
+    # Wall and CPU time of the whole garment on its worker (the CPU time counts every thread of the
+    # worker process: what the garment costs in core-seconds on a machine that is not shared).
+    elapsed, cpu = time.perf_counter() - t_start[0], time.process_time() - t_start[1]
+    for rec in records:
+        rec["garment_seconds"] = elapsed
+        rec["garment_cpu_seconds"] = cpu
+    return records
+
+
+# ----------------------------------------------------------------------------------------------
+# Executors: one interface for this process, a process pool and Dask
+
+
+_STOP_EVENT = None
+
+
+def _pool_init(event):
+    # Only the driver handles Ctrl+C: it asks the workers to stop between pairs through this event,
+    # so that no worker is cut in the middle of a write.
+    import signal
+
+    global _STOP_EVENT
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _STOP_EVENT = event
+
+
+def _pool_stop():
+    return _STOP_EVENT is not None and _STOP_EVENT.is_set()
+
+
+def _pool_run(job, out, run_id):
+    return run_garment(job, out, run_id, stop=_pool_stop)
+
+
+class _Serial:
+    """Garments one after the other in this process."""
+
+    kind = "serial"
+    workers = 1
+
+    def __init__(self):
+        self.stopped = False
+        self.pending = []
+
+    def submit(self, jobs, out, run_id):
+        self.pending = list(jobs)
+        self.args = (os.fspath(out), run_id)
+
+    def results(self):
+        while self.pending and not self.stopped:
+            job = self.pending[0]
+            records = run_garment(job, *self.args, stop=lambda: self.stopped)
+            self.pending.pop(0)
+            yield job, records, None
+
+    def stop(self):
+        self.stopped = True
+
+    def close(self):
+        pass
+
+
+class _Pool:
+    """A local process pool (no Dask needed)."""
+
+    kind = "processes"
+
+    def __init__(self, workers):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawn: a forked child would inherit the driver's threads' locks (tqdm, logging).
+        ctx = mp.get_context("spawn")
+        self.event = ctx.Event()
+        self.workers = workers
+        self.pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_pool_init,
+                                        initargs=(self.event,))
+        self.pending = {}
+
+    def submit(self, jobs, out, run_id):
+        self.pending = {self.pool.submit(_pool_run, job, os.fspath(out), run_id): job for job in jobs}
+
+    def results(self):
+        from concurrent.futures import as_completed
+
+        for f in as_completed(list(self.pending)):
+            job = self.pending.pop(f)
+            try:
+                yield job, f.result(), None
+            except BaseException as exc:  # noqa: BLE001 - a lost worker process fails the garment's pairs
+                if isinstance(exc, KeyboardInterrupt):
+                    raise
+                yield job, None, exc
+
+    def stop(self):
+        self.event.set()
+        for f in self.pending:
+            f.cancel()
+
+    def close(self):
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask_stop(name):
+    from distributed import Event
+
+    return Event(name).is_set()
+
+
+def _dask_run(job, out, run_id, stop_name):
+    return run_garment(job, out, run_id, stop=lambda: _dask_stop(stop_name))
+
+
+class _Dask:
+    """A Dask cluster: a local one, or the one behind a scheduler's address."""
+
+    kind = "dask"
+
+    def __init__(self, workers=None, scheduler=None, client=None):
+        try:
+            import distributed
+        except ImportError:
+            raise MissingDependency(
+                "Dask runs need the dask and distributed packages: pip install "
+                "'dask[distributed]' (see requirements.txt for the tested version)") from None
+        self.cluster = None
+        if client is not None:
+            self.client, self.own_client = client, False
+        elif scheduler:
+            try:
+                self.client = distributed.Client(scheduler, timeout="30s")
+            except (OSError, TimeoutError) as exc:
+                raise GarmentTransferError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") \
+                    from None
+            self.own_client = True
+        else:
+            # One thread per worker process: garments run side by side in processes (the GIL), and
+            # each keeps its own cache of bodies.
+            import dask
+
+            # No dashboard, so nobody reads the workers' statistical profile: its sampling thread
+            # takes the GIL every 10 ms from the transfer, which costs most on a busy machine.
+            with dask.config.set({"distributed.worker.profile.enabled": False}):
+                self.cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
+                                                        processes=True, dashboard_address=None)
+            self.client, self.own_client = distributed.Client(self.cluster), True
+        self.workers = sum(w.get("nthreads", 1) for w in
+                           self.client.scheduler_info(n_workers=-1)["workers"].values())
+        self.stop_name = None
+        self.pending = {}
+
+    def submit(self, jobs, out, run_id):
+        self.stop_name = f"garment-transfer-stop-{run_id}"
+        futures = self.client.map(_dask_run, list(jobs), out=os.fspath(out), run_id=run_id,
+                                  stop_name=self.stop_name, pure=False,
+                                  key=[f"garment-{job.name}-{run_id}" for job in jobs])
+        self.pending = {f.key: (f, job) for f, job in zip(futures, jobs)}
+
+    def results(self):
+        import distributed
+
+        for f in distributed.as_completed([f for f, _ in self.pending.values()]):
+            _, job = self.pending.pop(f.key)
+            try:
+                yield job, f.result(), None
+            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: the worker died too often
+                yield job, None, exc
+            finally:
+                f.release()
+
+    def stop(self):
+        import distributed
+
+        if self.stop_name:
+            distributed.Event(self.stop_name, client=self.client).set()
+        # Queued garments are dropped; running ones stop after their current pair and report.
+        running = {k for keys in self.client.processing().values() for k in keys}
+        self.client.cancel([f for f, _ in self.pending.values() if f.key not in running])
+
+    def close(self):
+        if self.own_client:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def make_executor(workers=None, scheduler=None, dask=False, client=None):
+    """The executor for a run: this process, a process pool, a local Dask cluster, or a Dask scheduler.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local workers (default: every core). 1 runs in this process (without Dask).
+    scheduler : str, optional
+        A Dask scheduler's address (``tcp://host:8786``): use its cluster.
+    dask : bool
+        A local Dask cluster of ``workers`` processes instead of a process pool.
+    client : distributed.Client, optional
+        An existing Dask client.
+    """
+    if client is not None or scheduler:
+        return _Dask(scheduler=scheduler, client=client)
+    workers = workers or os.cpu_count() or 1
+    if dask:
+        return _Dask(workers=workers)
+    return _Serial() if workers == 1 else _Pool(workers)
+
+
+# ----------------------------------------------------------------------------------------------
+# The driver
+
+
+@dataclass
+class BatchSummary:
+    """What a run did.
+
+    Attributes
+    ----------
+    records : list of dict
+        One per pair, in catalogue order (see ``run_garment``).
+    counts : dict
+        Pairs per outcome.
+    seconds : float
+        Wall time of the run.
+    interrupted : bool
+    info : dict
+        Run id, executor, workers, catalogue, code version.
+    """
+
+    records: list
+    counts: dict
+    seconds: float
+    interrupted: bool = False
+    info: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Every pair transferred (now or in an earlier run)."""
+        return not self.interrupted and all(r["outcome"] in ("done", "skipped") for r in self.records)
+
+
+def run_batch(catalogue: Catalogue, out, *, workers=None, scheduler=None, dask=False, client=None,
+              executor=None, progress=None) -> BatchSummary:
+    """Transfer every garment of a catalogue to each of its targets; write results and a summary.
+
+    Parameters
+    ----------
+    catalogue : Catalogue
+    out : str or Path
+        Results folder (made if missing). With a Dask scheduler, every worker must see it, and the
+        catalogue's files, at the same paths.
+    workers, scheduler, dask, client
+        See ``make_executor``.
+    executor : optional
+        An executor made by ``make_executor`` (then the others are ignored); the caller closes it.
+    progress : callable, optional
+        ``progress(done, total, record)`` after each pair's record comes back (``record`` None at
+        the start); returning True stops the run as Ctrl+C does.
+
+    Returns
+    -------
+    BatchSummary
+        Also written to ``<out>/summary.json`` and ``<out>/summary.csv``.
+
+    Notes
+    -----
+    Ctrl+C (KeyboardInterrupt) or a progress callback returning True stops the run: queued
+    garments are dropped, running ones stop after their current pair, temporary files are removed,
+    and the summary lists what was done (``interrupted`` True; pairs not reached are ``not run``).
+    """
+    out = Path(os.fspath(out)).absolute()
+    out.mkdir(parents=True, exist_ok=True)
+    removed = remove_partial_files(out)
+    if removed:
+        log.info("removed %d temporary files left by an earlier, stopped run", removed)
+    run_id = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:8]}"
+    start = time.perf_counter()
+    total = catalogue.n_pairs
+    own = executor is None
+    ex = executor if executor is not None else make_executor(workers, scheduler, dask, client)
+    log.info("run %s: %d garments, %d pairs from %s on %s (%d workers) into %s", run_id,
+             len(catalogue.jobs), total, catalogue.origin, ex.kind, ex.workers, out)
+    results = {}
+    interrupted = False
+    done = 0
+    if progress is not None:
+        progress(0, total, None)
+
+    def collect(job, records, exc):
+        nonlocal done
+        if exc is not None:
+            if interrupted and _is_cancel(exc):
+                return
+            records = [{"garment": job.name, "target": t.name, "label": t.label,
+                        "outcome": "failed", "error": f"the worker was lost: {_error_text(exc)}"}
+                       for t in job.targets]
+        results[job.name] = records
+        for rec in records:
+            _log_record(rec)
+            done += 1
+            if progress is not None and progress(done, total, rec) and not interrupted:
+                raise KeyboardInterrupt
+
+    try:
+        try:
+            ex.submit(catalogue.jobs, out, run_id)
+            for item in ex.results():
+                collect(*item)
+        except KeyboardInterrupt:
+            interrupted = True
+            log.warning("interrupted: the workers stop after their current pair (Ctrl+C again: at once)")
+            try:
+                ex.stop()
+                # The garments under way finish their current pair and report what they did.
+                for item in ex.results():
+                    collect(*item)
+            except KeyboardInterrupt:
+                pass
+    finally:
+        if own:
+            try:
+                ex.close()
+            except KeyboardInterrupt:
+                interrupted = True
+        removed = remove_partial_files(out)
+        if removed:
+            log.info("removed %d temporary files of interrupted writes", removed)
+    records = []
+    for job in catalogue.jobs:
+        records += results.get(job.name) or [
+            {"garment": job.name, "target": t.name, "label": t.label, "outcome": "not run"}
+            for t in job.targets]
+    for rec in records:
+        if rec["outcome"] == "not run":
+            _recover(rec, out, run_id)
+    counts = {o: sum(r["outcome"] == o for r in records) for o in OUTCOMES}
+    from . import __version__
+
+    info = {"run_id": run_id, "catalogue": catalogue.origin, "out": str(out), "executor": ex.kind,
+            "workers": ex.workers, "scheduler": scheduler, "version": __version__,
+            "code": code_version()}
+    summary = BatchSummary(records, counts, time.perf_counter() - start, interrupted, info)
+    write_summary(summary, out)
+    log.info("run %s: %s in %.1f s%s", run_id, ", ".join(f"{v} {k}" for k, v in counts.items() if v),
+             summary.seconds, " (interrupted)" if interrupted else "")
+    return summary
+
+
+def _is_cancel(exc):
+    return type(exc).__name__ in ("CancelledError", "FutureCancelledError")
+
+
+def _recover(rec, out, run_id):
+    """A pair whose garment's report never came back (stopped run) but whose result this run wrote."""
+    obj_path, json_path = result_paths(out, rec["garment"], rec["target"])
+    old = read_record(json_path)
+    if old is not None and old.get("run_id") == run_id and _intact(obj_path, old):
+        rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", "key", *METRIC_KEYS)
+                    if k in old})
+        rec.update(outcome="done", output=str(obj_path))
+
+
+def _log_record(rec):
+    if rec["outcome"] == "failed":
+        log.warning("FAILED %s -> %s: %s", rec["garment"], rec["target"], rec.get("error"))
+    elif rec["outcome"] == "not run":
+        log.info("not run %s -> %s (stopped)", rec["garment"], rec["target"])
+    else:
+        mdc = rec.get("mdc")
+        log.info("%s %s -> %s: MDC %s, %s inside, %.2f s", rec["outcome"], rec["garment"], rec["target"],
+                 "-" if mdc is None else f"{mdc:.4f}", _pct(rec.get("penetration_ratio")),
+                 rec.get("seconds") or 0.0)
+
+
+def _pct(x):
+    return "-" if x is None else f"{100 * x:.2f}%"
+
+
+def write_summary(summary: BatchSummary, out):
+    """``<out>/summary.json`` (everything) and ``<out>/summary.csv`` (one row per pair), atomically."""
+    out = Path(os.fspath(out))
+    doc = {"info": summary.info, "interrupted": summary.interrupted, "seconds": summary.seconds,
+           "counts": summary.counts, "pairs": summary.records}
+    write_atomic(out / "summary.json", (json.dumps(doc, indent=1) + "\n").encode("utf-8"))
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, CSV_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for rec in summary.records:
+        w.writerow({k: ("" if rec.get(k) is None else rec.get(k)) for k in CSV_COLUMNS})
+    write_atomic(out / "summary.csv", buf.getvalue().encode("utf-8"))
