@@ -144,7 +144,7 @@ def parse_args(argv):
         parser.error(f"--offset {args.offset}: must be a finite distance >= 0")
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out}: is a file; give a folder for the results")
-    inputs = [args.source_body, *args.target_body, *args.garment, args.model]
+    inputs = [args.source_body, *(args.target_body or []), *(args.garment or []), args.model, args.catalogue]
     for path in [args.out / "summary.json"] + ([args.blend] if args.blend else []):
         problem = output_problem(path, inputs)
         if problem:
@@ -309,7 +309,7 @@ def remove_objects(objects):
 def export_obj(obj, path, args):
     import bpy
 
-    inputs = [args.source_body, *args.target_body, *args.garment, args.model]
+    inputs = [args.source_body, *(args.target_body or []), *(args.garment or []), args.model, args.catalogue]
     for other in bpy.context.view_layer.objects:
         other.select_set(False)
     obj.select_set(True)
