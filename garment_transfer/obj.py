@@ -41,7 +41,10 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?
 _INDEX = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/[+-]?\d*)?)?\Z", re.ASCII)
 # A v line split so that only the three coordinates are replaced when writing: the prefix (any BOM,
 # indentation, the keyword and the blank after it), x, blank, y, blank, z, and everything after z.
-_V_LINE = re.compile(rf"(\ufeff?{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+_V_LINE = re.compile(rf"(\ufeff*{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+_FAST_NUMBER = rb"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)"
+_FAST_V = re.compile(rb"v(?:[ \t]+" + _FAST_NUMBER + rb"){3,}[ \t\r]*")
+_FAST_F = re.compile(rb"f(?:[ \t]+[1-9]\d*(?:/\d*(?:/\d*)?)?){3,}[ \t\r]*")
 _KEYWORDS = frozenset("""v vt vn vp f l p g o s usemtl mtllib cstype deg bmat step curv curv2 surf parm
 trim hole scrv sp end con mg bevel c_interp d_interp lod usemap maplib shadow_obj trace_obj ctech stech
 call csh""".split())
@@ -98,7 +101,15 @@ def read_obj(path, name=None) -> Mesh:
                               f"({_show(lines[-1])} has no line break): it looks cut off. If it is "
                               "complete, end it with a line break")
     verts, polys, others = [], [], []
-    for lineno, line in enumerate(lines, 1):
+    for lineno, (line, raw) in enumerate(zip(lines, data.split(b"\n")), 1):
+        # Plain v and f lines (nearly all of a file) take a fast path; the rest is read in full.
+        if raw[:2] == b"v " and _FAST_V.fullmatch(raw):
+            x, y, z = raw.split()[1:4]
+            verts.append((float(x), float(y), float(z)))
+            continue
+        if raw[:2] == b"f " and _FAST_F.fullmatch(raw):
+            polys.append([int(t.split(b"/", 1)[0]) - 1 for t in raw.split()[1:]])
+            continue
         key, fields = _statement(line)
         if key is None:
             continue
@@ -190,12 +201,15 @@ def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
     if mesh.obj_lines is not None:
         out, k = [], 0
         for line in mesh.obj_lines:
-            if _statement(line)[0] == "v":
-                m = _V_LINE.match(line)
+            # Exactly the lines read as vertices: a v keyword, blanks, then at least three fields.
+            m = _V_LINE.match(line)
+            if m:
                 x, y, z = V[k]
                 k += 1
                 line = m.group(1) + fmt % x + m.group(3) + fmt % y + m.group(5) + fmt % z + m.group(7)
             out.append(line)
+        if k != len(V):
+            raise MeshError(mesh.name, f"its text has {k} vertex lines for {len(V)} vertices; read it again")
         return "\n".join(out)
     out = [f"# {header}"] if header else []
     out += ["v " + " ".join(fmt % c for c in v) for v in V]
