@@ -1,0 +1,96 @@
+"""The README's table of accepted inputs, walked row by row: each row names the tests that show what it
+says, and each of those tests exists. A row added to the README without a test, or a test renamed away
+from its row, fails here."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: README row (its first cell starts with this) -> the tests that show it ("file::function").
+ROWS = {
+    "quads, n-gons": ["test_obj.py::test_read_keeps_polygons_and_triangulates",
+                      "test_obj.py::test_write_like_source_changes_only_vertex_lines"],
+    "OBJ fields separated by any spaces/tabs": [
+        "test_careless_inputs.py::test_bom_tabs_and_indentation_read_the_same_mesh",
+        "test_careless_inputs.py::test_only_the_coordinates_change_colours_latin1_and_all_other_bytes_stay"],
+    "missing, unreadable, binary": ["test_obj.py::test_missing_file_and_binary_file",
+                                    "test_obj.py::test_bad_files_name_the_file_and_problem",
+                                    "test_careless_inputs.py::test_damaged_files_are_refused_with_the_line",
+                                    "test_obj_corruption.py::test_damaged_obj_is_read_right_or_refused"],
+    "a file cut off": ["test_careless_inputs.py::test_a_cut_off_garment_is_refused_on_the_command_line",
+                       "test_obj_corruption.py::test_cut_at_a_line_break_inside_the_faces_is_the_one_undetectable_cut"],
+    "source and target bodies of different topology": [
+        "test_transfer.py::test_bodies_of_different_topology_are_refused",
+        "test_careless_inputs.py::test_evaluate_with_a_body_of_another_topology",
+        "test_careless_inputs.py::test_one_body_mirrored_and_the_other_not_is_named"],
+    "a body whose faces point inward": [
+        "test_careless_inputs.py::test_orientation_of_a_body_with_reversed_winding",
+        "test_careless_inputs.py::test_reversed_winding_bodies_give_the_same_transfer_and_evaluation",
+        "blender/test_careless_blender.py::test_negative_scale_parent_keeps_the_garment_outside_the_body"],
+    "a garment far from the source body": ["test_transfer.py::test_garment_far_from_the_body_is_refused"],
+    "a garment not around its body": [
+        "test_careless_inputs.py::test_garment_moved_or_turned_away_from_its_body_is_refused",
+        "test_careless_inputs.py::test_makehuman_garments_pass_and_misplaced_ones_do_not"],
+    "a garment whose every face has zero area": ["test_broken_meshes.py::test_all_zero_area_garment_is_refused"],
+    "zero-area and needle faces": ["test_broken_meshes.py::test_zero_area_needle_duplicate_and_loose"],
+    "a few loose vertices": ["test_broken_meshes.py::test_zero_area_needle_duplicate_and_loose"],
+    "non-manifold edges": ["test_broken_meshes.py::test_non_manifold_and_disconnected_pieces",
+                           "test_broken_meshes.py::test_flipped_faces_give_nearly_the_same_result"],
+    "a garment slightly inside the body": ["test_broken_meshes.py::test_garment_inside_the_body_is_pushed_out"],
+    "open bodies": ["test_broken_meshes.py::test_bodies_with_holes",
+                    "test_geometry.py::test_penetration_counted_on_closed_and_open_bodies"],
+    "`--offset` / Penetration Offset": [
+        "test_careless_inputs.py::test_offset_out_of_range",
+        "test_careless_inputs.py::test_offset_checked_in_the_core_for_every_caller",
+        "test_careless_inputs.py::test_numeric_options_out_of_range_are_usage_errors",
+        "blender/test_careless_blender.py::test_offset_out_of_range_is_refused_like_on_the_command_line"],
+    "`--model` or `--target` without `--method`": [
+        "test_careless_inputs.py::test_model_or_target_implies_the_model_method"],
+    "a model file for another source body": ["test_model.py::test_model_for_another_source_body",
+                                             "test_model.py::test_unknown_target_lists_the_known_ones",
+                                             "test_model.py::test_object_arrays_are_refused",
+                                             "test_model.py::test_other_bad_files"],
+    "`--out` that is an input": [
+        "test_careless_inputs.py::test_out_equal_to_an_input_is_refused",
+        "test_careless_inputs.py::test_out_reaching_an_input_through_a_symlink_or_hard_link_is_refused",
+        "test_careless_inputs.py::test_out_that_is_not_a_regular_file_is_refused",
+        "test_careless_inputs.py::test_out_in_a_missing_or_read_only_folder_or_empty_names_the_users_path",
+        "blender/test_careless_blender.py::test_batch_outputs_are_checked_before_the_run"],
+    "huge meshes": ["test_geometry.py::test_closest_in_chunks_equals_one_batch"],
+    "an interrupted training, write or run": [
+        "test_careless_inputs.py::test_ctrl_c_is_one_line_exit_130_and_no_file",
+        "test_careless_inputs.py::test_output_files_get_the_umask_permissions",
+        "test_model.py::test_cancel_writes_nothing",
+        "test_obj.py::test_failed_write_leaves_the_old_file_and_no_temporary"],
+}
+
+
+def readme_rows():
+    """First cells of the rows of the README's "What inputs are accepted" table."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split("## What inputs are accepted", 1)[1].split("\n## ", 1)[0]
+    rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith("| ---")]
+    return [r.split(" | ", 1)[0][2:].strip() for r in rows[1:]]
+
+
+def test_every_readme_row_has_its_tests_and_every_listed_row_is_in_the_readme():
+    rows = readme_rows()
+    assert len(rows) >= 15
+    unmatched = [r for r in rows if not any(r.startswith(k) for k in ROWS)]
+    assert not unmatched, f"README rows without tests: {unmatched}"
+    stale = [k for k in ROWS if not any(r.startswith(k) for r in rows)]
+    assert not stale, f"rows no longer in the README: {stale}"
+
+
+def test_every_named_test_exists():
+    missing = []
+    for tests in ROWS.values():
+        for ref in tests:
+            file, name = ref.split("::")
+            tree = ast.parse((ROOT / "tests" / file).read_text(encoding="utf-8"))
+            if not any(isinstance(n, ast.FunctionDef) and n.name == name for n in tree.body):
+                missing.append(ref)
+    assert not missing, missing
