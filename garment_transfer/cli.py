@@ -67,7 +67,8 @@ def cmd_transfer(args):
     load = time.perf_counter() - t
     result = transfer_garment(source_body, target_body, garment, method=args.method, model=model,
                               target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
-                              interpolate=not args.no_interpolate)
+                              interpolate=not args.no_interpolate,
+                              resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
     write_obj(args.out, garment, result.V,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
@@ -157,7 +158,10 @@ def build_parser():
     t.add_argument("--offset", type=float, default=None,
                    help="distance kept from the body, in the files' units "
                         "(default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
-    t.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
+    t.add_argument("--no-fix", action="store_true", help="skip the penetration fix (and the crossing pass)")
+    t.add_argument("--no-crossing-pass", action="store_true",
+                   help="skip the final pass that removes every garment edge through the body and body "
+                        "edge through the garment (exact check)")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")
     t.add_argument("--json", action="store_true", help="print one JSON object")

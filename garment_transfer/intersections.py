@@ -32,7 +32,7 @@ from .proximity import TriangleSurface, closest_on_triangles
 #: (7 + 56 eps) eps with eps = 2^-53; 16 eps leaves a margin.
 FILTER = 16.0 * 2.0 ** -53
 #: Boxes per grid cell side: the cell is this many times the median box size of the two sets.
-CELL_SHARE = 1.5
+CELL_SHARE = 1.0
 #: Pairs handled per narrow-phase batch (bounds memory on huge meshes).
 PAIR_BATCH = 1 << 20
 
@@ -302,7 +302,14 @@ def edge_triangle_pairs(V_e, E, V_t, F, same_mesh=False):
         return np.zeros((0, 2), np.int64), 0
     P, Q = V_e[E[:, 0]], V_e[E[:, 1]]
     T = V_t[F]
-    cand = box_pairs(np.minimum(P, Q), np.maximum(P, Q), T.min(axis=1), T.max(axis=1))
+    lo_e, hi_e, lo_t, hi_t = np.minimum(P, Q), np.maximum(P, Q), T.min(axis=1), T.max(axis=1)
+    # Only what lies within the other set's bounding box can meet it (a skirt and a whole body).
+    ke = np.flatnonzero(np.all((lo_e <= hi_t.max(axis=0)) & (hi_e >= lo_t.min(axis=0)), axis=1))
+    kt = np.flatnonzero(np.all((lo_t <= hi_e.max(axis=0)) & (hi_t >= lo_e.min(axis=0)), axis=1))
+    if ke.size == 0 or kt.size == 0:
+        return np.zeros((0, 2), np.int64), 0
+    cand = box_pairs(lo_e[ke], hi_e[ke], lo_t[kt], hi_t[kt])
+    cand = np.stack([ke[cand[:, 0]], kt[cand[:, 1]]], axis=1)
     if same_mesh and cand.size:
         e, f = E[cand[:, 0]], F[cand[:, 1]]
         shared = (e[:, :1] == f).any(axis=1) | (e[:, 1:] == f).any(axis=1)
