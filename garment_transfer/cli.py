@@ -50,20 +50,21 @@ def _stderr_progress(label, every=0.05):
 
 
 def cmd_transfer(args):
-    from .obj import read_obj, write_obj
+    from .obj import read_obj
+
+    if len(args.garment) > 1:
+        return cmd_transfer_outfit(args)
+    if len(args.out) != 1:
+        raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
+    from .obj import write_obj
     from .transfer import transfer_garment
 
+    args.garment, args.out = args.garment[0], args.out[0]
     t = time.perf_counter()
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
     garment = read_obj(args.garment)
-    model = None
-    if args.method == "model":
-        if not args.model:
-            raise GarmentTransferError("--method model needs --model MODEL.npz and --target LABEL")
-        from .model import load_model
-
-        model = load_model(args.model)
+    model = _model_for(args)
     load = time.perf_counter() - t
     result = transfer_garment(source_body, target_body, garment, method=args.method, model=model,
                               target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
@@ -81,6 +82,86 @@ def cmd_transfer(args):
     _emit(args, out, [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
                       f"{result.penetrating_vertices} inside the target body, "
                       f"{result.seconds['total']:.3f} s (transfer)"])
+
+
+def _model_for(args):
+    if args.method != "model":
+        return None
+    if not args.model:
+        raise GarmentTransferError("--method model needs --model MODEL.npz and --target LABEL")
+    from .model import load_model
+
+    return load_model(args.model)
+
+
+def outfit_out_paths(garments, outs):
+    """Output files of an outfit: one --out per garment, or one existing folder for all
+    (``<garment file name>`` inside it). Refuses to overwrite an input."""
+    if len(outs) == 1 and os.path.isdir(outs[0]):
+        paths = [os.path.join(outs[0], os.path.basename(g)) for g in garments]
+    elif len(outs) == len(garments):
+        paths = list(outs)
+    else:
+        raise GarmentTransferError(f"{len(garments)} garments need {len(garments)} --out files or one "
+                                   f"existing --out folder, got {len(outs)} --out")
+    if len({os.path.abspath(p) for p in paths}) != len(paths):
+        raise GarmentTransferError(f"two layers would be written to the same file: {', '.join(paths)}")
+    inputs = {os.path.abspath(g) for g in garments}
+    for p in paths:
+        if os.path.abspath(p) in inputs:
+            raise GarmentTransferError(f"{p}: is an input garment; write the result elsewhere")
+    return paths
+
+
+def write_all_or_nothing(paths, texts):
+    """Write every text to its path, or none: all go to temporary files first, then are renamed."""
+    import tempfile
+
+    temps = []
+    try:
+        for path, text in zip(paths, texts):
+            folder = os.path.dirname(os.path.abspath(path))
+            if not os.path.isdir(folder):
+                raise GarmentTransferError(f"{path}: the folder {folder} does not exist")
+            fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".obj", dir=folder)
+            temps.append(tmp)
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        for path, tmp in zip(paths, temps):
+            os.replace(tmp, path)
+    finally:
+        for tmp in temps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+
+def cmd_transfer_outfit(args):
+    from .obj import obj_text, read_obj
+    from .outfit import transfer_outfit
+
+    paths = outfit_out_paths(args.garment, args.out)
+    if args.no_fix or args.no_crossing_pass:
+        raise GarmentTransferError("an outfit of several layers is always separated: "
+                                   "--no-fix and --no-crossing-pass apply to one garment only")
+    t = time.perf_counter()
+    source_body = read_obj(args.source_body)
+    target_body = read_obj(args.target_body)
+    garments = [read_obj(g, name=g) for g in args.garment]
+    model = _model_for(args)
+    load = time.perf_counter() - t
+    result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
+                             model=model, target=args.target, interpolate=not args.no_interpolate)
+    t = time.perf_counter()
+    texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
+                                   f"{len(garments)}) on {os.path.basename(args.target_body)} ({args.method})")
+             for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
+    write_all_or_nothing(paths, texts)
+    seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
+    out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds,
+           "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
+                       "info": i} for f, p, g, i in zip(args.garment, paths, garments, result.info)]}
+    _emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
+          + [f"{result.seconds['total']:.3f} s (outfit transfer)"])
 
 
 def cmd_evaluate(args):
@@ -148,16 +229,20 @@ def build_parser():
     t = sub.add_parser("transfer", help="move a garment from the source body onto a target body")
     t.add_argument("--source-body", required=True, help="OBJ: the body the garment is dressed on")
     t.add_argument("--target-body", required=True, help="OBJ: the same body mesh in the target shape")
-    t.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
-    t.add_argument("--out", required=True, help="OBJ to write (the garment's own faces, new positions)")
+    t.add_argument("--garment", required=True, action="append",
+                   help="OBJ: the garment on the source body; repeat it for an outfit of several layers, "
+                        "from the body out (each stays outside the ones before it)")
+    t.add_argument("--out", required=True, action="append",
+                   help="OBJ to write (the garment's own faces, new positions); for an outfit, one per "
+                        "--garment in the same order, or one existing folder (files named as the garments)")
     t.add_argument("--method", choices=["direct", "model", "surface"], default="direct",
                    help="direct: the body's own deformation (default); model: a trained shared "
                         "deformation model; surface: follow the body only (baseline)")
     t.add_argument("--model", help="model file (.npz) for --method model")
     t.add_argument("--target", help="the model's target label for --method model")
     t.add_argument("--offset", type=float, default=None,
-                   help="distance kept from the body, in the files' units "
-                        "(default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
+                   help="distance kept from the body (for an outfit: by each layer from what is under it), "
+                        "in the files' units (default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
     t.add_argument("--no-fix", action="store_true", help="skip the penetration fix (and the crossing pass)")
     t.add_argument("--no-crossing-pass", action="store_true",
                    help="skip the final pass that removes every garment edge through the body and body "
