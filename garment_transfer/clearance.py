@@ -7,14 +7,17 @@ shoulder under a coarse garment). This pass finds every such crossing with the e
 ``intersections.crossings``, pushes the garment vertices involved outward (along the crossed body
 triangle's normal, or along the skin's normal at the poking body edge) until they clear the body
 by the offset, spreads each push smoothly over a few rings of the garment (the folds, which are
-shorter than the spread, stay), and checks again, exactly. It ends when no crossing is left or
-after ``max_rounds`` (the result says how many are left; it never hides one).
+shorter than the spread, stay), and checks again, exactly. The same pushes keep a clearance:
+garment-body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`` of the
+offset are pushed apart too. It ends when no crossing and no such pair is left or after
+``max_rounds`` (the result says how many are left; it never hides one).
 
 Moving cloth can make it cross itself. Every round is also checked against that: the
 self-intersections among the triangles it moved are counted before and after, and a round that
 adds some is halved on the garment parts involved (at most three times, then taken back there).
-After ``PROTECT_ROUNDS`` rounds the body comes first: a crossing left that way is removed even
-if the cloth then crosses itself, and the result counts what was added.
+After ``PROTECT_ROUNDS`` rounds a crossing of the body comes first: it is removed even if the
+cloth then crosses itself, and the result counts what was added. The clearance is best effort:
+it never makes the cloth cross itself, and the result counts the pairs still too close.
 """
 
 from __future__ import annotations
@@ -24,13 +27,19 @@ import time
 
 import numpy as np
 
-from .intersections import crossings, edge_triangle_pairs, mesh_edges
+from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_distances
 from .mesh import edge_lengths_mean
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface
 
 log = logging.getLogger(__name__)
 
+#: The pass keeps every garment-body pair (vertex-triangle both ways, edge-edge) at least this share
+#: of the offset apart; a closer pair is pushed to ``CLEARANCE_PUSH`` times that. Garment vertices
+#: keep the whole offset (the penetration fix); asking it of every edge and body vertex too would
+#: move skin-tight garments a lot (measured in lab.intersections).
+CLEARANCE_SHARE = 0.25
+CLEARANCE_PUSH = 1.5
 #: Rings of garment vertices over which a crossing's push fades out.
 SPREAD_RINGS = 2.0
 #: Each round pushes further than the last by this share of the offset (escapes stubborn cases).
@@ -89,6 +98,73 @@ def crossing_pushes(V, F, body: TriangleSurface, c, offset, gain=1.0):
     return largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
 
 
+def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
+    """Outward moves of garment parts closer to the body than ``near`` (no crossing needed):
+    a garment vertex near a body triangle goes to ``offset`` away, a garment triangle near a body
+    vertex and a garment edge near a body edge to ``CLEARANCE_PUSH * near`` away.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    body : TriangleSurface
+    body_E : (f,2) int64
+        The body's edges.
+    offset, near : float
+
+    Returns
+    -------
+    index : (k,) int64
+    move : (k,3) float64
+    count : int
+        Garment-body primitive pairs closer than ``near``.
+    """
+    ids, moves, count = [], [], 0
+    lo, hi = V.min(axis=0) - near, V.max(axis=0) + near
+    # Garment vertex - body triangle.
+    sd, closest, normal, _ = body.signed_distance(V, k=8)
+    close = np.flatnonzero(sd < near)
+    count += close.size
+    ids.append(close)
+    moves.append((closest[close] + offset * normal[close]) - V[close])
+    # Body vertex - garment triangle: the garment triangle lifted over the body vertex.
+    bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
+    if bv.size:
+        cloth = TriangleSurface(V, F)
+        _, d, tri, _ = cloth.closest(body.V[bv], k=8)
+        k = d < near
+        count += int(k.sum())
+        n = body.vertex_normals[bv[k]]
+        for corner in range(3):
+            vid = F[tri[k], corner]
+            need = np.einsum("ij,ij->i", body.V[bv[k]] - V[vid], n) + CLEARANCE_PUSH * near
+            ids.append(vid)
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    # Garment edge - body edge.
+    P0, P1 = V[E[:, 0]], V[E[:, 1]]
+    Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
+    kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
+    pairs = box_pairs(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near,
+                      np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
+    if pairs.size:
+        i, j = pairs[:, 0], kb[pairs[:, 1]]
+        d = segment_distances(P0[i], P1[i], Q0[j], Q1[j])
+        k = d < near
+        count += int(k.sum())
+        n = body.vertex_normals[body_E[j[k], 0]] + body.vertex_normals[body_E[j[k], 1]]
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        for end in (0, 1):
+            vid = E[i[k], end]
+            need = np.maximum(np.einsum("ij,ij->i", Q0[j[k]] - V[vid], n),
+                              np.einsum("ij,ij->i", Q1[j[k]] - V[vid], n)) + CLEARANCE_PUSH * near
+            ids.append(vid)
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    index, move = largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
+    return index, move, count
+
+
 def largest_per_vertex(index, move):
     """For repeated vertices, keep the longest move. index (k,) int, move (k,3) float."""
     length = np.linalg.norm(move, axis=1)
@@ -127,7 +203,8 @@ def local_self_pairs(V, F, E, moved):
     return out
 
 
-def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None):
+def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
+             keep_offset=True):
     """Remove every crossing between a garment and a body, keeping the folds.
 
     Parameters
@@ -146,6 +223,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     max_rounds : int
     surface : TriangleSurface, optional
         Of the body, when already built.
+    keep_offset : bool
+        Also push out garment parts closer to the body than ``CLEARANCE_SHARE * offset`` (vertex
+        to triangle both ways, edge to edge): the smallest distance kept.
 
     Returns
     -------
@@ -153,6 +233,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         A new array.
     info : dict
         ``crossings_before``, ``crossings_after`` (edge-triangle pairs, both ways),
+        ``near_before``, ``near_after`` (primitive pairs closer than ``CLEARANCE_SHARE * offset``),
+        ``clearance`` (that distance),
         ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
         them), ``undone`` (pushes taken back because they made the cloth cross itself).
     """
@@ -162,29 +244,44 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     A = vertex_adjacency(V.shape[0], F)
     E = mesh_edges(F)
     moved = np.zeros(V.shape[0], bool)
+    body_E = mesh_edges(body.F)
+    near = CLEARANCE_SHARE * offset if keep_offset else 0.0
     c = crossings(V, F, body.V, body.F)
     info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
+    near_index, near_move, n_near = (near_pushes(V, F, E, body, body_E, offset, near) if keep_offset
+                                     else (np.zeros(0, np.int64), np.zeros((0, 3)), 0))
+    info["near_before"] = n_near
+    info["clearance"] = near
     V_start = V.copy()
     rounds = 0
-    while c["a_edge_pairs"] + c["b_edge_pairs"] and rounds < max_rounds:
+    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
         index, move = crossing_pushes(V, F, body, c, offset, gain=1.0 + GAIN * (rounds - 1))
+        index, move = largest_per_vertex(np.concatenate([index, near_index]), np.concatenate([move, near_move]))
         fixed = np.zeros(V.shape[0], bool)
         fixed[index] = True
         D = spread_displacement(A, fixed, move, spread_rings)
         step = np.any(D != 0, axis=1)
         V_new = V.copy()
         V_new[step] += D[step]
-        if rounds <= PROTECT_ROUNDS:
-            # The body comes first: after these rounds, a crossing is removed even where the
-            # cloth then crosses itself (counted in self_intersections_added).
+        crossing = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
+        if rounds <= PROTECT_ROUNDS or not crossing:
+            # A crossing of the body comes first: after these rounds, it is removed even where
+            # the cloth then crosses itself (counted in self_intersections_added). The clearance
+            # alone never makes the cloth cross itself.
             V_new, undone = _keep_self_intersections(V, V_new, F, E, step, A)
             info["undone"] += undone
         moved |= np.any(V_new != V, axis=1)
         V = V_new
         c = crossings(V, F, body.V, body.F)
+        if keep_offset:
+            last = n_near
+            near_index, near_move, n_near = near_pushes(V, F, E, body, body_E, offset, near)
+            if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last:
+                break   # only the clearance is left and it no longer improves
     info["rounds"] = rounds
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
+    info["near_after"] = n_near
     info["moved_vertices"] = int(moved.sum())
     info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
                                         - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
