@@ -23,12 +23,10 @@ it never makes the cloth cross itself, and the result counts the pairs still too
 from __future__ import annotations
 
 import logging
-import time
 
 import numpy as np
 
 from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_distances
-from .mesh import edge_lengths_mean
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface
 
@@ -257,7 +255,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
         index, move = crossing_pushes(V, F, body, c, offset, gain=1.0 + GAIN * (rounds - 1))
-        index, move = largest_per_vertex(np.concatenate([index, near_index]), np.concatenate([move, near_move]))
+        index, move = largest_per_vertex(np.concatenate([index, near_index]),
+                                         np.concatenate([move, near_move]))
         fixed = np.zeros(V.shape[0], bool)
         fixed[index] = True
         D = spread_displacement(A, fixed, move, spread_rings)
@@ -309,7 +308,8 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A):
         # not add a self-intersection, so the count decides.
         if len(after) <= len(before):
             return V_new, undone
-        verts = np.unique(np.concatenate([E[[a for a, _ in added]].ravel(), F[[b for _, b in added]].ravel()]))
+        edges = E[[a for a, _ in added]].ravel()
+        verts = np.unique(np.concatenate([edges, F[[b for _, b in added]].ravel()]))
         region = np.zeros(V_new.shape[0], bool)
         region[verts] = True
         region |= (A @ region.astype(np.float64)) > 0

@@ -152,8 +152,9 @@ def cmd_transfer_outfit(args):
     result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
                              model=model, target=args.target, interpolate=not args.no_interpolate)
     t = time.perf_counter()
+    on = f"{os.path.basename(args.target_body)} ({args.method})"
     texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
-                                   f"{len(garments)}) on {os.path.basename(args.target_body)} ({args.method})")
+                                   f"{len(garments)}) on {on}")
              for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
     write_all_or_nothing(paths, texts)
     seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)

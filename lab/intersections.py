@@ -11,12 +11,16 @@ on every target) and ``speed`` (demo garments subdivided to 28K..156K triangles,
 
     python -m lab.intersections                 # everything (a few minutes)
     python -m lab.intersections --only demo,outfits --quick
+
+The MakeHuman fixtures are looked for beside the repository (``../shared/data/makehuman``) or where
+``GARMENT_TRANSFER_MAKEHUMAN`` says.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -32,7 +36,7 @@ from garment_transfer.transfer import transfer_garment
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "garment_transfer" / "demo_data"
-MAKEHUMAN = ROOT.parent / "shared" / "data" / "makehuman"
+MAKEHUMAN = Path(os.environ.get("GARMENT_TRANSFER_MAKEHUMAN", ROOT.parent / "shared" / "data" / "makehuman"))
 OUTFITS = (("tshirt", "shift_dress"), ("shorts", "wrap_dress"))
 SPEED = (("wrap_dress", 1), ("formal_dress", 1), ("wrap_dress", 2), ("pleated_skirt", 2))
 
@@ -152,7 +156,8 @@ def run_outfits(quick):
         except OutfitError as exc:
             print(f"the wrong order is refused: {exc}")
     crossed = sum(b + w > 0 for b, w in lines)
-    return f"outfits: {len(lines)} outfit transfers; crossings left (between layers or with the body) in {crossed}"
+    return (f"outfits: {len(lines)} outfit transfers; crossings left (between layers or with the body) "
+            f"in {crossed}")
 
 
 def subdivide(V, F):

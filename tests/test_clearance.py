@@ -5,7 +5,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from garment_transfer.clearance import largest_per_vertex, separate
 from garment_transfer.intersections import crossings, self_intersections

@@ -40,9 +40,10 @@ def test_two_layers_are_separated_on_source_and_target():
         assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
     c = crossings(r.V[1], outer.F, r.V[0], inner.F)
     assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
-    # The outer layer is outside the inner one: farther from the centre, by about the offset.
+    # The outer layer is outside the inner one (positive signed distance to it everywhere).
     inner_radius = np.linalg.norm(r.V[0][:, :2], axis=1).max()
-    outer_surface = TriangleSurface(r.V[0], oriented_outward(r.V[0], inner.F, TriangleSurface(target.V, target.F)))
+    body = TriangleSurface(target.V, target.F)
+    outer_surface = TriangleSurface(r.V[0], oriented_outward(r.V[0], inner.F, body))
     sd = outer_surface.signed_distance(r.V[1])[0]
     assert sd.min() > 0 and inner_radius > 1.0
     assert {"separate_source", "transfer", "separate_target", "total"} <= set(r.seconds)
