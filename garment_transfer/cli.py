@@ -82,28 +82,28 @@ def stderr_progress(label, every=0.05):
 
 
 def cmd_transfer(args):
-    from .obj import read_obj, write_obj
     from .files import check_output
+    from .obj import read_obj, write_obj
 
-    inputs = [args.source_body, args.target_body, args.garment, args.model]
-    check_output(args.out, inputs, "--out")
+    if len(args.garment) > 1:
+        return cmd_transfer_outfit(args)
+    if len(args.out) != 1:
+        raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
     from .transfer import transfer_garment
 
+    args.garment, args.out = args.garment[0], args.out[0]
+    inputs = [args.source_body, args.target_body, args.garment, args.model]
+    check_output(args.out, inputs, "--out")
     t = time.perf_counter()
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
     garment = read_obj(args.garment)
-    model = None
-    if args.method == "model":
-        if not args.model:
-            raise GarmentTransferError("--method model needs --model MODEL.npz and --target LABEL")
-        from .model import load_model
-
-        model = load_model(args.model)
+    model = _model_for(args)
     load = time.perf_counter() - t
     result = transfer_garment(source_body, target_body, garment, method=args.method, model=model,
                               target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
-                              interpolate=not args.no_interpolate)
+                              interpolate=not args.no_interpolate,
+                              resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
     write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
@@ -129,6 +129,75 @@ def cmd_shapes(args):
                           for s in summary["shapes"]]
           + [f"{len(summary['shapes'])} shapes, one preparation: {summary['seconds']['total']:.2f} s "
              f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"])
+
+
+def _model_for(args):
+    if args.method != "model":
+        return None
+    if not args.model:
+        raise GarmentTransferError("--method model needs --model MODEL.npz and --target LABEL")
+    from .model import load_model
+
+    return load_model(args.model)
+
+
+def outfit_out_paths(garments, outs):
+    """Output files of an outfit: one --out per garment, or one existing folder for all
+    (``<garment file name>`` inside it). Refuses to overwrite an input."""
+    if len(outs) == 1 and os.path.isdir(outs[0]):
+        paths = [os.path.join(outs[0], os.path.basename(g)) for g in garments]
+    elif len(outs) == len(garments):
+        paths = list(outs)
+    else:
+        raise GarmentTransferError(f"{len(garments)} garments need {len(garments)} --out files or one "
+                                   f"existing --out folder, got {len(outs)} --out")
+    if len({os.path.abspath(p) for p in paths}) != len(paths):
+        raise GarmentTransferError(f"two layers would be written to the same file: {', '.join(paths)}")
+    return paths
+
+
+def write_all_or_nothing(paths, texts, inputs=()):
+    """Write every text to its path, or none: all go to checked temporary files first (``files.atomic_path``),
+    and are renamed only once every one is written."""
+    import contextlib
+
+    from .files import atomic_path
+
+    with contextlib.ExitStack() as stack:
+        temps = [stack.enter_context(atomic_path(p, inputs, "--out")) for p in paths]
+        for tmp, text in zip(temps, texts):
+            with open(tmp, "wb") as fh:
+                fh.write(text.encode("utf-8", errors="surrogateescape"))
+
+
+def cmd_transfer_outfit(args):
+    from .obj import obj_text, read_obj
+    from .outfit import transfer_outfit
+
+    paths = outfit_out_paths(args.garment, args.out)
+    if args.no_fix or args.no_crossing_pass:
+        raise GarmentTransferError("an outfit of several layers is always separated: "
+                                   "--no-fix and --no-crossing-pass apply to one garment only")
+    t = time.perf_counter()
+    source_body = read_obj(args.source_body)
+    target_body = read_obj(args.target_body)
+    garments = [read_obj(g, name=g) for g in args.garment]
+    model = _model_for(args)
+    load = time.perf_counter() - t
+    result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
+                             model=model, target=args.target, interpolate=not args.no_interpolate)
+    t = time.perf_counter()
+    on = f"{os.path.basename(args.target_body)} ({args.method})"
+    texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
+                                   f"{len(garments)}) on {on}")
+             for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
+    write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model])
+    seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
+    out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds,
+           "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
+                       "info": i} for f, p, g, i in zip(args.garment, paths, garments, result.info)]}
+    _emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
+          + [f"{result.seconds['total']:.3f} s (outfit transfer)"])
 
 
 def cmd_evaluate(args):
@@ -180,8 +249,12 @@ def build_parser():
     t = sub.add_parser("transfer", help="move a garment from the source body onto a target body")
     t.add_argument("--source-body", required=True, help="OBJ: the body the garment is dressed on")
     t.add_argument("--target-body", required=True, help="OBJ: the same body mesh in the target shape")
-    t.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
-    t.add_argument("--out", required=True, help="OBJ to write (the garment's own faces, new positions)")
+    t.add_argument("--garment", required=True, action="append",
+                   help="OBJ: the garment on the source body; repeat it for an outfit of several layers, "
+                        "from the body out (each stays outside the ones before it)")
+    t.add_argument("--out", required=True, action="append",
+                   help="OBJ to write (the garment's own faces, new positions); for an outfit, one per "
+                        "--garment in the same order, or one existing folder (files named as the garments)")
     t.add_argument("--method", choices=["direct", "model", "surface"], default=None,
                    help="direct: the body's own deformation (default); model: a trained shared "
                         "deformation model (the default when --model or --target is given); "
@@ -189,9 +262,13 @@ def build_parser():
     t.add_argument("--model", help="model file (.npz); implies --method model")
     t.add_argument("--target", help="the model's target label; implies --method model")
     t.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
-                   help="distance kept from the body, in the files' units: >= 0 and at most 5%% of "
-                        "the body's size (default about 5 mm on a 1.7 m body: 0.25%% of its scale)")
-    t.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
+                   help="distance kept from the body (for an outfit: by each layer from what is under it), in "
+                        "the files' units: >= 0 and at most 5%% of the body's size (default about 5 mm on a "
+                        "1.7 m body: 0.25%% of its scale)")
+    t.add_argument("--no-fix", action="store_true", help="skip the penetration fix (and the crossing pass)")
+    t.add_argument("--no-crossing-pass", action="store_true",
+                   help="skip the final pass that removes every garment edge through the body and body "
+                        "edge through the garment (exact check)")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")
     t.add_argument("--json", action="store_true", help="print one JSON object")

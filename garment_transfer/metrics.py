@@ -8,6 +8,7 @@ import scipy.sparse.linalg as spla
 
 from .binding import bind, carry
 from .embedding import body_scale
+from .intersections import intersection_report
 from .mesh import Mesh, edge_lengths_mean, require_same_topology, triangle_normals
 from .penetration import penetration, vertex_adjacency
 from .proximity import TriangleSurface
@@ -113,7 +114,7 @@ def per_vertex_change(V_source, V_result):
 
 
 def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | None = None,
-             source_body: Mesh | None = None, smoothing=0.025):
+             source_body: Mesh | None = None, smoothing=0.025, intersections=True, layers_below=()):
     """All quality figures of a transferred garment.
 
     Parameters
@@ -132,13 +133,21 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
     smoothing : float
         Low-pass length for the drape error, as a share of the target body scale (about 4.5 cm on
         a 1.7 m body).
+    intersections : bool
+        Add the exact intersection figures (``intersections.intersection_report``).
+    layers_below : sequence of Mesh
+        Garments worn under this one (for ``layer_crossings``).
 
     Returns
     -------
     dict
         ``mdc``, ``penetration_ratio``, ``max_penetration_depth``, ``penetrating_vertices``,
         ``drape_error``, ``drape_error_source``, ``drape_error_relative``, ``drape_reference``
-        and, with a reference, ``vertex_error_mean``, ``vertex_error_max``.
+        and, with a reference, ``vertex_error_mean``, ``vertex_error_max``; with
+        ``intersections``: ``garment_edges_through_body``, ``body_edges_through_garment`` (edges
+        crossing), ``garment_edge_body_pairs``, ``body_edge_garment_pairs`` (edge-triangle pairs),
+        ``self_intersections`` (pairs, in the result), ``self_intersections_source`` (in the
+        source garment), ``layer_crossings`` and ``min_body_distance``.
     """
     require_same_topology(source, result)
     F = source.F
@@ -164,6 +173,9 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
         de0 = drape_error(source.V, F, ref_V, ref_F, length)
         out.update(drape_error=de, drape_error_source=de0,
                    drape_error_relative=de / de0 if de0 > 0 else None)
+    if intersections:
+        out.update(intersection_report(result.V, F, target_body.V, target_body.F, source_V=source.V,
+                                       layers_below=[(m.V, m.F) for m in layers_below]))
     if reference is not None:
         out["vertex_error_mean"], out["vertex_error_max"] = vertex_error(result.V, reference.V)
     return out

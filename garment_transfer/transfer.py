@@ -11,7 +11,9 @@ Stages (timed one by one):
    at the bound points, or (the paper's ClothToBody) from the nearest body triangle.
 4. ``factor``: the Poisson matrix of the garment, factored (once per garment; reused).
 5. ``solve``: the garment rebuilt from its new gradients, placed by the anchors.
-6. ``fix``: penetration removal against the target body.
+6. ``fix``: penetration removal against the target body (vertices).
+7. ``crossings``: the final pass (``clearance.separate``): no garment edge through the body and no
+   body edge through the garment, checked with exact predicates.
 
 ``surface`` skips 1, 2, 4 and 5: the garment follows the body alone (what Blender's Surface Deform
 does); it is a baseline.
@@ -28,7 +30,7 @@ from .embedding import body_scale, cloth_to_body, unembed, unembed_interpolated
 from .errors import Cancelled, MeshError, ModelError, SettingError
 from .gradients import deformation_gradients
 from .mesh import Mesh, degenerate_triangles, require_same_topology
-from . import penetration
+from . import clearance, penetration
 from .poisson import PoissonSolver, anchor_weight_for
 from .proximity import TriangleSurface
 
@@ -193,7 +195,8 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
 
 def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, method="direct",
                      model=None, target=None, offset=None, fix_penetration=True, interpolate=True,
-                     stiffness=None, prepared: PreparedGarment | None = None, progress=None):
+                     stiffness=None, prepared: PreparedGarment | None = None, progress=None,
+                     resolve_crossings=True):
     """Transfer ``garment`` from ``source_body`` to ``target_body``.
 
     Parameters
@@ -216,6 +219,9 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         Reuse the embedding, binding and factor of an earlier call for this garment.
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels (raises Cancelled).
+    resolve_crossings : bool
+        After the penetration fix, remove every edge-triangle crossing between garment and body
+        (``clearance.separate``; only with ``fix_penetration``).
 
     Returns
     -------
@@ -276,6 +282,16 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     else:
         inside = int((surface.signed_distance(V)[0] < 0).sum())
     seconds["fix"] = time.perf_counter() - t
+    info["resolve_crossings"] = bool(fix_penetration and resolve_crossings)
+    if fix_penetration and resolve_crossings:
+        step(0.9, "crossings")
+        t = time.perf_counter()
+        V, sep_info = clearance.separate(V, garment.F, target_body.V, target_body.F, offset, surface=surface)
+        info.update(sep_info)
+        if sep_info["moved_vertices"]:
+            inside = int((surface.signed_distance(V)[0] < 0).sum())
+            info["inside_after"] = inside
+        seconds["crossings"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
     step(1.0, "done")
     return TransferResult(V, seconds, inside, info)

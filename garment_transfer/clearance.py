@@ -1,0 +1,321 @@
+"""The final pass: no garment edge through the body, no body edge through the garment, checked exactly.
+
+The vertex push-out (``penetration.fix_penetration``) leaves a garment whose vertices are outside
+the body, but an edge can still cut through a body part narrower than the edge (a finger, the gap
+between the thighs) and a body vertex can still poke through a garment triangle (a breast or
+shoulder under a coarse garment). This pass finds every such crossing with the exact test of
+``intersections.crossings``, pushes the garment vertices involved outward (along the crossed body
+triangle's normal, or along the skin's normal at the poking body edge) until they clear the body
+by the offset, spreads each push smoothly over a few rings of the garment (the folds, which are
+shorter than the spread, stay), and checks again, exactly. The same pushes keep a clearance:
+garment-body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`` of the
+offset are pushed apart too. It ends when no crossing and no such pair is left or after
+``max_rounds`` (the result says how many are left; it never hides one).
+
+Moving cloth can make it cross itself. Every round is also checked against that: the
+self-intersections among the triangles it moved are counted before and after, and a round that
+adds some is halved on the garment parts involved (at most three times, then taken back there).
+After ``PROTECT_ROUNDS`` rounds a crossing of the body comes first: it is removed even if the
+cloth then crosses itself, and the result counts what was added. The clearance is best effort:
+it never makes the cloth cross itself, and the result counts the pairs still too close.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_distances
+from .penetration import spread_displacement, vertex_adjacency
+from .proximity import TriangleSurface
+
+log = logging.getLogger(__name__)
+
+#: The pass keeps every garment-body pair (vertex-triangle both ways, edge-edge) at least this share
+#: of the offset apart; a closer pair is pushed to ``CLEARANCE_PUSH`` times that. Garment vertices
+#: keep the whole offset (the penetration fix); asking it of every edge and body vertex too would
+#: move skin-tight garments a lot (measured in lab.intersections).
+CLEARANCE_SHARE = 0.25
+CLEARANCE_PUSH = 1.5
+#: Rings of garment vertices over which a crossing's push fades out.
+SPREAD_RINGS = 2.0
+#: Each round pushes further than the last by this share of the offset (escapes stubborn cases).
+GAIN = 0.5
+#: Rounds in which a push that makes the cloth cross itself is held back; later the body comes first.
+PROTECT_ROUNDS = 3
+
+
+def crossing_pushes(V, F, body: TriangleSurface, c, offset, gain=1.0):
+    """Outward moves of the garment vertices that take part in crossings.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+        Garment vertices.
+    F : (m,3) int64
+        Garment triangles.
+    body : TriangleSurface
+    c : dict
+        ``intersections.crossings(V, F, body.V, body.F)``.
+    offset : float
+    gain : float
+        Multiplies the clearance asked for.
+
+    Returns
+    -------
+    index : (k,) int64
+        Garment vertices to move (each once).
+    move : (k,3) float64
+        Their displacement (the largest asked for, where several crossings ask).
+    """
+    ids, moves = [], []
+    clear = gain * offset
+    if c["a_pairs"].shape[0]:
+        # Garment edge through a body triangle: both ends to the triangle's outer side.
+        n = body.face_normals[c["a_triangles"]]
+        a = body.V[body.F[c["a_triangles"], 0]]
+        for end in (0, 1):
+            x = V[c["a_pairs"][:, end]]
+            need = clear - np.einsum("ij,ij->i", x - a, n)
+            ids.append(c["a_pairs"][:, end])
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    if c["b_pairs"].shape[0]:
+        # Body edge through a garment triangle: the triangle over both ends of the edge.
+        u, w = body.V[c["b_pairs"][:, 0]], body.V[c["b_pairs"][:, 1]]
+        n = body.vertex_normals[c["b_pairs"][:, 0]] + body.vertex_normals[c["b_pairs"][:, 1]]
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        for corner in range(3):
+            vid = F[c["b_triangles"], corner]
+            x = V[vid]
+            need = np.maximum(np.einsum("ij,ij->i", u - x, n), np.einsum("ij,ij->i", w - x, n)) + clear
+            ids.append(vid)
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    if not ids:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    return largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
+
+
+def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
+    """Outward moves of garment parts closer to the body than ``near`` (no crossing needed):
+    a garment vertex near a body triangle goes to ``offset`` away, a garment triangle near a body
+    vertex and a garment edge near a body edge to ``CLEARANCE_PUSH * near`` away.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    body : TriangleSurface
+    body_E : (f,2) int64
+        The body's edges.
+    offset, near : float
+
+    Returns
+    -------
+    index : (k,) int64
+    move : (k,3) float64
+    count : int
+        Garment-body primitive pairs closer than ``near``.
+    """
+    ids, moves, count = [], [], 0
+    lo, hi = V.min(axis=0) - near, V.max(axis=0) + near
+    # Garment vertex - body triangle.
+    sd, closest, normal, _ = body.signed_distance(V, k=8)
+    close = np.flatnonzero(sd < near)
+    count += close.size
+    ids.append(close)
+    moves.append((closest[close] + offset * normal[close]) - V[close])
+    # Body vertex - garment triangle: the garment triangle lifted over the body vertex.
+    bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
+    if bv.size:
+        cloth = TriangleSurface(V, F)
+        _, d, tri, _ = cloth.closest(body.V[bv], k=8)
+        k = d < near
+        count += int(k.sum())
+        n = body.vertex_normals[bv[k]]
+        for corner in range(3):
+            vid = F[tri[k], corner]
+            need = np.einsum("ij,ij->i", body.V[bv[k]] - V[vid], n) + CLEARANCE_PUSH * near
+            ids.append(vid)
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    # Garment edge - body edge.
+    P0, P1 = V[E[:, 0]], V[E[:, 1]]
+    Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
+    kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
+    pairs = box_pairs(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near,
+                      np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
+    if pairs.size:
+        i, j = pairs[:, 0], kb[pairs[:, 1]]
+        d = segment_distances(P0[i], P1[i], Q0[j], Q1[j])
+        k = d < near
+        count += int(k.sum())
+        n = body.vertex_normals[body_E[j[k], 0]] + body.vertex_normals[body_E[j[k], 1]]
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        for end in (0, 1):
+            vid = E[i[k], end]
+            need = np.maximum(np.einsum("ij,ij->i", Q0[j[k]] - V[vid], n),
+                              np.einsum("ij,ij->i", Q1[j[k]] - V[vid], n)) + CLEARANCE_PUSH * near
+            ids.append(vid)
+            moves.append(np.maximum(need, 0.0)[:, None] * n)
+    index, move = largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
+    return index, move, count
+
+
+def largest_per_vertex(index, move):
+    """For repeated vertices, keep the longest move. index (k,) int, move (k,3) float."""
+    length = np.linalg.norm(move, axis=1)
+    order = np.lexsort((-length, index))
+    index, move = index[order], move[order]
+    first = np.ones(index.shape[0], bool)
+    first[1:] = index[1:] != index[:-1]
+    return index[first], move[first]
+
+
+def local_self_pairs(V, F, E, moved):
+    """Self-intersecting (edge, triangle) pairs of one mesh that involve a moved vertex.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    moved : (n,) bool
+
+    Returns
+    -------
+    set of (int, int)
+        (edge index, triangle index).
+    """
+    e_mov = np.flatnonzero(moved[E].any(axis=1))
+    t_mov = np.flatnonzero(moved[F].any(axis=1))
+    out = set()
+    if e_mov.size:
+        p, _ = edge_triangle_pairs(V, E[e_mov], V, F, same_mesh=True)
+        out.update(zip(e_mov[p[:, 0]].tolist(), p[:, 1].tolist()))
+    if t_mov.size:
+        p, _ = edge_triangle_pairs(V, E, V, F[t_mov], same_mesh=True)
+        out.update(zip(p[:, 0].tolist(), t_mov[p[:, 1]].tolist()))
+    return out
+
+
+def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
+             keep_offset=True):
+    """Remove every crossing between a garment and a body, keeping the folds.
+
+    Parameters
+    ----------
+    V : (n,3) float
+        Garment vertices (best after ``penetration.fix_penetration``: its vertices outside).
+    F : (m,3) int
+        Garment triangles.
+    body_V : (p,3) float
+    body_F : (q,3) int
+        The body (or, for outfits, the body and the layers under this one, as one mesh).
+    offset : float
+        Clearance asked for where a crossing is resolved.
+    spread_rings : float
+        Rings of garment vertices over which a push fades.
+    max_rounds : int
+    surface : TriangleSurface, optional
+        Of the body, when already built.
+    keep_offset : bool
+        Also push out garment parts closer to the body than ``CLEARANCE_SHARE * offset`` (vertex
+        to triangle both ways, edge to edge): the smallest distance kept.
+
+    Returns
+    -------
+    V : (n,3) float64
+        A new array.
+    info : dict
+        ``crossings_before``, ``crossings_after`` (edge-triangle pairs, both ways),
+        ``near_before``, ``near_after`` (primitive pairs closer than ``CLEARANCE_SHARE * offset``),
+        ``clearance`` (that distance),
+        ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
+        them), ``undone`` (pushes taken back because they made the cloth cross itself).
+    """
+    V = np.array(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    body = surface if surface is not None else TriangleSurface(body_V, body_F)
+    A = vertex_adjacency(V.shape[0], F)
+    E = mesh_edges(F)
+    moved = np.zeros(V.shape[0], bool)
+    body_E = mesh_edges(body.F)
+    near = CLEARANCE_SHARE * offset if keep_offset else 0.0
+    c = crossings(V, F, body.V, body.F)
+    info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
+    near_index, near_move, n_near = (near_pushes(V, F, E, body, body_E, offset, near) if keep_offset
+                                     else (np.zeros(0, np.int64), np.zeros((0, 3)), 0))
+    info["near_before"] = n_near
+    info["clearance"] = near
+    V_start = V.copy()
+    rounds = 0
+    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
+        rounds += 1
+        index, move = crossing_pushes(V, F, body, c, offset, gain=1.0 + GAIN * (rounds - 1))
+        index, move = largest_per_vertex(np.concatenate([index, near_index]),
+                                         np.concatenate([move, near_move]))
+        fixed = np.zeros(V.shape[0], bool)
+        fixed[index] = True
+        D = spread_displacement(A, fixed, move, spread_rings)
+        step = np.any(D != 0, axis=1)
+        V_new = V.copy()
+        V_new[step] += D[step]
+        crossing = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
+        if rounds <= PROTECT_ROUNDS or not crossing:
+            # A crossing of the body comes first: after these rounds, it is removed even where
+            # the cloth then crosses itself (counted in self_intersections_added). The clearance
+            # alone never makes the cloth cross itself.
+            V_new, undone = _keep_self_intersections(V, V_new, F, E, step, A)
+            info["undone"] += undone
+        moved |= np.any(V_new != V, axis=1)
+        V = V_new
+        c = crossings(V, F, body.V, body.F)
+        if keep_offset:
+            last = n_near
+            near_index, near_move, n_near = near_pushes(V, F, E, body, body_E, offset, near)
+            if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last:
+                break   # only the clearance is left and it no longer improves
+    info["rounds"] = rounds
+    info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
+    info["near_after"] = n_near
+    info["moved_vertices"] = int(moved.sum())
+    info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
+                                        - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
+    if info["crossings_after"]:
+        log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
+    return V, info
+
+
+def _keep_self_intersections(V_old, V_new, F, E, step, A):
+    """Take back moves that made the garment cross itself: halve them around the new
+    self-intersections until none is new (at most a few times, then the old positions there).
+
+    Returns
+    -------
+    V : (n,3) float64
+    undone : int
+        Vertices whose move was reduced.
+    """
+    before = local_self_pairs(V_old, F, E, step)
+    undone = 0
+    for attempt in range(4):
+        after = local_self_pairs(V_new, F, E, step)
+        added = after - before
+        # Pairs are named by edge and triangle; a move that trades one for another nearby does
+        # not add a self-intersection, so the count decides.
+        if len(after) <= len(before):
+            return V_new, undone
+        edges = E[[a for a, _ in added]].ravel()
+        verts = np.unique(np.concatenate([edges, F[[b for _, b in added]].ravel()]))
+        region = np.zeros(V_new.shape[0], bool)
+        region[verts] = True
+        region |= (A @ region.astype(np.float64)) > 0
+        region &= step
+        undone += int(region.sum())
+        keep = 0.5 if attempt < 3 else 0.0
+        V_new = V_new.copy()
+        V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
+    return V_new, undone

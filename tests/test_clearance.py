@@ -1,0 +1,113 @@
+"""The crossing pass: every garment-body crossing removed (checked exactly), nothing moved without
+a crossing, folds kept, and what happens to the MakeHuman garments that cross their own body."""
+
+import json
+
+import numpy as np
+
+from lab.paths import DEMO_DATA
+from garment_transfer.clearance import largest_per_vertex, separate
+from garment_transfer.intersections import crossings, self_intersections
+from garment_transfer.mesh import mesh_from_triangles
+from garment_transfer.metrics import evaluate, mdc
+from garment_transfer.obj import read_obj
+from garment_transfer.transfer import transfer_garment
+from meshes import icosphere, require_makehuman
+
+
+def sheet(n=4, size=2.4, z=0.97):
+    """A coarse square sheet over the sphere's top: its corners are outside, the top pokes through."""
+    x, y = np.meshgrid(np.linspace(-size / 2, size / 2, n), np.linspace(-size / 2, size / 2, n))
+    V = np.stack([x.ravel(), y.ravel(), np.full(n * n, z)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    F = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    return V, F
+
+
+def test_body_poking_through_a_coarse_garment_is_removed():
+    BV, BF = icosphere(3)
+    V, F = sheet()
+    before = crossings(V, F, BV, BF)
+    assert before["b_edge_pairs"] > 0
+    assert np.all(np.linalg.norm(V, axis=1) > 1.0)   # every garment vertex outside the body
+    out, info = separate(V, F, BV, BF, offset=0.01)
+    after = crossings(out, F, BV, BF)
+    assert after["a_edge_pairs"] == after["b_edge_pairs"] == 0
+    assert info["crossings_before"] == before["a_edge_pairs"] + before["b_edge_pairs"]
+    assert info["crossings_after"] == 0
+    assert self_intersections(out, F)[0] == 0
+    # Moved outward (up), never inward.
+    assert np.all(out[:, 2] >= V[:, 2] - 1e-12)
+
+
+def test_nothing_moves_without_a_crossing():
+    BV, BF = icosphere(3)
+    V, F = sheet(z=1.2)
+    out, info = separate(V, F, BV, BF, offset=0.01)
+    assert np.array_equal(out, V)
+    assert info["crossings_before"] == info["crossings_after"] == info["rounds"] == 0
+
+
+def test_largest_per_vertex():
+    idx, mv = largest_per_vertex(np.array([3, 1, 3]), np.array([[0, 0, 1.0], [1, 0, 0], [0, 2.0, 0]]))
+    assert idx.tolist() == [1, 3]
+    assert mv.tolist() == [[1, 0, 0], [0, 2, 0]]
+
+
+def test_transfer_leaves_no_crossing_on_a_sphere():
+    V, F = icosphere(3)
+    source = mesh_from_triangles(V, F, name="source")
+    target = mesh_from_triangles(V * [1.25, 1.25, 1.0], F, name="target")
+    GV, GF = icosphere(1, radius=1.02)     # much coarser than the body: the body pokes through
+    garment = mesh_from_triangles(GV, GF, name="garment")
+    off = transfer_garment(source, target, garment, resolve_crossings=False)
+    on = transfer_garment(source, target, garment)
+    c_off = crossings(off.V, GF, target.V, target.F)
+    c_on = crossings(on.V, GF, target.V, target.F)
+    assert c_off["a_edge_pairs"] + c_off["b_edge_pairs"] > 0
+    assert c_on["a_edge_pairs"] + c_on["b_edge_pairs"] == 0
+    assert on.info["crossings_after"] == 0 and "crossings" in on.seconds
+    assert "crossings" not in off.seconds
+
+
+def test_makehuman_source_garment_crossing_its_body(tmp_path):
+    """The MakeHuman garments are partly inside their own body (vertices and edges). The transfer
+    carries those crossings to the target; the pass removes them there, and the evaluation reports
+    the source's own crossings beside the result's."""
+    root = require_makehuman()
+    names = json.loads((root / "manifest.json").read_text())
+    assert "female_casualsuit01" in names["garments"]
+    src = read_obj(root / "bodies" / "female_average.obj")
+    tgt = read_obj(root / "bodies" / "female_pear.obj")
+    garment = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
+    own = crossings(garment.V, garment.F, src.V, src.F)
+    assert own["a_edge_pairs"] > 0 and own["b_edge_pairs"] > 0
+    without = transfer_garment(src, tgt, garment, resolve_crossings=False)
+    result = transfer_garment(src, tgt, garment)
+    c0 = crossings(without.V, garment.F, tgt.V, tgt.F)
+    assert c0["a_edge_pairs"] + c0["b_edge_pairs"] > 0
+    e = evaluate(garment, garment.with_vertices(result.V), tgt)
+    assert e["garment_edges_through_body"] == e["body_edges_through_garment"] == 0
+    assert e["min_body_distance"] > 0
+    assert result.info["self_intersections_added"] <= 0
+    assert e["self_intersections"] <= self_intersections(without.V, garment.F)[0]
+    # This skin-tight suit is pushed over much of its surface: MDC grows by 14% (measured), above the
+    # 10% the pass keeps on the demo garments (next test), so the bound here is looser.
+    assert mdc(garment.V, result.V, garment.F) <= 1.2 * mdc(garment.V, without.V, garment.F)
+
+
+def test_demo_dress_crossing_the_heavy_body_keeps_its_design():
+    demo = DEMO_DATA
+    src = read_obj(demo / "bodies" / "banana.obj")
+    tgt = read_obj(demo / "bodies" / "heavy.obj")
+    garment = read_obj(demo / "garments" / "formal_dress" / "banana.obj")
+    without = transfer_garment(src, tgt, garment, resolve_crossings=False)
+    result = transfer_garment(src, tgt, garment)
+    c0 = crossings(without.V, garment.F, tgt.V, tgt.F)
+    c1 = crossings(result.V, garment.F, tgt.V, tgt.F)
+    assert c0["a_edge_pairs"] + c0["b_edge_pairs"] > 0
+    assert c1["a_edge_pairs"] + c1["b_edge_pairs"] == 0
+    assert self_intersections(result.V, garment.F)[0] <= self_intersections(without.V, garment.F)[0]
+    assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
+    assert result.info["near_after"] == 0
