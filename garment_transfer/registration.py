@@ -66,6 +66,9 @@ LIMITS = {
     "distorted": 0.02,     # share of source triangles flipped or stretched more than 4x
 }
 
+#: Points of each surface at which the fit's distances are measured.
+QUALITY_SAMPLES = 20000
+
 #: Principal-axis shape of a standing person: a target whose ratio of the two larger principal
 #: extents differs from the source's by more than this factor is refused before fitting.
 ASPECT_FACTOR = 1.6
@@ -368,8 +371,8 @@ class ArapFit:
         n = self.X0.shape[0]
         self.n = n
         self.i, self.j = _edges(self.F)
-        # Uniform weights scaled by the squared mean edge length: the regulariser and the data terms
-        # then weigh alike whatever the units.
+        # Uniform weights: the regulariser (squared edge misfits) and the data terms (squared
+        # distances) are both lengths squared, so their balance does not depend on the units.
         e0 = self.X0[self.i] - self.X0[self.j]
         self.h2 = float(np.mean(np.sum(e0 ** 2, axis=1)))
         w = np.ones(self.i.shape[0])
@@ -422,14 +425,14 @@ class ArapFit:
         Parameters
         ----------
         X : (n,3) current fit (for the rotations)
-        alpha : float, regulariser weight (per squared mean edge length)
+        alpha : float, regulariser weight (dimensionless)
         ws : (n,) weights of source-to-target pairs, C : (n,3) their target points
         Bt : (k,n) sparse barycentric rows of target-to-source pairs, wt : (k,), Pt : (k,3)
         """
         R = self.rotations(X)
         if self.similar:
             R = R * self.scales(X, R)[:, None, None]
-        a = alpha / self.h2 * 1.0
+        a = float(alpha)
         A = 2.0 * a * self.L + sp.diags(ws) + Bt.T @ sp.diags(wt) @ Bt
         rhs = 2.0 * a * self.arap_rhs(R) + ws[:, None] * C + Bt.T @ (wt[:, None] * Pt)
         # A tiny pull to the current fit keeps the matrix definite where no data term reaches.
@@ -517,7 +520,94 @@ def vertex_areas(V, F):
 
 
 #: Regulariser weights, stiff to soft, and the steps taken at each.
-SCHEDULE = ((30.0, 3), (10.0, 3), (3.0, 3), (1.0, 3), (0.3, 4))
+SCHEDULE = ((2000.0, 3), (600.0, 3), (200.0, 3), (60.0, 3), (20.0, 4))
+
+
+#: Each vertex of a landmark region counts as this many vertices, in the stages whose regulariser weight is at least LANDMARK_UNTIL.
+LANDMARK_WEIGHT = 30.0
+LANDMARK_RADIUS = 0.04
+LANDMARK_GATE = 0.02
+LANDMARK_SAMPLES = 40000
+LANDMARK_UNTIL = 200.0
+
+
+def _extremes(V, e1, e2, height, band=0.03):
+    """(6,3) ends of a body along e2 (both) and e1 (both ends, per side or in the middle); NaN rows
+    where an end has one landmark instead of two.
+
+    Each end is the centroid of the points within ``band`` of the height from the extreme: a single
+    extreme vertex is ill-defined on a flat sole or a blunt hand.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    a, b = V @ e1, V @ e2
+    tol = band * height
+
+    def end(score, mask):
+        s = np.where(mask, score, -np.inf)
+        return V[s >= s.max() - tol].mean(axis=0)
+
+    everywhere = np.ones(V.shape[0], bool)
+    pts = [end(b, everywhere), end(-b, everywhere)]
+    for score in (a, -a):
+        r, l_ = end(score, b > 0), end(score, b < 0)
+        if abs((r - l_) @ e2) < 0.1 * height:
+            # Both sides end near the midline (a head): one landmark, not two noisy ones.
+            pts += [end(score, everywhere), np.full(3, np.nan)]
+        else:
+            pts += [r, l_]
+    return np.array(pts)
+
+
+def extremity_landmarks(X, F, target_V, target_F):
+    """Matching ends of the limbs and the head, found from the shapes (both bodies in one frame).
+
+    Ends along the source's two longest principal axes: the two lateral ends (the hands in an
+    A-pose) and, at each end of the long axis, one per side (the feet) or one in the middle (the
+    top of the head).
+
+    Returns
+    -------
+    source_points : (k,3) float64
+    target_points : (k,3) float64
+    """
+    _, C, _ = surface_moments(X, F)
+    E, _ = principal_frame(C)
+    height = float(np.ptp(X @ E[:, 0]))
+    # Area-uniform points, not vertices: a body dense in the hands and face would pull its centroids.
+    s = _extremes(surface_samples(X, F, LANDMARK_SAMPLES)[0], E[:, 0], E[:, 1], height)
+    t = _extremes(surface_samples(target_V, target_F, LANDMARK_SAMPLES)[0], E[:, 0], E[:, 1], height)
+    keep = np.isfinite(s[:, 0]) & np.isfinite(t[:, 0])
+    return s[keep], t[keep]
+
+
+def _landmark_targets(X, F, target_V, target_F, height):
+    """Where the regions around the limbs' ends must go, for ends that are far from their match.
+
+    A landmark moves the region within LANDMARK_RADIUS of the height around the source extreme by
+    the extreme's offset (a hand held at another angle moves as a whole). Ends already within
+    LANDMARK_GATE of their match are left to the surface terms: measured on MakeHuman bodies of one
+    family, pulling ends that agree only adds error (the extreme is often another toe or finger).
+
+    Returns
+    -------
+    index : (k,) int64
+        Source vertices pulled.
+    points : (k,3) float64
+        Their targets.
+    """
+    ls, lt = extremity_landmarks(X, F, target_V, target_F)
+    far = np.linalg.norm(lt - ls, axis=1) > LANDMARK_GATE * height
+    tree = cKDTree(X)
+    idx, pts = [], []
+    for q, p in zip(ls[far], lt[far]):
+        group = np.asarray(tree.query_ball_point(q, LANDMARK_RADIUS * height), dtype=np.int64)
+        idx.append(group)
+        pts.append(X[group] + (p - q))
+    if not idx:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    idx, pts = np.concatenate(idx), np.concatenate(pts)
+    _, first = np.unique(idx, return_index=True)
+    return idx[first], pts[first]
 
 
 def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5, max_share=0.05,
@@ -556,6 +646,7 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
     Np = surface.face_normals[tri]
 
     X = _global_fit(X0, F, surface, P)
+    li, lp = _landmark_targets(X, F, surface.V, target_F, height)
     fit = ArapFit(X, F)
     # Each term weighs by the area it stands for: a body dense in the face and hands must not
     # let them dominate, and the two directions weigh alike.
@@ -569,7 +660,15 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
             N = _vertex_normals(X, F)
             C, ws, _ = _pairs_to_target(X, N, surface, normal_cos, max_dist)
             B, wt, _ = _pairs_from_target(X, F, P, Np, normal_cos, max_dist)
-            X = fit.solve(X, alpha, ws * wv, C, B, wt * wp, P)
+            w = ws * wv
+            if alpha >= LANDMARK_UNTIL and li.size and LANDMARK_WEIGHT > 0:
+                # Landmarks pull the limbs' ends while the fit is stiff (a limb held at another angle
+                # swings into place as a whole), then the surfaces alone decide.
+                C = C.copy()
+                C[li] = (w[li, None] * C[li] + LANDMARK_WEIGHT * lp) / (w[li, None] + LANDMARK_WEIGHT)
+                w = w.copy()
+                w[li] += LANDMARK_WEIGHT
+            X = fit.solve(X, alpha, w, C, B, wt * wp, P)
             done += 1
             if progress is not None and progress(done / total):
                 raise Cancelled("registration cancelled")
@@ -578,7 +677,7 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
 
 # --- quality ----------------------------------------------------------------------------------
 
-def fit_quality(X, F, source_X0, target_V, target_F):
+def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     """Surface distance both ways and distortion of a fit.
 
     Parameters
@@ -590,25 +689,29 @@ def fit_quality(X, F, source_X0, target_V, target_F):
     source_X0 : (n,3) float
         The source body, for the distortion figure.
     target_V, target_F : the target surface.
+    X_source_frame : (n,3) float, optional
+        The fit in the source's frame (default X): normals are compared there.
 
     Returns
     -------
     dict
-        ``to_target_mean/p95/max`` (fit vertices to the target surface), ``from_target_mean/p95/max``
-        (target vertices to the fit), each also as ``*_share`` of the target's height, and
+        ``to_target_mean/p95/max`` (points of the fit to the target surface), ``from_target_mean/p95/max``
+        (points of the target to the fit; both over area-uniform points), each also as ``*_share`` of the target's height, and
         ``distorted`` (share of triangles flipped or with an area changed more than 4x beyond the
         overall change).
     """
     height = float(np.ptp(np.asarray(target_V), axis=0).max())
-    d1 = TriangleSurface(target_V, target_F).closest(X)[1]
-    d2 = TriangleSurface(X, F).closest(target_V)[1]
+    # Area-uniform points: a surface distance, not a vertex one (a body dense in the fingers and
+    # face would otherwise be judged by them).
+    d1 = TriangleSurface(target_V, target_F).closest(surface_samples(X, F, QUALITY_SAMPLES, seed=3)[0])[1]
+    d2 = TriangleSurface(X, F).closest(surface_samples(target_V, target_F, QUALITY_SAMPLES, seed=4)[0])[1]
     q = {}
     for name, d in (("to_target", d1), ("from_target", d2)):
         for stat, v in (("mean", d.mean()), ("p95", np.quantile(d, 0.95)), ("max", d.max())):
             q[f"{name}_{stat}"] = float(v)
             q[f"{name}_{stat}_share"] = float(v / height)
     N0, a0 = triangle_normals(source_X0, F)
-    N1, a1 = triangle_normals(X, F)
+    N1, a1 = triangle_normals(X if X_source_frame is None else X_source_frame, F)
     ratio = (a1 / max(a1.sum(), 1e-300)) / np.maximum(a0 / max(a0.sum(), 1e-300), 1e-300)
     flipped = np.einsum("ij,ij->i", N0, N1) < 0.0
     stretched = (ratio > 4.0) | (ratio < 0.25)
@@ -766,7 +869,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     seconds["fit"] = time.perf_counter() - t
     t = time.perf_counter()
     V = alignment.inverse().apply(Xs)
-    quality = fit_quality(V, source.F, source.V, target.V, target.F)
+    quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs)
     quality.update({k: float(v) for k, v in info.items() if k != "snapped"})
     quality["units_snapped"] = float(info["snapped"])
     seconds["quality"] = time.perf_counter() - t
@@ -778,3 +881,82 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     if folder:
         _cache_save(folder, key, reg)
     return reg
+
+
+def same_mesh(a: Mesh, b: Mesh) -> bool:
+    """Whether two bodies are one mesh (vertex count and polygons) in two shapes."""
+    return (a.n_vertices == b.n_vertices and a.face_start.shape == b.face_start.shape
+            and a.face_vertices.shape == b.face_vertices.shape
+            and np.array_equal(a.face_start, b.face_start)
+            and np.array_equal(a.face_vertices, b.face_vertices))
+
+
+def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
+                         limits=None, registration: Registration | None = None, progress=None, **options):
+    """``transfer_garment`` onto any target body: registered first when it is another mesh.
+
+    The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
+    sees the frame and units it was trained in), kept out of the real target surface, and taken to
+    the target's frame.
+
+    Parameters
+    ----------
+    source_body, target_body, garment : Mesh
+    cache : bool or str
+        See ``register``.
+    limits : dict, optional
+        See ``register``.
+    registration : Registration, optional
+        A registration of these two bodies made earlier (skips ``register``).
+    progress : callable, optional
+        ``progress(fraction, stage)``; returning True cancels.
+    **options
+        Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
+
+    Returns
+    -------
+    result : TransferResult
+        In the target's frame; ``info["registration"]`` holds the fit's figures when one was made.
+    registration : Registration or None
+        None when the two bodies are one mesh.
+    """
+    from . import penetration
+    from .embedding import body_scale
+    from .transfer import OFFSET_SHARE, transfer_garment
+
+    if same_mesh(source_body, target_body):
+        return transfer_garment(source_body, target_body, garment, progress=progress, **options), None
+
+    def sub(lo, hi):
+        if progress is None:
+            return None
+        return lambda f, *stage: progress(lo + (hi - lo) * f, *(stage or ("register",)))
+
+    reg = registration or register(source_body, target_body, cache=cache, limits=limits,
+                                   progress=sub(0.0, 0.6))
+    options = dict(options)
+    if options.get("offset") is not None:
+        options["offset"] = options["offset"] * reg.alignment.scale
+    fitted = source_body.with_vertices(reg.V_source_frame, name=f"{source_body.name} fitted to {target_body.name}")
+    result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.95), **options)
+    t = time.perf_counter()
+    # The fitted body follows the target within the fit's residual; the cloth must clear the real one.
+    surface = TriangleSurface(reg.alignment.apply(target_body.V), target_body.F)
+    offset = options.get("offset")
+    if offset is None:
+        offset = OFFSET_SHARE * body_scale(surface.V)
+    if options.get("fix_penetration", True):
+        V, fix = penetration.fix_penetration(result.V, garment.F, surface, offset)
+        result.info["target_fix"] = fix
+        inside = fix["inside_after"]
+    else:
+        V = result.V
+        inside = int((surface.signed_distance(V)[0] < 0).sum())
+    result.V = reg.alignment.inverse().apply(V)
+    result.penetrating_vertices = inside
+    result.info["registration"] = reg.summary()
+    result.info["offset"] = float(offset / reg.alignment.scale)
+    result.seconds["register"] = float(reg.seconds.get("total", 0.0)) if not reg.cached else 0.0
+    result.seconds["target_fix"] = time.perf_counter() - t
+    result.seconds["total"] = result.seconds["total"] + result.seconds["register"] + result.seconds["target_fix"]
+    return result, reg
