@@ -54,7 +54,8 @@ log = logging.getLogger(__name__)
 ALGORITHM_VERSION = 1
 
 #: Known unit ratios: a scale ratio within UNIT_SNAP of one of these is taken to be a change of units.
-UNIT_RATIOS = tuple(sorted({f * 10.0 ** k for k in range(-4, 5) for f in (1.0, 2.54, 30.48)}))
+UNIT_RATIOS = tuple(sorted({f * 10.0 ** k for k in range(-4, 5)
+                            for f in (1.0, 2.54, 1 / 2.54, 30.48, 1 / 30.48)}))
 UNIT_SNAP = 1.25
 
 #: Limits of an acceptable fit, as shares of the target's height (a 1.7 m body: 1% = 17 mm).

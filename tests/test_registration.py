@@ -83,9 +83,10 @@ def test_alignment_recovers_scale_rotation_translation(source, scale, snapped):
 
 
 def test_units_scale_snaps_only_near_a_unit_ratio():
-    assert registration.units_scale(9.3) == (10.0, True)
-    assert registration.units_scale(1.07) == (1.0, True)
-    assert registration.units_scale(0.0254 * 0.95) == (0.0254, True)
+    assert registration.units_scale(9.3) == (pytest.approx(10.0), True)
+    assert registration.units_scale(1.07) == (pytest.approx(1.0), True)
+    assert registration.units_scale(0.0254 * 0.95) == (pytest.approx(0.0254), True)
+    assert registration.units_scale(1 / 25.4) == (pytest.approx(1 / 25.4), True)
     value, snapped = registration.units_scale(4.0)
     assert not snapped and value == 4.0
 
