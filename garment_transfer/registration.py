@@ -13,8 +13,9 @@ Stages:
    shorter. The rotation is chosen among the principal-axis frames (4 sign choices) and the 24
    axis-aligned rotations, each refined by trimmed rigid ICP; the one with the smallest two-way
    distance wins.
-2. **Global affine fit**: an affine map of the source onto the target (closest points both ways),
-   which takes care of proportions (another family of bodies).
+2. **Global similarity** of the source onto the target (closest points both ways): a taller or
+   shorter person. Then **landmarks** from the shapes (the ends of the limbs and the head) where
+   they are far from their match: a limb held at another angle.
 3. **Non-rigid ICP** with an as-rigid-as-possible regulariser (Sorkine & Alexa 2007) on the source
    graph, its weight annealed from stiff to soft. Data terms both ways: every source vertex towards
    its closest target point, and target points towards their closest point on the current fit (this
@@ -365,8 +366,7 @@ class ArapFit:
         Source triangles.
     """
 
-    def __init__(self, X0, F, similar=False):
-        self.similar = similar
+    def __init__(self, X0, F):
         self.X0 = np.asarray(X0, dtype=np.float64)
         self.F = np.asarray(F, dtype=np.int64)
         n = self.X0.shape[0]
@@ -375,7 +375,6 @@ class ArapFit:
         # Uniform weights: the regulariser (squared edge misfits) and the data terms (squared
         # distances) are both lengths squared, so their balance does not depend on the units.
         e0 = self.X0[self.i] - self.X0[self.j]
-        self.h2 = float(np.mean(np.sum(e0 ** 2, axis=1)))
         w = np.ones(self.i.shape[0])
         self.w = w
         W = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([self.i, self.j]),
@@ -402,19 +401,6 @@ class ArapFit:
             R[flip] = np.einsum("nab,nca->nbc", Vt[flip], U[flip])
         return R
 
-    def scales(self, X, R):
-        """Per-vertex scale that best maps the rotated rest edges onto the current ones (clamped)."""
-        e = X[self.i] - X[self.j]
-        num = self.w * np.einsum("kab,kb,ka->k", R[self.i], self.e0, e)
-        num_j = self.w * np.einsum("kab,kb,ka->k", R[self.j], self.e0, e)
-        den = self.w * np.sum(self.e0 ** 2, axis=1)
-        top = self.both @ np.zeros(self.i.shape[0])  # shape (n,)
-        top = np.asarray(sp.csr_matrix((np.concatenate([num, num_j]),
-                                        (np.concatenate([self.i, self.j]), np.zeros(2 * num.size, int))),
-                                       shape=(self.n, 1)).todense()).ravel()
-        bottom = np.asarray(self.both @ den).ravel()
-        return np.clip(top / np.maximum(bottom, 1e-300), 0.5, 2.0)
-
     def arap_rhs(self, R):
         Rm = 0.5 * (R[self.i] + R[self.j])
         r = self.w[:, None] * np.einsum("kab,kb->ka", Rm, self.e0)
@@ -431,8 +417,6 @@ class ArapFit:
         Bt : (k,n) sparse barycentric rows of target-to-source pairs, wt : (k,), Pt : (k,3)
         """
         R = self.rotations(X)
-        if self.similar:
-            R = R * self.scales(X, R)[:, None, None]
         a = float(alpha)
         A = 2.0 * a * self.L + sp.diags(ws) + Bt.T @ sp.diags(wt) @ Bt
         rhs = 2.0 * a * self.arap_rhs(R) + ws[:, None] * C + Bt.T @ (wt[:, None] * Pt)
@@ -484,7 +468,7 @@ def _global_fit(X, F, surface, P, iterations=10, samples=2000, trim=0.9):
     Y : (n,3) float64
         X mapped.
     """
-    Qs, tri, bary = surface_samples(X, F, samples, seed=2)
+    Qs = surface_samples(X, F, samples, seed=2)[0]
     source_surface = TriangleSurface(X, F)
     Pt = P if P.shape[0] <= samples else P[:samples]
     # A similarity, not a general affine map: measured on MakeHuman bodies, a free affine fit
@@ -528,7 +512,8 @@ SCHEDULE = ((2000.0, 3), (600.0, 3), (200.0, 3), (60.0, 3), (20.0, 3), (5.0, 3),
 COARSE_TARGET = 1.5
 COARSE_STOP = 20.0
 
-#: Each vertex of a landmark region counts as this many vertices, in the stages whose regulariser weight is at least LANDMARK_UNTIL.
+#: Each vertex of a landmark region counts as this many vertices, in the stages whose regulariser
+#: weight is at least LANDMARK_UNTIL.
 LANDMARK_WEIGHT = 30.0
 LANDMARK_RADIUS = 0.04
 LANDMARK_GATE = 0.02
@@ -707,7 +692,8 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     -------
     dict
         ``to_target_mean/p95/max`` (points of the fit to the target surface), ``from_target_mean/p95/max``
-        (points of the target to the fit; both over area-uniform points), each also as ``*_share`` of the target's height, and
+        (points of the target to the fit; both over area-uniform points), each also as ``*_share``
+        of the target's height, and
         ``distorted`` (share of triangles flipped or with an area changed more than 4x beyond the
         overall change).
     """
@@ -809,7 +795,8 @@ def _cache_load(folder, key, n):
     if V.shape != (n, 3):
         return None
     a = meta["alignment"]
-    return Registration(V, Vs, Similarity(a["scale"], np.asarray(a["rotation"]), np.asarray(a["translation"])),
+    alignment = Similarity(a["scale"], np.asarray(a["rotation"]), np.asarray(a["translation"]))
+    return Registration(V, Vs, alignment,
                         meta["quality"], meta.get("seconds", {}), cached=True)
 
 
@@ -948,7 +935,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     options = dict(options)
     if options.get("offset") is not None:
         options["offset"] = options["offset"] * reg.alignment.scale
-    fitted = source_body.with_vertices(reg.V_source_frame, name=f"{source_body.name} fitted to {target_body.name}")
+    fitted = source_body.with_vertices(reg.V_source_frame,
+                                       name=f"{source_body.name} fitted to {target_body.name}")
     result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.95), **options)
     t = time.perf_counter()
     # The fitted body follows the target within the fit's residual; the cloth must clear the real one.
@@ -969,5 +957,5 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     result.info["offset"] = float(offset / reg.alignment.scale)
     result.seconds["register"] = float(reg.seconds.get("total", 0.0)) if not reg.cached else 0.0
     result.seconds["target_fix"] = time.perf_counter() - t
-    result.seconds["total"] = result.seconds["total"] + result.seconds["register"] + result.seconds["target_fix"]
+    result.seconds["total"] += result.seconds["register"] + result.seconds["target_fix"]
     return result, reg

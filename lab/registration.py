@@ -37,7 +37,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MAKEHUMAN = next((p for p in (ROOT.parent / "shared" / "data" / "makehuman",
                               ROOT.parent.parent / "shared" / "data" / "makehuman") if p.is_dir()),
                  ROOT.parent / "shared" / "data" / "makehuman")
-DEMO = next((p for p in (ROOT / "data" / "demo", ROOT / "garment_transfer" / "demo_data") if p.is_dir()), None)
+DEMO = next((p for p in (ROOT / "data" / "demo", ROOT / "garment_transfer" / "demo_data") if p.is_dir()),
+            None)
 MM_PER_UNIT = 100.0
 SOURCE = "female_average"
 
@@ -160,7 +161,8 @@ def family_study(garments, demo_garment):
               f"{q['to_target_max_share']:.3%}/{q['from_target_max_share']:.3%}; distorted "
               f"{row['distorted']:.2%}; {wall:.1f} s", flush=True)
         for g in row["garments"]:
-            print(f"{'':>8}{g['garment']}: {g['inside']} of {g['vertices']} vertices inside the target", flush=True)
+            print(f"{'':>8}{g['garment']}: {g['inside']} of {g['vertices']} vertices inside the target",
+                  flush=True)
     return rows
 
 

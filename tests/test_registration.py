@@ -152,7 +152,8 @@ def test_another_pose_is_refused_naming_the_figure(source, tmp_path):
 
 
 def test_cache_round_trip_and_off_switch(source, pear_remeshed, pear_registration, tmp_path, monkeypatch):
-    key = registration.cache_key(source, pear_remeshed, {"schedule": [list(s) for s in registration.SCHEDULE]})
+    settings = {"schedule": [list(s) for s in registration.SCHEDULE]}
+    key = registration.cache_key(source, pear_remeshed, settings)
     registration._cache_save(str(tmp_path), key, pear_registration)
     hit = register(source, pear_remeshed, cache=str(tmp_path))
     assert hit.cached
