@@ -89,7 +89,7 @@ def cmd_transfer(args):
         return cmd_transfer_outfit(args)
     if len(args.out) != 1:
         raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
-    from .transfer import transfer_garment
+    from .registration import transfer_to_any_body
 
     args.garment, args.out = args.garment[0], args.out[0]
     inputs = [args.source_body, args.target_body, args.garment, args.model]
@@ -100,10 +100,10 @@ def cmd_transfer(args):
     garment = read_obj(args.garment)
     model = _model_for(args)
     load = time.perf_counter() - t
-    result = transfer_garment(source_body, target_body, garment, method=args.method, model=model,
-                              target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
-                              interpolate=not args.no_interpolate,
-                              resolve_crossings=not args.no_crossing_pass)
+    result, registration = transfer_to_any_body(
+        source_body, target_body, garment, cache=not args.no_cache, method=args.method, model=model,
+        target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
+        interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
     write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
@@ -112,10 +112,38 @@ def cmd_transfer(args):
     out = {"out": args.out, "method": args.method, "target": args.target,
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
            "seconds": seconds, "penetrating_vertices": result.penetrating_vertices,
-           "info": result.info}
-    _emit(args, out, [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
-                      f"{result.penetrating_vertices} inside the target body, "
-                      f"{result.seconds['total']:.3f} s (transfer)"])
+           "info": result.info, "registered": registration is not None}
+    lines = [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
+             f"{result.penetrating_vertices} inside the target body, "
+             f"{result.seconds['total']:.3f} s (transfer)"]
+    if registration is not None:
+        lines.append(_registration_line(args.source_body, args.target_body, registration))
+    _emit(args, out, lines)
+
+
+def _registration_line(source, target, reg):
+    q = reg.quality
+    return (f"registered {os.path.basename(source)} onto {os.path.basename(target)}"
+            f"{' (cached)' if reg.cached else ''}: distance to the target mean {q['to_target_mean']:.4g}, "
+            f"95% {q['to_target_p95']:.4g}, max {q['to_target_max']:.4g}; from the target mean "
+            f"{q['from_target_mean']:.4g}, 95% {q['from_target_p95']:.4g}, max {q['from_target_max']:.4g} "
+            f"(target units)")
+
+
+def cmd_register(args):
+    from .obj import read_obj, write_obj
+    from .registration import register
+
+    source_body = read_obj(args.source_body)
+    target_body = read_obj(args.target_body)
+    reg = register(source_body, target_body, cache=not args.no_cache,
+                   progress=stderr_progress("register") if args.verbose else None)
+    write_obj(args.out, source_body, reg.V,
+              header=f"Garment Transfer: {os.path.basename(args.source_body)} registered onto "
+                     f"{os.path.basename(args.target_body)}")
+    out = {"out": args.out, "source_body": args.source_body, "target_body": args.target_body,
+           "vertices": source_body.n_vertices, **reg.summary()}
+    _emit(args, out, [f"wrote {args.out}", _registration_line(args.source_body, args.target_body, reg)])
 
 
 def cmd_shapes(args):
@@ -248,7 +276,9 @@ def build_parser():
 
     t = sub.add_parser("transfer", help="move a garment from the source body onto a target body")
     t.add_argument("--source-body", required=True, help="OBJ: the body the garment is dressed on")
-    t.add_argument("--target-body", required=True, help="OBJ: the same body mesh in the target shape")
+    t.add_argument("--target-body", required=True,
+                   help="OBJ: the target body; the same mesh in another shape, or any body mesh of a "
+                        "person in a similar pose (registered automatically, any units and axes)")
     t.add_argument("--garment", required=True, action="append",
                    help="OBJ: the garment on the source body; repeat it for an outfit of several layers, "
                         "from the body out (each stays outside the ones before it)")
@@ -271,6 +301,8 @@ def build_parser():
                         "edge through the garment (exact check)")
     t.add_argument("--no-interpolate", action="store_true",
                    help="nearest body triangle only when carrying the field (the paper)")
+    t.add_argument("--no-cache", action="store_true",
+                   help="do not read or write the registration cache (see docs/registration.md)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 
@@ -284,13 +316,22 @@ def build_parser():
                    help="OBJ: the same body mesh in another shape; repeat for each shape")
     h.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
     h.add_argument("--out", required=True, help="folder to write into (made if missing)")
-    h.add_argument("--offset", type=float, default=None,
+    h.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
                    help="distance kept from the body, in the files' units (default 0.25%% of its scale)")
-    h.add_argument("--margin", type=float, default=None,
+    h.add_argument("--margin", type=number_option(float, 0.0, what="a distance"), default=None,
                    help="extra distance for every shape, so that blends of the shapes clip less")
     h.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
+
+    g = sub.add_parser("register", help="fit the source body onto any target body mesh (writes the "
+                                        "source mesh in the target's shape)")
+    g.add_argument("--source-body", required=True, help="OBJ: the source body (its mesh is kept)")
+    g.add_argument("--target-body", required=True, help="OBJ: any body mesh of a person in a similar pose")
+    g.add_argument("--out", required=True, help="OBJ to write: the source body in the target's shape")
+    g.add_argument("--no-cache", action="store_true", help="do not read or write the registration cache")
+    g.add_argument("--json", action="store_true", help="print one JSON object")
+    g.set_defaults(func=cmd_register)
 
     e = sub.add_parser("evaluate", help="quality figures of a transferred garment")
     e.add_argument("--source", required=True, help="OBJ: the garment on the source body")

@@ -36,3 +36,7 @@ class SettingError(NamedError):
 
 class Cancelled(GarmentTransferError):
     """Long work stopped because a progress callback asked for it."""
+
+
+class RegistrationError(MeshError):
+    """A body that could not be fitted onto another (another pose, a partial or non-human mesh)."""

@@ -38,13 +38,19 @@ def result_name(garment, target_body):
     return f"{garment.name}_on_{target_body.name}"
 
 
+def registered_name(source_body, target_body):
+    return f"{source_body.name}_fitted_to_{target_body.name}"
+
+
 def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
                      target_label="", offset=None, fix_penetration=True, evaluated=True,
-                     progress=None):
+                     progress=None, keep_registered=False):
     """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
 
     Reads the three objects (world space; see convert for which state), runs the core, and only
-    then creates ``<garment>_on_<target>``: a failure leaves the scene as it was.
+    then creates ``<garment>_on_<target>``: a failure leaves the scene as it was. A target body of
+    another mesh is registered first (the core's registration); with ``keep_registered`` the
+    fitted body is kept as ``<source>_fitted_to_<target>`` (``outcome.registered_body``).
 
     Returns
     -------
@@ -57,7 +63,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     """
     from ..garment_transfer.errors import MeshError, ModelError
     from ..garment_transfer.metrics import evaluate
-    from ..garment_transfer.transfer import transfer_garment
+    from ..garment_transfer.registration import transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -82,15 +88,31 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)
 
-    outcome = transfer_garment(framed(source), framed(target), framed(cloth), method=method.lower(),
-                               model=model, target=target_label or None, offset=offset,
-                               fix_penetration=fix_penetration, progress=progress)
+    outcome, registration = transfer_to_any_body(
+        framed(source), framed(target), framed(cloth), method=method.lower(), model=model,
+        target=target_label or None, offset=offset, fix_penetration=fix_penetration, progress=progress)
     outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
                                        depsgraph, evaluated, scene=context.scene,
                                        view_layer=context.view_layer)
+    outcome.registered_body = None
+    if registration is not None and keep_registered:
+        outcome.registered_body = convert.new_result_object(
+            source_body, registration.V @ frame, registered_name(source_body, target_body), depsgraph,
+            evaluated, scene=context.scene, view_layer=context.view_layer)
     return result, outcome, metrics
+
+
+def registration_text(context, outcome):
+    """One line for the panel: whether the target was registered, and the fit's residual."""
+    reg = outcome.info.get("registration")
+    if not reg:
+        return "Same mesh as the source body: no registration"
+    q = reg["quality"]
+    return (f"Registered{' (cached)' if reg.get('cached') else ''}: 95% of the distance within "
+            f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
+            f"from the target")
 
 
 class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
@@ -123,7 +145,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     target_label=settings.target_label,
                     offset=None if settings.auto_offset else settings.offset,
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
-                    progress=progress)
+                    progress=progress, keep_registered=settings.keep_registered_body)
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start
@@ -132,6 +154,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
             obj.select_set(obj == result)
         context.view_layer.objects.active = result
         settings.last_metrics = format_metrics(metrics)
+        settings.last_registration = registration_text(context, outcome)
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
         return {'FINISHED'}

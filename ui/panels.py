@@ -65,7 +65,10 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         row = sub.row()
         row.enabled = not settings.auto_offset
         row.prop(settings, "offset")
+        col.prop(settings, "keep_registered_body")
         layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
+        if settings.last_registration:
+            layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')
         layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 

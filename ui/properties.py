@@ -46,8 +46,8 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="The body the garment was made (simulated) on")
     target_body: PointerProperty(
         name="Target Body", type=bpy.types.Object, poll=is_mesh,
-        description="The body to put the garment on; for the Direct method, the same mesh as the "
-                    "source body in another shape (same vertex order and faces)")
+        description="The body to put the garment on: the source body's mesh in another shape, or any "
+                    "body mesh of a person in a similar pose (the source body is fitted onto it first)")
     garment: PointerProperty(
         name="Garment", type=bpy.types.Object, poll=is_mesh,
         description="The garment as it sits on the source body")
@@ -80,6 +80,11 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         max=1.0, soft_max=0.05, precision=4,
         description="Distance the garment keeps from the target body's surface: the cloth thickness, "
                     "at most 5% of the body's size (checked when transferring, as on the command line)")
+    keep_registered_body: BoolProperty(
+        name="Keep Fitted Body", default=False,
+        description="When the target body is another mesh, keep the source body fitted onto it as a "
+                    "new object <source>_fitted_to_<target>, for inspection")
+    last_registration: StringProperty(name="Last Registration")
     fix_penetration: BoolProperty(
         name="Fix Penetration", default=True,
         description="Push garment vertices out of the target body and spread the fix smoothly")

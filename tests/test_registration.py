@@ -1,0 +1,230 @@
+"""Registration of the source body onto target bodies of another mesh, units and axes."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from garment_transfer import registration
+from garment_transfer.errors import RegistrationError
+from garment_transfer.mesh import mesh_from_triangles
+from garment_transfer.obj import read_obj, write_obj
+from garment_transfer.proximity import TriangleSurface
+from garment_transfer.registration import Similarity, align, register, transfer_to_any_body
+from garment_transfer.transfer import transfer_garment
+from meshes import icosphere, require_makehuman
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def rotation(ax, ay, az):
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def remesh(V, F, triangles, seed=0):
+    """libigl decimation (after upsampling to go finer), vertex order shuffled."""
+    igl = pytest.importorskip("igl")
+    if triangles > F.shape[0]:
+        V, F = igl.upsample(V, F)
+    U, G = igl.decimate(V, F, triangles)[:2]
+    perm = np.random.default_rng(seed).permutation(U.shape[0])
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    return U[perm], inv[np.asarray(G)]
+
+
+@pytest.fixture(scope="module")
+def source():
+    return read_obj(require_makehuman() / "bodies" / "female_average.obj", name="female_average")
+
+
+@pytest.fixture(scope="module")
+def pear():
+    return read_obj(require_makehuman() / "bodies" / "female_pear.obj", name="female_pear")
+
+
+@pytest.fixture(scope="module")
+def pear_remeshed(pear):
+    U, G = remesh(pear.V, pear.F, 5000)
+    return mesh_from_triangles(U, G, name="female_pear_5k")
+
+
+@pytest.fixture(scope="module")
+def pear_registration(source, pear_remeshed):
+    return register(source, pear_remeshed, cache=False)
+
+
+def test_similarity_inverse_is_exact():
+    S = Similarity(2.5, rotation(0.3, -1.1, 2.0), np.array([1.0, -2.0, 0.5]))
+    P = np.random.default_rng(0).normal(size=(50, 3))
+    assert np.allclose(S.inverse().apply(S.apply(P)), P, atol=1e-12)
+
+
+@pytest.mark.parametrize("scale, snapped", [(0.6, False), (0.1, True), (25.4, True)])
+def test_alignment_recovers_scale_rotation_translation(source, scale, snapped):
+    R = rotation(0.4, 2.1, -0.7)
+    t = np.array([3.0, -1.5, 12.0])
+    moved = mesh_from_triangles(scale * source.V @ R.T + t, source.F, name="moved")
+    alignment, info = align(source, moved)
+    assert info["snapped"] == snapped
+    assert alignment.scale == pytest.approx(1.0 / scale, rel=1e-9)
+    back = alignment.apply(moved.V)
+    height = np.ptp(source.V, axis=0).max()
+    # Trimmed point-to-surface ICP converges linearly: a tenth of a millimetre on this body.
+    assert np.abs(back - source.V).max() < 1e-4 * height
+    assert np.abs(alignment.R - R.T).max() < 1e-4
+
+
+def test_units_scale_snaps_only_near_a_unit_ratio():
+    assert registration.units_scale(9.3) == (pytest.approx(10.0), True)
+    assert registration.units_scale(1.07) == (pytest.approx(1.0), True)
+    assert registration.units_scale(0.0254 * 0.95) == (pytest.approx(0.0254), True)
+    assert registration.units_scale(1 / 25.4) == (pytest.approx(1 / 25.4), True)
+    value, snapped = registration.units_scale(6.0)
+    assert not snapped and value == 6.0
+
+
+def test_registration_onto_remeshed_target_meets_the_goals(pear, pear_remeshed, pear_registration):
+    # Decimetres: 3 mm = 0.03, 8 mm = 0.08 (the goals on a 1.7 m body).
+    err = np.linalg.norm(pear_registration.V - pear.V, axis=1)
+    assert err.mean() <= 0.03
+    assert np.quantile(err, 0.95) <= 0.08
+    q = pear_registration.quality
+    assert q["from_target_p95_share"] < registration.LIMITS["p95"]
+    assert not pear_registration.cached
+
+
+def test_transfer_through_registration_is_near_the_true_target(source, pear, pear_remeshed,
+                                                               pear_registration):
+    garment = read_obj(require_makehuman() / "garments" / "female_sportsuit01" / "female_average.obj")
+    truth = transfer_garment(source, pear, garment, method="direct").V
+    result, reg = transfer_to_any_body(source, pear_remeshed, garment, registration=pear_registration,
+                                       method="direct")
+    assert reg is pear_registration
+    diff = np.linalg.norm(result.V - truth, axis=1)
+    assert diff.mean() <= 0.05          # 5 mm
+    inside = TriangleSurface(pear_remeshed.V, pear_remeshed.F).signed_distance(result.V)[0] < 0
+    assert inside.sum() == 0 == result.penetrating_vertices
+    assert "registration" in result.info
+
+
+def test_same_mesh_is_not_registered(source, pear):
+    garment = read_obj(require_makehuman() / "garments" / "female_sportsuit01" / "female_average.obj")
+    result, reg = transfer_to_any_body(source, pear, garment, method="surface")
+    assert reg is None and "registration" not in result.info
+
+
+def test_a_sphere_is_refused_naming_the_figure(source):
+    V, F = icosphere(4, radius=8.0)
+    with pytest.raises(RegistrationError, match="sphere.*aspect ratio"):
+        register(source, mesh_from_triangles(V, F, name="sphere"), cache=False)
+
+
+def arms_down(V, angle=np.radians(40)):
+    """MakeHuman (Y up, X lateral) with the arms swung down about the shoulders, blended over the
+    shoulder so that the mesh stays in one piece."""
+    V = V.copy()
+    for side in (1, -1):
+        x = side * V[:, 0]
+        w = np.clip((x - 1.3) / 0.6, 0, 1) * (V[:, 1] > 0.0)
+        a = angle * w
+        dx, dy = x - 1.5, V[:, 1] - 4.9
+        nx = 1.5 + np.cos(a) * dx + np.sin(a) * dy
+        ny = 4.9 - np.sin(a) * dx + np.cos(a) * dy
+        V[:, 0] = np.where(w > 0, side * nx, V[:, 0])
+        V[:, 1] = np.where(w > 0, ny, V[:, 1])
+    return V
+
+
+def test_another_pose_is_refused_naming_the_figure(source, tmp_path):
+    target = mesh_from_triangles(arms_down(source.V), source.F, name="arms_down")
+    with pytest.raises(RegistrationError, match=r"arms_down: registration failed: the .*(percentile|largest"
+                                                r"|stretched).*limit"):
+        register(source, target, cache=tmp_path)
+    assert list(tmp_path.iterdir()) == []       # a refused fit is not cached
+
+
+def test_cache_round_trip_and_off_switch(source, pear_remeshed, pear_registration, tmp_path, monkeypatch):
+    settings = {"schedule": [list(s) for s in registration.SCHEDULE]}
+    key = registration.cache_key(source, pear_remeshed, settings)
+    registration._cache_save(str(tmp_path), key, pear_registration)
+    hit = register(source, pear_remeshed, cache=str(tmp_path))
+    assert hit.cached
+    assert np.array_equal(hit.V, pear_registration.V)
+    assert hit.quality == pytest.approx(pear_registration.quality)
+    assert np.allclose(hit.alignment.R, pear_registration.alignment.R)
+    # Another target (one vertex moved) misses the cache.
+    V = pear_remeshed.V.copy()
+    V[0, 0] += 1e-9
+    assert registration.cache_key(source, pear_remeshed.with_vertices(V), {}) != \
+        registration.cache_key(source, pear_remeshed, {})
+    monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
+    assert registration.cache_folder() is None
+    monkeypatch.setenv("GARMENT_TRANSFER_CACHE", str(tmp_path / "c"))
+    assert registration.cache_folder() == str(tmp_path / "c")
+    monkeypatch.delenv("GARMENT_TRANSFER_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert registration.cache_folder() == str(tmp_path / "xdg" / "garment_transfer" / "registration")
+
+
+def test_cache_file_is_plain_npz(pear_registration, tmp_path):
+    registration._cache_save(str(tmp_path), "k", pear_registration)
+    with np.load(tmp_path / "k.npz", allow_pickle=False) as z:
+        assert set(z.files) == {"V", "V_source_frame", "meta"}
+        assert json.loads(str(z["meta"]))["quality"]["height"] > 0
+
+
+def run(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "garment_transfer", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600, env=env)
+
+
+def test_cli_register_and_transfer_any_target(source, pear_remeshed, tmp_path):
+    import os
+
+    # The target in metres and Z up: another family's conventions.
+    Rz = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    target = tmp_path / "pear_m_zup.obj"
+    write_obj(target, pear_remeshed.with_vertices(0.1 * pear_remeshed.V @ Rz.T + [0.5, 0.0, 0.0]))
+    env = dict(os.environ, GARMENT_TRANSFER_CACHE=str(tmp_path / "cache"), PYTHONPATH=str(ROOT))
+    src = require_makehuman() / "bodies" / "female_average.obj"
+    out = tmp_path / "fit.obj"
+    p = run("register", "--source-body", src, "--target-body", target, "--out", out, "--json", env=env)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert data["alignment"]["scale"] == 10.0 and not data["cached"]
+    fitted = read_obj(out)
+    assert fitted.n_vertices == source.n_vertices
+    assert np.array_equal(fitted.face_vertices, source.face_vertices)
+    assert np.ptp(fitted.V[:, 2]) > np.ptp(fitted.V[:, 1])      # Z up, as the target
+
+    garment = require_makehuman() / "garments" / "female_sportsuit01" / "female_average.obj"
+    result = tmp_path / "on_pear.obj"
+    p = run("transfer", "--source-body", src, "--target-body", target, "--garment", garment,
+            "--out", result, "--json", env=env)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert data["registered"] and data["info"]["registration"]["cached"]
+    assert data["penetrating_vertices"] == 0
+    assert "from_target_p95" in data["info"]["registration"]["quality"]
+    moved = read_obj(result)
+    assert np.ptp(moved.V[:, 2]) > np.ptp(moved.V[:, 1])
+
+
+def test_cli_register_refusal_writes_nothing(tmp_path):
+    sphere = tmp_path / "sphere.obj"
+    V, F = icosphere(3, radius=8.0)
+    write_obj(sphere, mesh_from_triangles(V, F))
+    out = tmp_path / "fit.obj"
+    src = require_makehuman() / "bodies" / "female_average.obj"
+    p = run("register", "--source-body", src, "--target-body", sphere, "--out", out, "--no-cache")
+    assert p.returncode == 1
+    assert "sphere.obj" in p.stderr and "aspect ratio" in p.stderr
+    assert not out.exists() and [f.name for f in tmp_path.iterdir()] == ["sphere.obj"]
