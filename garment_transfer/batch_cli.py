@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+from .cli import number_option
 from .errors import GarmentTransferError
 
 log = logging.getLogger("garment_transfer.batch")
@@ -32,11 +33,12 @@ def add_batch_arguments(p):
     g = p.add_argument_group("settings (defaults for the garments that do not set them in the catalogue)")
     g.add_argument("--method", choices=["direct", "model", "surface"])
     g.add_argument("--model", help="model file (.npz) for --method model")
-    g.add_argument("--offset", type=float, help="distance kept from the body, in the files' units")
+    g.add_argument("--offset", type=number_option(float, 0.0, what="a distance"),
+                   help="distance kept from the body, in the files' units (>= 0)")
     g.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     g.add_argument("--no-interpolate", action="store_true", help="nearest body triangle only (the paper)")
     x = p.add_argument_group("where it runs")
-    x.add_argument("--workers", type=int, default=None,
+    x.add_argument("--workers", type=number_option(int, 1, what="a whole number"), default=None,
                    help="local worker processes (default: every core; 1: in this process)")
     x.add_argument("--dask", action="store_true",
                    help="a local Dask cluster of --workers processes instead of a process pool")
