@@ -1,43 +1,51 @@
-"""Build the Blender extension zip(s): the add-on plus scipy wheels for each platform.
+"""Build the Blender extension zip(s): the add-on plus the wheels of its compiled dependencies.
 
     .venv/bin/python tools/build_extension.py                         # every platform, into dist/
     .venv/bin/python tools/build_extension.py --platform linux-x64    # one platform
 
-Blender bundles numpy but not scipy, so each platform's zip carries that platform's scipy wheel
-(downloaded with pip into build/wheels/, reused on later runs). Torch is not bundled: training asks
-the user to install it. The repository's blender_manifest.toml stays as it is: the wheels and platforms
-are written into a temporary build copy of the sources, which Blender's own extension tool
-(blender_ext.py, shipped inside the bpy module) then validates and builds with --split-platforms.
+Blender bundles numpy but not scipy (nor the other packages listed in pyproject.toml under
+``[tool.garment_transfer] bundle``), so each platform's zip carries those packages' wheels for that
+platform, one per Python that Blender runs: 3.11 (Blender 4.2 to 5.0) and 3.13 (Blender 5.1 and
+newer). Blender installs the wheel that matches its own Python. The wheels are downloaded with pip into
+build/wheels/ and reused on later runs. Torch is not bundled: training asks the user to install it. The
+repository's blender_manifest.toml stays as it is: the wheels and platforms are written into a temporary
+build copy of the sources, which Blender's own extension tool (blender_ext.py, shipped inside the bpy
+module) then validates and builds with --split-platforms.
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import importlib.metadata
 import importlib.util
 import os
 import platform as host_platform
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Blender platform -> pip --platform tags. pip extends a macOS tag to older macOS versions; Linux
-# wheels of recent scipy are manylinux_2_28 (the glibc Blender 4.2 itself needs), older ones 2014.
+# Blender platform -> pip --platform tags. pip extends a macOS tag to older macOS versions (Blender 4.2
+# itself needs macOS 11.2; scipy's arm64 wheels start at 12.0); Linux wheels of recent scipy are
+# manylinux_2_28 (the glibc Blender 4.2 itself needs), older ones 2014.
 PLATFORM_TAGS = {
     "linux-x64": ["manylinux_2_28_x86_64", "manylinux2014_x86_64"],
     "macos-arm64": ["macosx_12_0_arm64"],
-    "macos-x64": ["macosx_10_14_x86_64"],
+    "macos-x64": ["macosx_11_0_x86_64"],
     "windows-x64": ["win_amd64"],
 }
-PYTHON_VERSION = "3.11"
+# The Pythons of the Blender versions the extension supports: 4.2 LTS to 5.0 run 3.11, 5.1 and 5.2 run 3.13.
+PYTHON_VERSIONS = ("3.11", "3.13")
 
-# Top-level folders never copied into the build (the manifest's own exclusions apply afterwards).
-NOT_COPIED = {".git", ".venv", "build", "dist", "results", "wheels", "__pycache__", ".pytest_cache",
-              ".hypothesis", ".ruff_cache"}
+# Never copied into the build (the manifest's own exclusions apply afterwards): names or glob patterns.
+NOT_COPIED = (".git", ".venv*", "build", "dist", "results", "wheels", "__pycache__", ".pytest_cache",
+              ".hypothesis", ".ruff_cache", "*.egg-info")
 
 
 class BuildError(Exception):
@@ -65,11 +73,39 @@ def find_blender_ext():
     raise BuildError("blender_ext.py not found inside the bpy module")
 
 
-def download_wheel(package, version, platform, cache):
-    """The wheel of ``package==version`` for a Blender platform, from cache or downloaded by pip."""
-    folder = cache / platform
-    pattern = f"{package}-{version}-*.whl"
-    found = sorted(folder.glob(pattern))
+def bundled_packages(pyproject=None):
+    """The ``(name, version)`` pairs listed in pyproject.toml under ``[tool.garment_transfer] bundle``.
+
+    A bare name means the version installed in this Python.
+    """
+    pyproject = pyproject or ROOT / "pyproject.toml"
+    entries = tomllib.loads(pyproject.read_text(encoding="utf-8")).get("tool", {}) \
+        .get("garment_transfer", {}).get("bundle")
+    if not isinstance(entries, list) or not all(isinstance(e, str) for e in entries):
+        raise BuildError(f"{pyproject}: [tool.garment_transfer] bundle must be a list of package names "
+                         "(\"name\" or \"name==version\")")
+    packages = []
+    for entry in entries:
+        name, sep, version = (part.strip() for part in entry.partition("=="))
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name) or (sep and not version):
+            raise BuildError(f"{pyproject}: bundle entry {entry!r} is not \"name\" or \"name==version\"")
+        if not sep:
+            try:
+                version = importlib.metadata.version(name)
+            except importlib.metadata.PackageNotFoundError:
+                raise BuildError(f"{pyproject}: bundle entry {name!r} has no version and is not installed "
+                                 f"in this Python ({sys.executable}); pin it as \"{name}==<version>\"") from None
+        packages.append((name, version))
+    return packages
+
+
+def download_wheel(package, version, platform, python, cache):
+    """The wheel of ``package==version`` for a Blender platform and a Python version ("3.13"), from
+    the cache or downloaded by pip."""
+    folder = cache / platform / f"py{python}"
+    # Wheel file names spell the distribution with underscores (PEP 427).
+    pattern = f"{re.sub(r'[-_.]+', '_', package).lower()}-{version}-*.whl"
+    found = sorted(p for p in folder.glob("*.whl") if fnmatch.fnmatch(p.name.lower(), pattern))
     if found:
         return found[0]
     folder.mkdir(parents=True, exist_ok=True)
@@ -77,16 +113,18 @@ def download_wheel(package, version, platform, cache):
     # see a partial wheel.
     with tempfile.TemporaryDirectory(dir=folder, prefix=".download-") as tmp:
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--disable-pip-version-check",
-               "--only-binary=:all:", "--no-deps", "--python-version", PYTHON_VERSION, "--dest", tmp]
+               "--only-binary=:all:", "--no-deps", "--python-version", python,
+               "--implementation", "cp", "--dest", tmp]
         for tag in PLATFORM_TAGS[platform]:
             cmd += ["--platform", tag]
         cmd.append(f"{package}=={version}")
         proc = subprocess.run(cmd, capture_output=True, text=True)
-        got = sorted(Path(tmp).glob(pattern))
+        got = sorted(p for p in Path(tmp).glob("*.whl") if fnmatch.fnmatch(p.name.lower(), pattern))
         if proc.returncode != 0 or not got:
             tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-            raise BuildError(f"could not download the {package} {version} wheel for {platform} "
-                             f"(pip download needs access to PyPI): " + " | ".join(tail))
+            raise BuildError(f"could not download the {package} {version} wheel for {platform}, Python "
+                             f"{python} (pip download needs access to PyPI; a package bundled in the "
+                             "extension needs wheels for every platform and Python): " + " | ".join(tail))
         os.replace(got[0], folder / got[0].name)
     return folder / got[0].name
 
@@ -100,14 +138,20 @@ def manifest_with_wheels(text, wheels, platforms):
     return "\n".join(lines[:first_table] + added + lines[first_table:]) + "\n"
 
 
+def _not_copied(name):
+    return any(fnmatch.fnmatch(name, pattern) for pattern in NOT_COPIED)
+
+
 def stage_sources(stage, wheels, platforms):
     """Copy the add-on into the empty folder ``stage`` with the wheels and a manifest listing them."""
-    ignore_top = shutil.ignore_patterns(*NOT_COPIED)
+    def ignore(_folder, names):
+        return [n for n in names if _not_copied(n)]
+
     for entry in ROOT.iterdir():
-        if entry.name in NOT_COPIED:
+        if _not_copied(entry.name):
             continue
         if entry.is_dir():
-            shutil.copytree(entry, stage / entry.name, ignore=ignore_top)
+            shutil.copytree(entry, stage / entry.name, ignore=ignore)
         else:
             shutil.copy2(entry, stage / entry.name)
     (stage / "wheels").mkdir()
@@ -125,18 +169,20 @@ def run_blender_ext(blender_ext, *args):
     return proc.stdout
 
 
-def build(platforms, output_dir, cache, scipy_version=None, log=print):
+def build(platforms, output_dir, cache, log=print):
     """Build one zip per platform into ``output_dir``; return their paths."""
     unknown = [p for p in platforms if p not in PLATFORM_TAGS]
     if unknown:
         raise BuildError(f"unknown platform(s) {unknown}; choose from {sorted(PLATFORM_TAGS)}")
-    version = scipy_version or importlib.metadata.version("scipy")
+    packages = bundled_packages()
     blender_ext = find_blender_ext()
     wheels = []
     for platform in platforms:
-        wheel = download_wheel("scipy", version, platform, cache)
-        log(f"{platform}: {wheel.name}")
-        wheels.append(wheel)
+        for python in PYTHON_VERSIONS:
+            for package, version in packages:
+                wheel = download_wheel(package, version, platform, python, cache)
+                log(f"{platform}, Python {python}: {wheel.name}")
+                wheels.append(wheel)
     output_dir.mkdir(parents=True, exist_ok=True)
     before = {p: p.stat().st_mtime_ns for p in output_dir.glob("*.zip")}
     with tempfile.TemporaryDirectory(prefix="garment_transfer_build_") as stage:
@@ -158,12 +204,10 @@ def main(argv=None):
     parser.add_argument("--output-dir", type=Path, default=ROOT / "dist")
     parser.add_argument("--wheel-cache", type=Path, default=ROOT / "build" / "wheels",
                         help="where downloaded wheels are kept between builds")
-    parser.add_argument("--scipy-version", default=None,
-                        help="scipy version to bundle (default: the one installed here)")
     args = parser.parse_args(argv)
     try:
         build(args.platform or sorted(PLATFORM_TAGS), args.output_dir.resolve(),
-              args.wheel_cache.resolve(), args.scipy_version)
+              args.wheel_cache.resolve())
     except BuildError as exc:
         print(f"build_extension: {exc}", file=sys.stderr)
         return 1

@@ -16,10 +16,10 @@ import bpy
 import numpy as np
 import pytest
 
-from lab.paths import SHARED_MAKEHUMAN
+from lab.paths import SHARED_MAKEHUMAN, makehuman_folder
 
 ROOT = Path(__file__).resolve().parents[2]
-MAKEHUMAN = SHARED_MAKEHUMAN
+MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN
 GARMENT = "female_sportsuit01"
 
 sys.path.insert(0, str(ROOT / "scripts"))

@@ -8,8 +8,12 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from lab.demo import run_demo
+
+# The lab runs its Blender scripts in the project's own Blender (5.0) only: tools/run.sh runs these there.
+pytestmark = pytest.mark.lab
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -1,8 +1,9 @@
-"""The built extension zip: its contents, and installed into a fresh Blender user folder, it enables,
-transfers with the scipy it bundles, and disables cleanly.
+"""The built extension zip: its contents, and installed into a fresh Blender user folder (of the
+Blender this test runs under: 4.2 LTS to 5.2), it enables, transfers with the scipy it bundles, and
+disables cleanly.
 
-Building needs the scipy wheel for this platform: the first build downloads it from PyPI into
-build/wheels/ (kept for later runs); without network and without that cache the test fails and says so.
+Building needs the bundled packages' wheels for this platform: the first build downloads them from PyPI
+into build/wheels/ (kept for later runs); without network and without that cache the test fails and says so.
 """
 
 from __future__ import annotations
@@ -19,6 +20,11 @@ from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "tools"))
 
+# The Pythons Blender runs: 3.11 (4.2 LTS to 5.0) and 3.13 (5.1, 5.2).
+PYTHONS = [(3, 11), (3, 13)]
+# Bundled packages whose module is named otherwise.
+IMPORT_NAMES = {"libigl": "igl"}
+
 INSTALL_AND_TRANSFER = r"""
 import json, os, sys
 import bpy, addon_utils
@@ -31,7 +37,10 @@ out = {"enabled": "bl_ext.user_default.garment_transfer" in bpy.context.preferen
 
 # Use the scipy the extension installed, not the one of the Python running this test.
 bundled = os.path.join(os.environ["BLENDER_USER_RESOURCES"], "extensions", ".local", "lib",
-                       "python3.11", "site-packages")
+                       "python%d.%d" % sys.version_info[:2], "site-packages")
+out["installed"] = sorted(n for n in os.listdir(bundled) if n.endswith(".dist-info"))
+out["libraries"] = sorted(n for _, _, files in os.walk(bundled) for n in files
+                          if ".cpython-" in n or ".abi3." in n or n.endswith(".pyd"))
 sys.path.insert(0, bundled)
 for name in [m for m in sys.modules if m == "scipy" or m.startswith("scipy.")]:
     del sys.modules[name]
@@ -73,6 +82,9 @@ out["transfer"] = sorted(bpy.ops.garment_transfer.transfer())
 out["result"] = s.result.name
 import scipy
 out["scipy"] = scipy.__file__
+out["modules"] = {}
+for name, module in json.loads(os.environ["BUNDLED_MODULES"]).items():
+    out["modules"][name] = __import__(module).__file__
 addon_utils.disable("bl_ext.user_default.garment_transfer")
 out["settings_after_disable"] = hasattr(bpy.types.Scene, "garment_transfer")
 out["operator_after_disable"] = hasattr(bpy.types, "GARMENT_TRANSFER_OT_transfer")
@@ -95,16 +107,36 @@ def built_zip(tmp_path_factory):
     return zip_path
 
 
-def test_zip_holds_the_add_on_and_one_scipy_wheel(built_zip):
-    from build_extension import current_platform
+def wheel_pythons(wheel):
+    """The CPython versions ((3, 11), (3, 13)) of the two Blender Pythons a wheel file installs on."""
+    python_tag, abi_tag = wheel.rsplit("/", 1)[-1][:-4].split("-")[-3:-1]
+    built_for = (int(python_tag[2]), int(python_tag[3:]))
+    if abi_tag == "abi3":           # the stable ABI: this Python and every later one
+        return {p for p in PYTHONS if p >= built_for}
+    return {built_for} & set(PYTHONS)
+
+
+def test_zip_holds_the_add_on_and_the_bundled_wheels_for_each_python(built_zip):
+    from build_extension import bundled_packages, current_platform
 
     with zipfile.ZipFile(built_zip) as zf:
         names = zf.namelist()
         manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
     assert manifest["id"] == "garment_transfer" and manifest["version"] == "0.1.0"
-    assert manifest["platforms"] == [current_platform()]
-    (wheel,) = manifest["wheels"]
-    assert wheel.startswith("./wheels/scipy-") and wheel[2:] in names
+    assert manifest["blender_version_min"] == "4.2.0"
+    assert manifest["build"]["generated"]["platforms"] == [current_platform()]
+    wheels = manifest["build"]["generated"]["wheels"]
+    assert all(w.startswith("./wheels/") and w[2:] in names for w in wheels)
+    assert sorted(n for n in names if n.startswith("wheels/")) == sorted(w[2:] for w in wheels)
+    # Every bundled package has exactly one wheel for each of Blender's Pythons, and nothing else.
+    packages = bundled_packages()
+    assert {name for name, _ in packages} >= {"scipy"}
+    for name, version in packages:
+        mine = [w for w in wheels if w.rsplit("/", 1)[-1].lower().startswith(f"{name.lower()}-{version}-")]
+        covered = [p for w in mine for p in wheel_pythons(w)]
+        assert sorted(covered) == sorted(PYTHONS), (name, mine)
+    assert len(wheels) == sum(1 for w in wheels for name, version in packages
+                              if w.rsplit("/", 1)[-1].lower().startswith(f"{name.lower()}-{version}-"))
     for needed in ("__init__.py", "operators/transfer.py", "operators/convert.py", "ui/panels.py",
                    "garment_transfer/transfer.py", "scripts/batch_transfer.py"):
         assert needed in names
@@ -115,18 +147,31 @@ def test_zip_holds_the_add_on_and_one_scipy_wheel(built_zip):
                    "scripts", "wheels"}, top
     assert not any("__pycache__" in n or n.endswith(".obj") or n.endswith(".npz") for n in names)
     assert not any("numpy" in n or "torch" in n for n in names)
+    # Nothing of the development set-up either.
+    assert not any(".venv" in n or ".egg-info" in n or n.startswith(("build/", "dist/")) for n in names)
     # The repository's manifest stays without the build's wheels.
     assert "wheels" not in tomllib.loads((ROOT / "blender_manifest.toml").read_text())
 
 
 def test_installed_zip_enables_transfers_and_disables(built_zip, tmp_path):
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
+    from build_extension import bundled_packages
+
+    # The module each bundled package is imported as (libigl -> igl).
+    modules = {name: IMPORT_NAMES.get(name, name) for name, _ in bundled_packages()}
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"), BUNDLED_MODULES=json.dumps(modules))
     proc = subprocess.run([sys.executable, "-c", INSTALL_AND_TRANSFER, str(built_zip)],
                           capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT")]
     assert proc.returncode == 0 and lines, proc.stdout[-3000:] + proc.stderr[-3000:]
     out = json.loads(lines[-1][len("RESULT"):])
     assert out["enabled"]
+    # Only the wheels of this Blender's Python were installed, one of each bundled package.
+    here = "cpython-%d%d" % sys.version_info[:2]
+    assert sorted(d.split("-")[0].lower() for d in out["installed"]) == sorted(n.lower() for n in modules), \
+        out["installed"]
+    assert out["libraries"] and all(here in n or ".abi3." in n for n in out["libraries"]), out["libraries"]
     assert out["transfer"] == ["FINISHED"] and out["result"] == "cape_on_wide"
     assert out["scipy"].startswith(str(tmp_path / "user"))
+    for name, path in out["modules"].items():
+        assert path.startswith(str(tmp_path / "user")), (name, path)
     assert not out["settings_after_disable"] and not out["operator_after_disable"]

@@ -16,6 +16,9 @@ from lab.bench import tube_dress
 from garment_transfer.mesh import mesh_from_polygons
 from garment_transfer.obj import write_obj
 
+# The lab runs its Blender scripts in the project's own Blender (5.0) only: tools/run.sh runs these there.
+pytestmark = pytest.mark.lab
+
 SCRIPT = "lab.blender.render_demo"
 TARGETS = ["wide", "narrow"]
 GARMENT = "dress"
