@@ -41,13 +41,14 @@ def edge_operator(n, F):
     return sp.csr_matrix((vals, (rows, cols)), shape=(2 * m, n))
 
 
-def anchor_weight_for(V, F, stiffness_length):
+def anchor_weight_for(V, F, stiffness_length, edge_length=None):
     """The weight ``lam`` at which the anchors decide shape features longer than ``stiffness_length``.
 
     The gradient term behaves like ``h^-2`` times a Dirichlet energy per unit area for a mesh of edge
     length ``h``, and the anchor term like ``lam h^-2``; they balance at wavelength ``h / sqrt(lam)``.
+    ``edge_length``: the mesh's ``edge_lengths_mean``, if known.
     """
-    h = edge_lengths_mean(V, F)
+    h = edge_lengths_mean(V, F) if edge_length is None else edge_length
     return float((h / stiffness_length) ** 2)
 
 
