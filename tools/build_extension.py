@@ -1,10 +1,10 @@
-"""Build the Blender extension zip(s): the add-on plus scipy wheels for each platform.
+"""Build the Blender extension zip(s): the add-on plus scipy and libigl wheels for each platform.
 
     .venv/bin/python tools/build_extension.py                         # every platform, into dist/
     .venv/bin/python tools/build_extension.py --platform linux-x64    # one platform
 
-Blender bundles numpy but not scipy, so each platform's zip carries that platform's scipy wheel
-(downloaded with pip into build/wheels/, reused on later runs). Torch is not bundled: training asks
+Blender bundles numpy but not scipy or libigl, so each platform's zip carries that platform's
+wheels of both (downloaded with pip into build/wheels/, reused on later runs). Torch is not bundled: training asks
 the user to install it. The repository's blender_manifest.toml stays as it is: the wheels and platforms
 are written into a temporary build copy of the sources, which Blender's own extension tool
 (blender_ext.py, shipped inside the bpy module) then validates and builds with --split-platforms.
@@ -27,10 +27,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # Blender platform -> pip --platform tags. pip extends a macOS tag to older macOS versions; Linux
 # wheels of recent scipy are manylinux_2_28 (the glibc Blender 4.2 itself needs), older ones 2014.
+# Intel macOS: Blender 4.2 needs macOS 11.2; libigl's wheels need 10.15, scipy's 10.14.
 PLATFORM_TAGS = {
     "linux-x64": ["manylinux_2_28_x86_64", "manylinux2014_x86_64"],
     "macos-arm64": ["macosx_12_0_arm64"],
-    "macos-x64": ["macosx_10_14_x86_64"],
+    "macos-x64": ["macosx_11_0_x86_64"],
     "windows-x64": ["win_amd64"],
 }
 PYTHON_VERSION = "3.11"
@@ -130,13 +131,15 @@ def build(platforms, output_dir, cache, scipy_version=None, log=print):
     unknown = [p for p in platforms if p not in PLATFORM_TAGS]
     if unknown:
         raise BuildError(f"unknown platform(s) {unknown}; choose from {sorted(PLATFORM_TAGS)}")
-    version = scipy_version or importlib.metadata.version("scipy")
+    bundled = [("scipy", scipy_version or importlib.metadata.version("scipy")),
+               ("libigl", importlib.metadata.version("libigl"))]
     blender_ext = find_blender_ext()
     wheels = []
     for platform in platforms:
-        wheel = download_wheel("scipy", version, platform, cache)
-        log(f"{platform}: {wheel.name}")
-        wheels.append(wheel)
+        for package, version in bundled:
+            wheel = download_wheel(package, version, platform, cache)
+            log(f"{platform}: {wheel.name}")
+            wheels.append(wheel)
     output_dir.mkdir(parents=True, exist_ok=True)
     before = {p: p.stat().st_mtime_ns for p in output_dir.glob("*.zip")}
     with tempfile.TemporaryDirectory(prefix="garment_transfer_build_") as stage:

@@ -29,11 +29,11 @@ assert bpy.ops.extensions.package_install_files(
     filepath=zip_path, repo="user_default", enable_on_install=True) == {'FINISHED'}
 out = {"enabled": "bl_ext.user_default.garment_transfer" in bpy.context.preferences.addons}
 
-# Use the scipy the extension installed, not the one of the Python running this test.
+# Use the scipy and libigl the extension installed, not those of the Python running this test.
 bundled = os.path.join(os.environ["BLENDER_USER_RESOURCES"], "extensions", ".local", "lib",
                        "python3.11", "site-packages")
 sys.path.insert(0, bundled)
-for name in [m for m in sys.modules if m == "scipy" or m.startswith("scipy.")]:
+for name in [m for m in sys.modules if m.split(".")[0] in ("scipy", "igl")]:
     del sys.modules[name]
 
 
@@ -73,6 +73,8 @@ out["transfer"] = sorted(bpy.ops.garment_transfer.transfer())
 out["result"] = s.result.name
 import scipy
 out["scipy"] = scipy.__file__
+import igl
+out["igl"] = igl.__file__
 addon_utils.disable("bl_ext.user_default.garment_transfer")
 out["settings_after_disable"] = hasattr(bpy.types.Scene, "garment_transfer")
 out["operator_after_disable"] = hasattr(bpy.types, "GARMENT_TRANSFER_OT_transfer")
@@ -95,7 +97,7 @@ def built_zip(tmp_path_factory):
     return zip_path
 
 
-def test_zip_holds_the_add_on_and_one_scipy_wheel(built_zip):
+def test_zip_holds_the_add_on_and_its_scipy_and_libigl_wheels(built_zip):
     from build_extension import current_platform
 
     with zipfile.ZipFile(built_zip) as zf:
@@ -103,8 +105,9 @@ def test_zip_holds_the_add_on_and_one_scipy_wheel(built_zip):
         manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
     assert manifest["id"] == "garment_transfer" and manifest["version"] == "0.1.0"
     assert manifest["platforms"] == [current_platform()]
-    (wheel,) = manifest["wheels"]
-    assert wheel.startswith("./wheels/scipy-") and wheel[2:] in names
+    scipy_wheel, igl_wheel = manifest["wheels"]
+    assert scipy_wheel.startswith("./wheels/scipy-") and scipy_wheel[2:] in names
+    assert igl_wheel.startswith("./wheels/libigl-") and igl_wheel[2:] in names
     for needed in ("__init__.py", "operators/transfer.py", "operators/convert.py", "ui/panels.py",
                    "garment_transfer/transfer.py", "scripts/batch_transfer.py"):
         assert needed in names
@@ -126,4 +129,5 @@ def test_installed_zip_enables_transfers_and_disables(built_zip, tmp_path):
     assert out["enabled"]
     assert out["transfer"] == ["FINISHED"] and out["result"] == "cape_on_wide"
     assert out["scipy"].startswith(str(tmp_path / "user"))
+    assert out["igl"].startswith(str(tmp_path / "user"))
     assert not out["settings_after_disable"] and not out["operator_after_disable"]
