@@ -12,10 +12,10 @@ normal at a corner. This is exact for closed meshes and degrades gracefully on o
 sockets, neck holes): a point is judged by the surface nearest to it, not by ray parity or a
 winding number that a hole would spoil.
 
-Where the closest point lies on an edge or a corner, several triangles hold it; the one whose
-centroid is nearest to the query point is returned (then the lowest index), so the answer does not
-depend on the tree's layout: a moved or rotated scene gives the same triangles, and a binding made
-on them carries the same way.
+Where the closest point lies on an edge or a corner, several triangles hold it; the one with the
+lowest index is returned, so the answer does not depend on the tree's layout: a moved or rotated
+scene gives the same triangles (a binding made on them carries the same way), and the points of
+one corner region all get one triangle.
 
 Queries limited to a band around the surface (``within=``) stop searching as soon as no box is
 nearer than the band, which makes them several times cheaper for points far from the mesh: the
@@ -69,9 +69,9 @@ def closest_on_triangles(P, A, B, C):
         return np.divide(num, den, out=np.zeros_like(num), where=den != 0)
 
     denom = va + vb + vc
-    v = ratio(vb, denom)
-    w = ratio(vc, denom)
-    bary = np.stack([1.0 - v - w, v, w], axis=1)
+    # Inside the face all three are >= 0 but for rounding: clipped, so coordinates never go negative.
+    bary = np.stack([ratio(va, denom), ratio(vb, denom), ratio(vc, denom)], axis=1).clip(0.0, None)
+    bary /= np.where(bary.sum(axis=1) > 0, bary.sum(axis=1), 1.0)[:, None]
     # Regions in reverse order of precedence: each later rule overrides the earlier ones.
     rules = []
     m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
@@ -259,12 +259,12 @@ class TriangleSurface:
 
     def _canonical(self, P, tri, bary):
         """Among the triangles holding the closest point (on an edge or corner of ``tri``), the one
-        whose centroid is nearest to P, then the lowest index."""
+        with the lowest index."""
         if self._fans is None:
             order = np.argsort(self.F.reshape(-1), kind="stable")
             ptr = np.searchsorted(self.F.reshape(-1)[order], np.arange(self.V.shape[0] + 1))
-            self._fans = ptr, order // 3, self.V[self.F].mean(axis=1)
-        ptr, fan, centroid = self._fans
+            self._fans = ptr, order // 3
+        ptr, fan = self._fans
         corners = self.F[tri]
         held = bary > 0.0
         v = corners[np.arange(tri.shape[0]), np.argmax(bary, axis=1)]
@@ -277,9 +277,8 @@ class TriangleSurface:
             # Every vertex that holds the closest point must be a corner of the candidate.
             has = (cf == corners[:, j, None, None]).any(axis=2)
             ok &= has | ~held[:, j, None]
-        d = np.linalg.norm(centroid[cand] - P[:, None], axis=2)
-        d[~ok] = np.inf
-        return cand[np.arange(tri.shape[0]), np.argmin(d, axis=1)]
+        # Fans list their triangles in increasing order: the first one allowed is the lowest.
+        return cand[np.arange(tri.shape[0]), np.argmax(ok, axis=1)]
 
     def normals_at(self, tri, bary):
         """Pseudonormals at surface points given by triangle and barycentric coordinates.
