@@ -112,7 +112,7 @@ def spread_displacement(A, fixed, displacement, decay_rings):
 BOUNDED_MIN = 4096
 
 
-def signed_distance_near(surface: TriangleSurface, V, band):
+def signed_distance_near(surface: TriangleSurface, V, band, graph=None):
     """Signed distances, measured exactly where they are below ``band`` or negative.
 
     Vertices farther outside than ``band`` get ``+inf`` (and NaN closest points and normals); a
@@ -123,6 +123,9 @@ def signed_distance_near(surface: TriangleSurface, V, band):
     surface : TriangleSurface
     V : (n,3) float
     band : float
+    graph : (n,n) sparse, optional
+        The vertices' adjacency: the side of far vertices is then decided per connected group
+        (see ``TriangleSurface.signed_distance``).
 
     Returns
     -------
@@ -132,7 +135,7 @@ def signed_distance_near(surface: TriangleSurface, V, band):
     """
     if V.shape[0] < BOUNDED_MIN:
         return surface.signed_distance(V)[:3]
-    sd, closest, normal, _ = surface.signed_distance(V, within=band)
+    sd, closest, normal, _ = surface.signed_distance(V, within=band, graph=graph)
     # Deep inside (beyond the band) is rare and must be measured: the push needs its surface point.
     deep = np.isneginf(sd)
     if deep.any():
@@ -161,8 +164,8 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
     edge_length : float, optional
         The garment's mean edge length, if known (``mesh.edge_lengths_mean``).
     adjacency : (n,n) sparse, or a callable returning it, optional
-        The garment's ``vertex_adjacency``, if known; a callable is called (and the graph built)
-        only when something must move.
+        The garment's ``vertex_adjacency``, if known. With it, the side of the vertices far from
+        the body is decided per connected group of them instead of per vertex.
 
     Returns
     -------
@@ -176,10 +179,10 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
     h = edge_lengths_mean(V, F) if edge_length is None else float(edge_length)
     decay = (spread_length / h) if spread_length else 10.0
     band = offset + 2 * h
-    sd, closest, normal = signed_distance_near(surface, V, band)
+    A = adjacency() if callable(adjacency) else adjacency
+    sd, closest, normal = signed_distance_near(surface, V, band, A)
     info = {"inside_before": int((sd < 0).sum()), "pushed_vertices": int((sd < offset).sum())}
     done = 0
-    A = adjacency
     for done in range(1, rounds + 1):
         bad = sd < offset
         if not bad.any():
@@ -188,8 +191,6 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
         if done < rounds:
             if A is None:
                 A = vertex_adjacency(V.shape[0], F)
-            elif callable(A):
-                A = A()
             D = spread_displacement(A, bad, target - V[bad], decay)
             moved = np.any(D != 0, axis=1)
             V[moved] += D[moved]

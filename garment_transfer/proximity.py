@@ -306,7 +306,15 @@ class TriangleSurface:
             N[on_corner] = vertex[self.F[tri[on_corner], j]]
         return N
 
-    def signed_distance(self, P, within=None):
+    def inside(self, P):
+        """(p,) bool: P inside the surface by the generalised winding number (> 1/2), which small
+        holes do not spoil away from them. For points off the surface; P : (p,3) float."""
+        P = _check_points(P)
+        if P.shape[0] == 0:
+            return np.zeros(0, bool)
+        return igl.fast_winding_number(self.V, self.F, P) > 0.5
+
+    def signed_distance(self, P, within=None, graph=None):
         """Signed distance of P to the surface: negative inside.
 
         Parameters
@@ -314,9 +322,13 @@ class TriangleSurface:
         P : (p,3) float
         within : float, optional
             Points farther than this from the surface are not measured: their distance is
-            ``+inf`` outside and ``-inf`` inside (the side from the generalised winding number,
-            which a small hole does not spoil far from it), their closest point and normal NaN and
-            their triangle -1.
+            ``+inf`` outside and ``-inf`` inside (the side from ``inside``), their closest point
+            and normal NaN and their triangle -1.
+        graph : (p,p) sparse, optional
+            Edges between the points (a garment's vertex adjacency), with ``within``. Two far
+            points joined by an edge no longer than ``2 * within`` are on one side (the surface
+            would have to pass within ``within`` of one of them), so the side of far points is
+            decided once per connected group, by the majority of up to 32 of its points.
 
         Returns
         -------
@@ -335,11 +347,34 @@ class TriangleSurface:
             N[near] = self.normals_at(tri[near], bary[near])
             side = np.einsum("ij,ij->i", P[near] - closest[near], N[near])
             sd[near] = np.where(side < 0, -dist[near], dist[near])
-        far = ~near
-        if far.any():
-            inside = igl.fast_winding_number(self.V, self.F, np.ascontiguousarray(P[far])) > 0.5
+        far = np.flatnonzero(~near)
+        if far.size:
+            inside = self._far_inside(P, far, within, graph)
             sd[far] = np.where(inside, -np.inf, np.inf)
         return sd, closest, N, tri
+
+    def _far_inside(self, P, far, within, graph, votes=32):
+        if graph is None or within is None:
+            return self.inside(P[far])
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import connected_components
+
+        G = sp.csr_matrix(graph)[far][:, far].tocoo()
+        short = np.linalg.norm(P[far[G.row]] - P[far[G.col]], axis=1) <= 2.0 * within
+        H = sp.coo_matrix((np.ones(int(short.sum())), (G.row[short], G.col[short])),
+                          shape=(far.size, far.size))
+        count, label = connected_components(H, directed=False)
+        order = np.argsort(label, kind="stable")
+        start = np.searchsorted(label[order], np.arange(count + 1))
+        size = np.diff(start)
+        # Up to ``votes`` points spread over each group.
+        k = np.minimum(size, votes)
+        group = np.repeat(np.arange(count), k)
+        rank = np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)
+        pick = order[start[group] + (rank * size[group]) // k[group]]
+        vote = self.inside(P[far[pick]])
+        share = np.bincount(group, weights=vote, minlength=count) / k
+        return (share > 0.5)[label]
 
 
 def _vertex_pseudonormals(V, F, face_normals):

@@ -236,3 +236,19 @@ def test_fix_penetration_same_with_and_without_the_bounded_search(monkeypatch):
         outs.append(penetration.fix_penetration(V, sheet.F, surface, offset=0.01))
     np.testing.assert_allclose(outs[0][0], outs[1][0], atol=1e-12)
     assert outs[0][1] == outs[1][1]
+
+
+def test_far_sides_by_groups_equal_the_winding_number_of_each_point():
+    # A wavy sheet through the sphere: far parts inside and outside, joined through the band.
+    body_V, body_F = icosphere(3)
+    sheet = grid(60, 60, size=3.0, wave=0.05)
+    V = sheet.V - [1.5, 1.2, 0.1]
+    A = penetration.vertex_adjacency(V.shape[0], sheet.F)
+    s = TriangleSurface(body_V, body_F)
+    each = s.signed_distance(V, within=0.05)[0]
+    grouped = s.signed_distance(V, within=0.05, graph=A)[0]
+    assert (each == -np.inf).sum() > 100 and (each == np.inf).sum() > 100
+    np.testing.assert_array_equal(grouped, each)
+    np.testing.assert_array_equal(np.isneginf(each), convex_inside(V, body_V, body_F) & np.isinf(each))
+    out, info = penetration.fix_penetration(V, sheet.F, s, offset=0.01, adjacency=A)
+    assert info["inside_after"] == 0 and (s.signed_distance(out)[0] < 0).sum() == 0
