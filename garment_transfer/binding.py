@@ -50,8 +50,7 @@ def bind(points, body_V, body_F, surface=None) -> Binding:
     """
     surface = surface or TriangleSurface(body_V, body_F)
     points = np.asarray(points, dtype=np.float64)
-    # The anchor only needs a good surface point, not the provably closest one: 8 candidates.
-    closest, dist, tri, bary = surface.closest(points, k=8)
+    closest, dist, tri, bary = surface.closest(points)
     X, _ = triangle_frames(body_V, body_F[tri])
     Xinv, det = inverse_3x3(X)
     local = np.einsum("pij,pj->pi", Xinv, points - closest)

@@ -122,7 +122,7 @@ def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
     ids, moves, count = [], [], 0
     lo, hi = V.min(axis=0) - near, V.max(axis=0) + near
     # Garment vertex - body triangle.
-    sd, closest, normal, _ = body.signed_distance(V, k=8)
+    sd, closest, normal, _ = body.signed_distance(V)
     close = np.flatnonzero(sd < near)
     count += close.size
     ids.append(close)
@@ -131,7 +131,7 @@ def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
     bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
     if bv.size:
         cloth = TriangleSurface(V, F)
-        _, d, tri, _ = cloth.closest(body.V[bv], k=8)
+        _, d, tri, _ = cloth.closest(body.V[bv])
         k = d < near
         count += int(k.sum())
         n = body.vertex_normals[bv[k]]

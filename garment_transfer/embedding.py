@@ -178,6 +178,54 @@ def unembed_interpolated(B, body_F, n_body, triangle, bary, cloth_F):
     -------
     C : (T,3,3) float64
     """
-    Bv = vertex_field(B, body_F, n_body)
-    Cv = np.einsum("pk,pkij->pij", bary, Bv[body_F[triangle]])
-    return Cv[cloth_F].mean(axis=1)
+    W = interpolation_matrix(body_F, n_body, triangle, bary, cloth_F)
+    return unembed_with_matrix(B, body_F, W)
+
+
+def interpolation_matrix(body_F, n_body, triangle, bary, cloth_F):
+    """The linear map of ``unembed_interpolated`` from body vertex values to garment triangles.
+
+    It depends only on where the garment is bound, so a garment computes it once and applies it to
+    the field of every target (``unembed_with_matrix``).
+
+    Parameters
+    ----------
+    body_F : (M,3) int
+    n_body : int
+    triangle : (nc,) int
+    bary : (nc,3) float
+    cloth_F : (T,3) int
+
+    Returns
+    -------
+    W : (T, n_body) scipy.sparse.csr_matrix
+        Rows sum to 1.
+    """
+    import scipy.sparse as sp
+
+    nc = triangle.shape[0]
+    # Garment vertex -> body vertices (its barycentric weights), then garment triangle -> its corners.
+    P = sp.csr_matrix((np.asarray(bary, dtype=np.float64).reshape(-1),
+                       (np.repeat(np.arange(nc), 3), body_F[triangle].reshape(-1))), shape=(nc, n_body))
+    T = cloth_F.shape[0]
+    M = sp.csr_matrix((np.full(3 * T, 1.0 / 3.0), (np.repeat(np.arange(T), 3), cloth_F.reshape(-1))),
+                      shape=(T, nc))
+    return (M @ P).tocsr()
+
+
+def unembed_with_matrix(B, body_F, W):
+    """The garment field from a body field through an ``interpolation_matrix``.
+
+    Parameters
+    ----------
+    B : (M,3,3) float
+        Field on the body triangles.
+    body_F : (M,3) int
+    W : (T, n_body) sparse
+
+    Returns
+    -------
+    C : (T,3,3) float64
+    """
+    Bv = vertex_field(B, body_F, W.shape[1])
+    return np.asarray(W @ Bv.reshape(-1, 9)).reshape(-1, 3, 3)

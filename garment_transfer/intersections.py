@@ -430,8 +430,8 @@ def minimum_distance(V_a, F_a, V_b, F_b, check_crossings=True):
     used_a = np.unique(F_a.reshape(-1))
     used_b = np.unique(F_b.reshape(-1))
     # An upper bound from nearby candidates, then every primitive pair within it, exactly.
-    best = float(min(TriangleSurface(V_b, F_b).closest(V_a[used_a], k=8)[1].min(),
-                     TriangleSurface(V_a, F_a).closest(V_b[used_b], k=8)[1].min()))
+    best = float(min(TriangleSurface(V_b, F_b).closest(V_a[used_a])[1].min(),
+                     TriangleSurface(V_a, F_a).closest(V_b[used_b])[1].min()))
     if best == 0.0:
         return 0.0
     best = min(best, _point_triangle_min(V_a[used_a], V_b, F_b, best),

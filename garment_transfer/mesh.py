@@ -206,10 +206,13 @@ def triangle_normals(V, F):
     return N, 0.5 * dbl
 
 
-def degenerate_triangles(V, F):
-    """(m,) bool: triangles whose area is negligible for the mesh's scale."""
+def degenerate_triangles(V, F, edge_length=None):
+    """(m,) bool: triangles whose area is negligible for the mesh's scale.
+
+    ``edge_length``: the mesh's ``edge_lengths_mean``, if known.
+    """
     _, area = triangle_normals(V, F)
-    h = edge_lengths_mean(V, F)
+    h = edge_lengths_mean(V, F) if edge_length is None else edge_length
     return 2.0 * area <= DEGENERATE_AREA * max(h, 1e-300) ** 2
 
 

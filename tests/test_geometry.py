@@ -131,13 +131,15 @@ def test_binding_carries_points_exactly_under_a_similarity():
     np.testing.assert_allclose(carry(b, 2.0 * V + 1.0, F), 2.0 * P + 1.0, atol=1e-12)
 
 
-def test_closest_in_chunks_equals_one_batch(monkeypatch):
+def test_closest_on_threads_equals_one_piece(monkeypatch):
     import garment_transfer.proximity as proximity
 
     V, F = icosphere(2)
     P = np.random.default_rng(5).normal(size=(1000, 3))
+    monkeypatch.setattr(proximity, "THREAD_MIN", 10**9)
     whole = TriangleSurface(V, F).closest(P)
-    monkeypatch.setattr(proximity, "BATCH", 128)
+    monkeypatch.setattr(proximity, "THREAD_MIN", 128)
+    monkeypatch.setattr(proximity, "THREADS", 3)
     parts = TriangleSurface(V, F).closest(P)
     for a, b in zip(whole, parts):
         np.testing.assert_array_equal(a, b)

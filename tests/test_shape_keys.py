@@ -71,8 +71,10 @@ def test_transfer_to_shapes_gives_positions_per_shape(keyed):
     for k in KEYS:
         assert np.array_equal(positions[k], fit.keys[k])
         assert info[k]["penetrating_vertices"] == 0
+    # The margin is added to the distance the penetration fix keeps (the crossing pass, which may move
+    # single vertices a little closer to remove an edge crossing, is left out to see it exactly).
     margin = fit_shape_keys(basis, {"female_pear": shapes["female_pear"]}, garment, prepared=prepared,
-                            margin=0.02)
+                            margin=0.02, resolve_crossings=False)
     d = TriangleSurface(shapes["female_pear"], basis.F).signed_distance(margin.keys["female_pear"])[0]
     assert d.min() > fit.info["female_pear"]["offset"] + 0.02 - 1e-6
 
