@@ -128,7 +128,7 @@ def unpack(out, packed=PACKED, demo=DEMO_DATA):
 
 
 def main(argv=None):
-    from lab.procedural.garments import EXTRA_GARMENTS
+    from .procedural.garments import EXTRA_GARMENTS
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("command", choices=["generate", "pack", "unpack"])
