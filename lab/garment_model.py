@@ -8,9 +8,9 @@ Parts (``--parts``, default all):
   mean latent), the garment fit model with anchors everywhere and with contact anchors, without the
   target label, without the garment's distance and direction, and the held-out garment's own
   embedded deformation with contact anchors (the ceiling of any body field here).
-* ``unseen_body``: one target body (``--unseen``) is left out of training; the test garments go to it
-  with label weights read from its shape (between the training bodies), against the same model
-  trained with that body.
+* ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
+  test garments go to it with label weights read from its shape (between the training bodies), against
+  the same model trained on every target.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
 
@@ -34,7 +34,8 @@ from garment_transfer.garment_training import train_garment_model, training_tabl
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
-from .experiment import GARMENT_EPOCHS, METHODS, run_experiment
+from . import experiment
+from .experiment import METHODS, run_experiment
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
 DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
@@ -72,10 +73,10 @@ def demo_part(args, say):
     train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
     test = list(ds.manifest["test_garments"])
     say(f"demo: {len(train)} training garments, {len(test)} test garments, targets {args.targets}")
-    res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], DEMO_METHODS,
+    res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], args.methods,
                          args.epochs, seed=args.seed, threads=args.threads,
                          progress=lambda f, s: say(f"demo: {s}"))
-    text, table = summarise(res["rows"], DEMO_METHODS, "simulation", args.targets)
+    text, table = summarise(res["rows"], args.methods, "simulation", args.targets)
     return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text,
             "train": train, "test": test}
 
@@ -89,9 +90,9 @@ def unseen_body_part(args, say):
     body = ds.body(args.unseen)
     rows, info = [], {}
     for with_it in (True, False):
-        targets = [t for t in ds.manifest["targets"] if with_it or t != args.unseen]
+        targets = [t for t in args.targets if with_it or t != args.unseen]
         tables = training_tables(ds, source, targets, train)
-        model, tinfo = train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=args.seed,
+        model, tinfo = train_garment_model(tables, targets, epochs=experiment.GARMENT_EPOCHS, seed=args.seed,
                                            threads=args.threads)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
         info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
@@ -112,7 +113,7 @@ def unseen_body_part(args, say):
                 e.update(garment=g, target=args.unseen, method=key if with_it or key == "direct"
                          else "garment_contact_unseen")
                 rows.append(e)
-    bodies = np.stack([ds.body(t).V for t in ds.manifest["targets"] if t != args.unseen])
+    bodies = np.stack([ds.body(t).V for t in args.targets if t != args.unseen])
     info["shape_weights_of_unseen"] = label_weights(body.V, bodies).tolist()
 
     def mean(m, k):
@@ -136,11 +137,12 @@ def makehuman_part(args, say):
     ds = load_dataset(folder)
     held = args.makehuman_garments or ds.garments
     folds = [([g for g in ds.garments if g != h], [h]) for h in held]
-    res = run_experiment(folder, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS), folds, MH_METHODS, args.epochs,
+    methods = [m for m in args.methods if m in MH_METHODS]
+    res = run_experiment(folder, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS), folds, methods, args.epochs,
                          reference="fitted", seed=args.seed, threads=args.threads,
                          progress=lambda f, s: say(f"makehuman: {s}"))
     # Decimetres: vertex errors in mm are 100 x.
-    text, table = summarise(res["rows"], MH_METHODS, "fitted", list(MAKEHUMAN_TARGETS), scale=100.0)
+    text, table = summarise(res["rows"], methods, "fitted", list(MAKEHUMAN_TARGETS), scale=100.0)
     return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text, "held_out": held}
 
 
@@ -152,12 +154,18 @@ def main(argv=None):
     ap.add_argument("--extra", default="", help="extra training garments of --data, comma-separated")
     ap.add_argument("--unseen", default="hourglass")
     ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
+    ap.add_argument("--methods", default=",".join(DEMO_METHODS),
+                    help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
     ap.add_argument("--epochs", type=int, default=300, help="epochs of the paper's shared model")
+    ap.add_argument("--garment-epochs", type=int, default=experiment.GARMENT_EPOCHS,
+                    help="passes over the samples of the garment fit model")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     args.targets = args.targets.split(",")
+    args.methods = args.methods.split(",")
+    experiment.GARMENT_EPOCHS = args.garment_epochs
     args.extra = [g for g in args.extra.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
     t0 = time.perf_counter()
@@ -173,7 +181,7 @@ def main(argv=None):
             print(f"\n== {part}\n{out[part]['text']}\n", flush=True)
         if args.json:
             write_json_atomic(args.json, out)
-    for key in DEMO_METHODS:
+    for key in args.methods:
         print(f"{key:26s} {METHODS[key].label}")
     return 0
 
