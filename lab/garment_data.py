@@ -45,7 +45,7 @@ def generate(work, garments, say):
     say("running " + " ".join(cmd))
     log = Path(work) / "log.txt"
     Path(work).mkdir(parents=True, exist_ok=True)
-    with open(log, "w") as fh:
+    with open(log, "a") as fh:      # appended: a later run for more garments keeps the earlier ones packable
         return subprocess.call(cmd, stdout=fh, stderr=subprocess.STDOUT)
 
 
