@@ -73,6 +73,9 @@ def check_offset(offset, target_body: Mesh, what="offset") -> float | None:
                                  f"{target_body.name} ({limit:.4g} in its units): it is the cloth "
                                  "thickness kept from the skin, not a way to move the garment")
     return value
+CONTACT_SHARE = 0.012         # "contact" anchoring: closer than this rests on the body (~2 cm)
+FREE_SHARE = 1.0              # ... and farther than twice that is placed by the field up to this length
+ANCHORINGS = ("everywhere", "contact")
 
 
 @dataclass
@@ -116,6 +119,7 @@ class PreparedGarment:
     edge_length: float = 0.0
     degenerate: np.ndarray | None = None
     embed_matrix: object = None
+    anchoring: str = "everywhere"
     _adjacency: object = field(default=None, repr=False)
 
     def adjacency(self):
@@ -145,8 +149,45 @@ def _check_placement(source_body: Mesh, garment: Mesh, surface: TriangleSurface,
                         f"under {INSIDE_SHARE:.0%}). Is it moved, turned or dressed on another body?")
 
 
+def anchor_weights(garment: Mesh, distance, scale, stiffness, anchoring="everywhere", contact=None,
+                   edge_length=None):
+    """Per-vertex weights of the Poisson solve's anchors.
+
+    ``everywhere``: every vertex is tied weakly to where the body carries it (shape features longer
+    than ``stiffness`` follow the body). ``contact``: only vertices resting on the body (closer than
+    ``contact``) are tied so; from ``contact`` to twice that the tie fades to one that only decides
+    features longer than the body itself, so a hanging skirt's shape is the field's, not the body's.
+
+    Parameters
+    ----------
+    garment : Mesh
+    distance : (n,) float
+        Each vertex's distance from the source body.
+    scale, stiffness : float
+        The body scale and the stiffness length.
+    anchoring : {"everywhere", "contact"}
+    contact : float, optional
+        Default ``CONTACT_SHARE * scale``.
+    edge_length : float, optional
+        The garment's mean edge length, when known.
+
+    Returns
+    -------
+    w : float or (n,) float64
+    """
+    lam = anchor_weight_for(garment.V, garment.F, stiffness, edge_length)
+    if anchoring == "everywhere":
+        return lam
+    if anchoring != "contact":
+        raise ValueError(f"anchoring must be one of {', '.join(ANCHORINGS)}, got {anchoring!r}")
+    contact = CONTACT_SHARE * scale if contact is None else float(contact)
+    free = anchor_weight_for(garment.V, garment.F, FREE_SHARE * scale, edge_length)
+    resting = np.clip(2.0 - np.asarray(distance, dtype=np.float64) / contact, 0.0, 1.0)
+    return free + (lam - free) * resting
+
+
 def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiffness=None,
-                    need_solver=True) -> PreparedGarment:
+                    need_solver=True, anchoring="everywhere", contact=None) -> PreparedGarment:
     """The target-independent part of a transfer: embedding, binding, Poisson factor.
 
     Parameters
@@ -162,7 +203,13 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         about 8 cm on a 1.7 m body).
     need_solver : bool
         False skips the factorisation (for the ``surface`` method).
+    anchoring : {"everywhere", "contact"}
+        Where the garment is tied to the body (``anchor_weights``).
+    contact : float, optional
+        For ``contact``: the distance under which the garment rests on the body.
     """
+    if anchoring not in ANCHORINGS:
+        raise ValueError(f"anchoring must be one of {', '.join(ANCHORINGS)}, got {anchoring!r}")
     seconds = {}
     t = time.perf_counter()
     h = edge_lengths_mean(garment.V, garment.F)
@@ -184,16 +231,21 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     solver = None
     if need_solver:
         t = time.perf_counter()
-        length = (stiffness if stiffness else STIFFNESS_SHARE * body_scale(source_body.V))
-        solver = PoissonSolver(garment.V, garment.F, anchor_weight_for(garment.V, garment.F, length, h),
-                               triangle_weights=(~degenerate).astype(np.float64))
+        scale = body_scale(source_body.V)
+        length = stiffness if stiffness else STIFFNESS_SHARE * scale
+        w = anchor_weights(garment, binding.distance, scale, length, anchoring, contact, edge_length=h)
+        solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64))
         seconds["factor"] = time.perf_counter() - t
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
-                           edge_length=h, degenerate=degenerate, embed_matrix=matrix)
+                           edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring)
 
 
-def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None):
+def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None,
+               garment: Mesh | None = None):
     """The deformation gradient field on the source body's triangles for a method.
+
+    A model with ``conditions_on_garment`` (``garment_model.GarmentFitModel``) predicts the field of
+    ``garment`` itself, for any target body; the shared model gives one field per target label.
 
     Returns
     -------
@@ -205,6 +257,8 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
         if model is None:
             raise ModelError("model", "the model method needs a model file (--model)")
         model.check_source_body(source_body)
+        if getattr(model, "conditions_on_garment", False):
+            return model.body_field(target, garment=garment, source_body=source_body, target_body=target_body)
         if target is None:
             raise ModelError(getattr(model, "name", "model"),
                              f"say which target to transfer to; the model knows {', '.join(model.targets)}")
@@ -214,8 +268,8 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
 
 def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, method="direct",
                      model=None, target=None, offset=None, fix_penetration=True, interpolate=True,
-                     stiffness=None, prepared: PreparedGarment | None = None, progress=None,
-                     resolve_crossings=True):
+                     stiffness=None, prepared: PreparedGarment | None = None, anchoring="everywhere",
+                     progress=None, resolve_crossings=True):
     """Transfer ``garment`` from ``source_body`` to ``target_body``.
 
     Parameters
@@ -235,7 +289,10 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     stiffness : float, optional
         See ``prepare_garment``.
     prepared : PreparedGarment, optional
-        Reuse the embedding, binding and factor of an earlier call for this garment.
+        Reuse the embedding, binding and factor of an earlier call for this garment (its anchoring
+        is used).
+    anchoring : {"everywhere", "contact"}
+        See ``prepare_garment``: ``contact`` lets the field shape what does not rest on the body.
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels (raises Cancelled).
     resolve_crossings : bool
@@ -260,12 +317,12 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     step(0.0, "field")
     if method != "surface":
         t = time.perf_counter()
-        B = body_field(source_body, target_body, method, model, target)
+        B = body_field(source_body, target_body, method, model, target, garment)
         seconds["field"] = time.perf_counter() - t
     step(0.15, "prepare")
     if prepared is None:
         prepared = prepare_garment(source_body, garment, interpolate=interpolate, stiffness=stiffness,
-                                   need_solver=method != "surface")
+                                   need_solver=method != "surface", anchoring=anchoring)
         seconds.update(prepared.seconds)
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
@@ -292,7 +349,8 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     if offset is None:
         offset = OFFSET_SHARE * body_scale(target_body.V)
     info = {"method": method, "target": target, "offset": float(offset),
-            "interpolate": bool(interpolate), "fix_penetration": bool(fix_penetration)}
+            "interpolate": bool(interpolate), "fix_penetration": bool(fix_penetration),
+            "anchoring": prepared.anchoring}
     if fix_penetration:
         V, fix_info = penetration.fix_penetration(V, garment.F, surface, offset,
                                                   edge_length=prepared.edge_length,

@@ -17,6 +17,7 @@ import numpy as np
 from garment_transfer.dataset import build_training_fields, load_dataset
 from garment_transfer.gradients import deformation_gradients
 from garment_transfer.metrics import evaluate
+from garment_transfer.garment_training import train_garment_model, training_tables
 from garment_transfer.training import train_model
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -40,6 +41,8 @@ class Method:
         ``how``), or ``"oracle"``: the held-out garment's own embedded deformation.
     interpolate, fix_penetration : bool
         ``transfer_garment``'s options.
+    anchoring : str
+        ``transfer_garment``'s: ``everywhere`` or ``contact``.
     """
 
     key: str
@@ -49,10 +52,16 @@ class Method:
     field: str = "mean_latent"
     interpolate: bool = True
     fix_penetration: bool = True
+    anchoring: str = "everywhere"
 
 
-#: Training variants: ``train_model`` keyword arguments.
-VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]}}
+#: Training variants: ``train_model`` keyword arguments, or (``garment_model``) those of
+#: ``train_garment_model``.
+VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]},
+            "garment": {"garment_model": True}, "garment_nolabel": {"garment_model": True, "use_label": False},
+            "garment_blind": {"garment_model": True, "garment_inputs": False}}
+#: Passes over the samples of the garment model, whatever ``epochs`` the shared model gets.
+GARMENT_EPOCHS = 6
 
 #: Every method the lab compares, by key.
 METHODS = {m.key: m for m in (
@@ -70,6 +79,18 @@ METHODS = {m.key: m for m in (
            "model", "hidden", field="mean_decoded"),
     Method("oracle", "The held-out garment's own embedded deformation (the best a body field can do here)",
            "model", "ours", field="oracle"),
+    Method("direct_contact", "Direct deformation transfer, anchored only where the garment rests on the body",
+           "direct", anchoring="contact"),
+    Method("oracle_contact", "The held-out garment's own embedded deformation, contact anchors", "model",
+           "ours", field="oracle", anchoring="contact"),
+    Method("garment", "Garment fit model (garment + target features, label), anchors everywhere", "model",
+           "garment"),
+    Method("garment_contact", "Garment fit model, anchored only where the garment rests on the body", "model",
+           "garment", anchoring="contact"),
+    Method("garment_nolabel_contact", "Garment fit model without the target label (body features only), "
+           "contact anchors", "model", "garment_nolabel", anchoring="contact"),
+    Method("garment_blind_contact", "Garment fit model without the garment's distance and direction, contact "
+           "anchors", "model", "garment_blind", anchoring="contact"),
 )}
 
 
@@ -117,7 +138,7 @@ def field_rms(Q, true_dev, covered):
 
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
-    if method.field == "mean_latent":
+    if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
         return model
     if method.field != "oracle":
         return _FixedField(model, lambda t: model.body_field(t, how=method.field))
@@ -198,9 +219,21 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     rows, trainings = [], []
     for i, (train, test) in enumerate(folds):
         part = fields.select(train) if variants else None
-        models = {}
+        models, tables = {}, None
         for v in variants:
             curve = []
+            if VARIANTS[v].get("garment_model"):
+                options = {k: x for k, x in VARIANTS[v].items() if k != "garment_model"}
+                tables = tables or training_tables(ds, source, targets, list(train), fields=part)
+                model, info = train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed,
+                                                  threads=threads, **options)
+                model.metadata["dataset"] = dataset_info
+                models[v] = model
+                trainings.append({"fold": i, "test": list(test), "variant": v, "masked": True,
+                                  "seconds": info["seconds"], "epochs": info["epochs"], "samples": info["samples"],
+                                  "final_loss": info["losses"][-1], "curve": [[e + 1, None, x] for e, x in
+                                                                              enumerate(info["losses"])]})
+                continue
             model, info = train_model(part, epochs=epochs, seed=seed, threads=threads,
                                       progress=curve_recorder(curve), **VARIANTS[v])
             model.metadata["dataset"] = dataset_info
@@ -216,10 +249,11 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         for g in test:
             garment = ds.garment(g, source)
             prepared, prep_seconds = {}, {}
-            for interp in sorted({m.interpolate for m in methods if m.kind != "external"}, reverse=True):
+            for key in sorted({(m.interpolate, m.anchoring) for m in methods if m.kind != "external"},
+                              reverse=True):
                 t = time.perf_counter()
-                prepared[interp] = prepare_garment(source_body, garment, interpolate=interp)
-                prep_seconds[interp] = time.perf_counter() - t
+                prepared[key] = prepare_garment(source_body, garment, interpolate=key[0], anchoring=key[1])
+                prep_seconds[key] = time.perf_counter() - t
             gi = fields.garments.index(g) if fields is not None and g in fields.garments else None
             for b in targets:
                 body = bodies[b]
@@ -244,15 +278,19 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                             add(m.key, got[0], got[1], seconds_reused=got[2])
                         continue
                     model, Q = None, None
+                    key = (m.interpolate, m.anchoring)
                     if m.kind == "model":
                         model = _field_source(m, models[m.variant], fields, gi, targets)
-                        Q = model.body_field(b) if field_error else None
+                        if field_error and getattr(model, "conditions_on_garment", False):
+                            Q = model.body_field(b, garment, source_body, body)
+                        elif field_error:
+                            Q = model.body_field(b)
                     elif m.kind == "direct":
                         Q = body_fields.get(b)
                     r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
-                                         prepared=prepared[m.interpolate], interpolate=m.interpolate,
+                                         prepared=prepared[key], interpolate=m.interpolate,
                                          fix_penetration=m.fix_penetration)
-                    add(m.key, r.V, prep_seconds[m.interpolate] + r.seconds["total"], Q=Q,
+                    add(m.key, r.V, prep_seconds[key] + r.seconds["total"], Q=Q,
                         seconds_reused=r.seconds["total"],
                         stages={s: v for s, v in r.seconds.items() if s != "total"})
         step((i + 1) / len(folds), f"fold {i + 1}/{len(folds)} evaluated")

@@ -430,7 +430,31 @@ def _smooth_boundary(V, Q, iterations=10):
 
 # --------------------------------------------------------------------------- catalogue
 
-def _catalogue():
+def _fitted(build, fit, name, *args, ease=None, flare=None, leg_flare=None, **kwargs):
+    """Call a garment builder with its ease and flare changed for a fit variant."""
+    defaults = {tube_garment: 0.015, shell_garment: 0.02, trousers_garment: 0.018}
+    ease = defaults[build] if ease is None else ease
+    key = "leg_flare" if build is trousers_garment else "flare"
+    spread = (leg_flare if build is trousers_garment else flare) or 0.0
+    if fit in FITS:
+        add_ease, grow, add_flare = FITS[fit]
+        ease = max(ease + add_ease, 0.006)
+        spread = ((lambda f: lambda t: grow * f(t) + add_flare * t)(spread) if callable(spread)
+                  else max(grow * spread + add_flare, 0.0))
+        name = f"{name}_{fit}"
+    return build(name, *args, ease=ease, **{key: spread}, **kwargs)
+
+
+def _catalogue(fit="regular"):
+    def tube(*a, **k):
+        return _fitted(tube_garment, fit, *a, **k)
+
+    def shell(*a, **k):
+        return _fitted(shell_garment, fit, *a, **k)
+
+    def trousers(*a, **k):
+        return _fitted(trousers_garment, fit, *a, **k)
+
     H = PRESETS["banana"].height
     waist = 0.625 * H
     hip = 0.50 * H
@@ -440,49 +464,63 @@ def _catalogue():
                                * np.clip((z0 - P[:, 2]) / 0.3, 0, 1))
     return {
         # 15 basic styles for training.
-        "straight_skirt": lambda: tube_garment("straight_skirt", waist, knee + 0.04, 72, 34, ease=0.012,
+        "straight_skirt": lambda: tube("straight_skirt", waist, knee + 0.04, 72, 34, ease=0.012,
                                                flare=0.03),
-        "aline_skirt": lambda: tube_garment("aline_skirt", waist, knee, 80, 36, flare=0.22),
-        "circle_skirt": lambda: tube_garment("circle_skirt", waist, knee + 0.10, 120, 30,
+        "aline_skirt": lambda: tube("aline_skirt", waist, knee, 80, 36, flare=0.22),
+        "circle_skirt": lambda: tube("circle_skirt", waist, knee + 0.10, 120, 30,
                                              flare=lambda t: 0.9 * t + 0.8 * t * t),
-        "pleated_skirt": lambda: tube_garment("pleated_skirt", waist, knee + 0.05, 144, 34, flare=0.12,
+        "pleated_skirt": lambda: tube("pleated_skirt", waist, knee + 0.05, 144, 34, flare=0.12,
                                               detail=_pleats(24, 0.022, start=0.12)),
-        "mini_skirt": lambda: tube_garment("mini_skirt", waist - 0.03, 0.43 * H, 72, 18, flare=0.15),
-        "maxi_skirt": lambda: tube_garment("maxi_skirt", waist, 0.07 * H, 96, 50, flare=0.16),
-        "tiered_skirt": lambda: tube_garment("tiered_skirt", waist, knee - 0.05, 128, 44, flare=0.08,
+        "mini_skirt": lambda: tube("mini_skirt", waist - 0.03, 0.43 * H, 72, 18, flare=0.15),
+        "maxi_skirt": lambda: tube("maxi_skirt", waist, 0.07 * H, 96, 50, flare=0.16),
+        "tiered_skirt": lambda: tube("tiered_skirt", waist, knee - 0.05, 128, 44, flare=0.08,
                                              detail=_tiers(3, 0.035, 36, 0.008)),
-        "flounce_skirt": lambda: tube_garment("flounce_skirt", waist, knee - 0.04, 128, 40, flare=0.05,
+        "flounce_skirt": lambda: tube("flounce_skirt", waist, knee - 0.04, 128, 40, flare=0.05,
                                               detail=_flounce(0.72, 0.09, 18, 0.03)),
-        "gathered_skirt": lambda: tube_garment("gathered_skirt", waist, knee, 144, 38, flare=0.15,
+        "gathered_skirt": lambda: tube("gathered_skirt", waist, knee, 144, 38, flare=0.15,
                                                detail=_gathers(40, 0.01, start=0.05)),
-        "tube_dress": lambda: tube_garment("tube_dress", bust_top, knee + 0.02, 96, 56, ease=0.012,
+        "tube_dress": lambda: tube("tube_dress", bust_top, knee + 0.02, 96, 56, ease=0.012,
                                            flare=0.05, follow_body_to=hip, pin_rows=2),
-        "slip_dress": lambda: tube_garment("slip_dress", bust_top, 0.22 * H, 96, 56, ease=0.015,
+        "slip_dress": lambda: tube("slip_dress", bust_top, 0.22 * H, 96, 56, ease=0.015,
                                            flare=0.28, follow_body_to=0.68 * H, pin_rows=2),
-        "tank_top": lambda: shell_garment("tank_top", 0.52 * H, sleeve=0.0, ease=0.02),
-        "sweater": lambda: shell_garment("sweater", 0.49 * H, sleeve=0.40, ease=0.03, neck=0.08),
-        "trousers": lambda: trousers_garment("trousers", waist - 0.02, 0.05 * H, rows_leg=44,
+        "tank_top": lambda: shell("tank_top", 0.52 * H, sleeve=0.0, ease=0.02),
+        "sweater": lambda: shell("sweater", 0.49 * H, sleeve=0.40, ease=0.03, neck=0.08),
+        "trousers": lambda: trousers("trousers", waist - 0.02, 0.05 * H, rows_leg=44,
                                              leg_flare=0.04),
-        "culottes": lambda: trousers_garment("culottes", waist - 0.02, knee - 0.02, rows_leg=26,
+        "culottes": lambda: trousers("culottes", waist - 0.02, knee - 0.02, rows_leg=26,
                                              leg_flare=0.25),
+        # More basic styles, for training only.
+        "pencil_skirt": lambda: tube("pencil_skirt", waist, knee + 0.02, 72, 34, ease=0.008, flare=0.0),
+        "drop_waist_skirt": lambda: tube("drop_waist_skirt", hip + 0.04, knee - 0.06, 96, 30, flare=0.3),
+        "box_pleat_skirt": lambda: tube("box_pleat_skirt", waist, knee + 0.02, 120, 34, flare=0.1,
+                                        detail=_pleats(12, 0.03, start=0.05)),
+        "midi_skirt": lambda: tube("midi_skirt", waist, 0.20 * H, 96, 44, flare=0.2),
+        "crop_top": lambda: shell("crop_top", 0.60 * H, sleeve=0.08, ease=0.02),
+        "long_sleeve_top": lambda: shell("long_sleeve_top", 0.51 * H, sleeve=0.5, ease=0.022),
+        "tunic": lambda: shell("tunic", 0.42 * H, sleeve=0.1, ease=0.03, flare=0.15),
+        "bermudas": lambda: trousers("bermudas", waist - 0.02, 0.33 * H, rows_leg=18, leg_flare=0.06),
+        "wide_trousers": lambda: trousers("wide_trousers", waist - 0.02, 0.05 * H, rows_leg=44,
+                                          leg_flare=0.3),
+        "bandeau_dress": lambda: tube("bandeau_dress", bust_top, 0.36 * H, 96, 44, ease=0.012,
+                                      flare=0.12, follow_body_to=hip + 0.05, pin_rows=2),
         # 5 complex styles for testing (named as in the paper).
-        "shift_dress": lambda: shell_garment("shift_dress", knee + 0.03, sleeve=0.0, ease=0.03,
+        "shift_dress": lambda: shell("shift_dress", knee + 0.03, sleeve=0.0, ease=0.03,
                                              flare=0.10, front_dip=0.05,
                                              detail=wave(12, 0.006, hip)),
-        "formal_dress": lambda: tube_garment("formal_dress", bust_top, 0.06 * H, 112, 64, ease=0.012,
+        "formal_dress": lambda: tube("formal_dress", bust_top, 0.06 * H, 112, 64, ease=0.012,
                                              flare=lambda t: 0.08 * t + 0.3 * np.maximum(t - 0.45, 0),
                                              follow_body_to=waist - 0.05, pin_rows=2,
                                              detail=_sum(_flounce(0.78, 0.12, 22, 0.035),
                                                          _gathers(30, 0.006, start=0.3))),
-        "wrap_dress": lambda: shell_garment("wrap_dress", knee - 0.02, sleeve=0.12, ease=0.025,
+        "wrap_dress": lambda: shell("wrap_dress", knee - 0.02, sleeve=0.12, ease=0.025,
                                             flare=0.22, front_dip=0.14,
                                             detail=lambda P: 0.01 * np.sin(
                                                 14 * np.arctan2(P[:, 0], -P[:, 1]) + 9 * P[:, 2])
                                             * np.clip((waist - P[:, 2]) / 0.2, 0, 1)),
-        "shorts": lambda: trousers_garment("shorts", waist - 0.02, 0.40 * H, rows_top=12, rows_leg=12,
+        "shorts": lambda: trousers("shorts", waist - 0.02, 0.40 * H, rows_top=12, rows_leg=12,
                                            n_around=80, leg_flare=0.12,
                                            detail=_cuff_pleats(0.40 * H)),
-        "tshirt": lambda: shell_garment("tshirt", 0.50 * H, sleeve=0.16, ease=0.025, neck=0.09),
+        "tshirt": lambda: shell("tshirt", 0.50 * H, sleeve=0.16, ease=0.025, neck=0.09),
     }
 
 
@@ -502,6 +540,12 @@ TRAIN_GARMENTS = ("straight_skirt", "aline_skirt", "circle_skirt", "pleated_skir
                   "maxi_skirt", "tiered_skirt", "flounce_skirt", "gathered_skirt", "tube_dress",
                   "slip_dress", "tank_top", "sweater", "trousers", "culottes")
 TEST_GARMENTS = ("shift_dress", "formal_dress", "wrap_dress", "shorts", "tshirt")
+EXTRA_STYLES = ("pencil_skirt", "drop_waist_skirt", "box_pleat_skirt", "midi_skirt", "crop_top",
+                "long_sleeve_top", "tunic", "bermudas", "wide_trousers", "bandeau_dress")
+#: Fit variants of the training styles: (ease added, flare multiplied, flare added per metre).
+FITS = {"loose": (0.025, 1.6, 0.05), "tight": (-0.008, 0.4, 0.0)}
+#: Training garments beyond the demo's: loose and tight variants of its 15 styles, 10 more styles.
+EXTRA_GARMENTS = tuple(f"{g}_{f}" for g in TRAIN_GARMENTS for f in FITS) + EXTRA_STYLES
 
 
 def garment(name) -> Garment:
@@ -510,11 +554,16 @@ def garment(name) -> Garment:
     Parameters
     ----------
     name : str
-        One of TRAIN_GARMENTS or TEST_GARMENTS.
+        One of TRAIN_GARMENTS, TEST_GARMENTS or EXTRA_GARMENTS.
     """
-    cat = _catalogue()
-    if name not in cat:
-        raise ValueError(f"name: unknown garment {name!r}; expected one of {sorted(cat)}")
-    g = cat[name]()
+    style, fit = name, "regular"
+    for f in FITS:
+        if name.endswith("_" + f) and name[:-len(f) - 1] in TRAIN_GARMENTS:
+            style, fit = name[:-len(f) - 1], f
+    cat = _catalogue(fit)
+    if style not in cat or (fit != "regular" and style not in TRAIN_GARMENTS):
+        raise ValueError(f"name: unknown garment {name!r}; expected one of "
+                         f"{sorted(set(cat) | set(EXTRA_GARMENTS))}")
+    g = cat[style]()
     log.debug("garment %s: %d vertices, %d quads", name, g.V.shape[0], g.polygons.shape[0])
     return g

@@ -1,0 +1,176 @@
+"""Training of the garment-conditioned fit model (``garment_model.py``) with torch.
+
+Every covered source body triangle of every training garment and target is one sample: its garment
+and target features in, the garment's embedded deformation minus the body's own out (normalised).
+The samples are gathered by index from per-garment and per-target feature tables, so memory grows
+with garments + targets, not with their product.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from .dataset import build_training_fields, load_dataset
+from .errors import Cancelled, DatasetError
+from .garment_model import (FORMAT, FORMAT_VERSION, GARMENT_FEATURES, NEIGHBOURHOOD_SHARES, GarmentFitModel,
+                            garment_features, target_features)
+from .mesh import faces_hash
+
+log = logging.getLogger(__name__)
+
+
+def training_tables(dataset, source, targets, garments, fields=None):
+    """The feature tables and targets of a training set.
+
+    Parameters
+    ----------
+    dataset : Dataset or str or Path
+    source : str
+    targets, garments : list of str
+    fields : dataset.TrainingFields, optional
+        Already built for these garments and targets (in this order).
+
+    Returns
+    -------
+    dict
+        ``garment_X (G,M,12)``, ``covered (G,M) bool``, ``target_X (K,M,9*(1+r))``, ``deviation (G,K,M,9)``
+        (the garment's ``Q - I``), ``body_deviation (K,M,9)``, ``bodies (K,nb,3)``, ``body`` (the source
+        Mesh).
+    """
+    ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
+    if fields is None:
+        fields = build_training_fields(ds, source, targets, garments)
+    if list(fields.garments) != list(garments) or list(fields.targets) != list(targets):
+        raise DatasetError(str(ds.folder), "the training fields were built for other garments or targets")
+    body = ds.body(source)
+    gx, cov = [], []
+    for g in garments:
+        m = ds.garment(g, source)
+        X, c = garment_features(body.V, body.F, m.V, m.F, fields.cover_distance)
+        gx.append(X.astype(np.float32))
+        cov.append(c & fields.covered[garments.index(g)])
+    bodies = [ds.body(t).V for t in targets]
+    tx = [target_features(body.V, V, body.F)[0].astype(np.float32) for V in bodies]
+    return {"garment_X": np.stack(gx), "covered": np.stack(cov), "target_X": np.stack(tx),
+            "deviation": fields.deviation, "body_deviation": fields.body_deviation,
+            "bodies": np.stack(bodies).astype(np.float32), "body": body}
+
+
+def train_garment_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192, lr=3e-3, use_label=True,
+                        garment_inputs=True, seed=0, threads=None, progress=None):
+    """Fit the per-triangle network on ``training_tables``.
+
+    Parameters
+    ----------
+    tables : dict
+        From ``training_tables``.
+    targets : list of str
+        Target labels, in the tables' order.
+    hidden : tuple of int
+        Hidden layer widths (tanh).
+    epochs : int
+        Passes over every sample (Adam, minibatches, learning rate decaying to a tenth).
+    batch : int
+    lr : float
+    use_label : bool
+        Condition on the target's label weights as well as on its body's deformation.
+    garment_inputs : bool
+        False withholds the garment's distance and direction from the body (coverage and position
+        are kept): what the garment features give, measured.
+    seed : int
+        Same seed, data and threads: the same model.
+    threads : int, optional
+        torch threads.
+    progress : callable(fraction, loss) -> bool, optional
+        Called after each epoch; returning True cancels (raises Cancelled).
+
+    Returns
+    -------
+    model : GarmentFitModel
+    info : dict
+        ``seconds``, ``samples``, ``epochs``, ``losses`` (per epoch, normalised MSE).
+    """
+    import torch
+
+    t0 = time.perf_counter()
+    if threads:
+        torch.set_num_threads(int(threads))
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    GX = torch.from_numpy(np.array(tables["garment_X"], dtype=np.float32))
+    if not garment_inputs:
+        GX[:, :, 1:9] = 0.0
+    TX = torch.from_numpy(np.ascontiguousarray(tables["target_X"]))
+    dev = tables["deviation"]
+    bdev = tables["body_deviation"]
+    G, K = dev.shape[0], dev.shape[1]
+    g_idx, a_idx = np.nonzero(tables["covered"])
+    gi = np.repeat(g_idx, K)
+    ai = np.repeat(a_idx, K)
+    ki = np.tile(np.arange(K), len(g_idx))
+    Y = (dev[gi, ki, ai] - bdev[ki, ai]).astype(np.float32)
+    out_scale = np.maximum(Y.std(axis=0), 1e-3).astype(np.float64)
+    Y = torch.from_numpy(Y / out_scale.astype(np.float32))
+    gi, ki, ai = (torch.from_numpy(x.astype(np.int64)) for x in (gi, ki, ai))
+    eye = torch.eye(K)
+
+    def inputs(sel):
+        parts = [GX[gi[sel], ai[sel]], TX[ki[sel], ai[sel]]]
+        if use_label:
+            parts.append(eye[ki[sel]])
+        return torch.cat(parts, dim=1)
+
+    n = len(Y)
+    probe = inputs(torch.randperm(n, generator=gen)[:min(n, 200_000)])
+    mean = probe.mean(0)
+    std = probe.std(0).clamp_min(1e-3)
+    sizes = [probe.shape[1], *hidden, 9]
+    layers = []
+    for i in range(len(sizes) - 1):
+        layers.append(torch.nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(torch.nn.Tanh())
+    net = torch.nn.Sequential(*layers)
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    steps = epochs * ((n + batch - 1) // batch)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.1 ** (s / max(steps, 1)))
+    losses = []
+    for ep in range(epochs):
+        perm = torch.randperm(n, generator=gen)
+        total = 0.0
+        for s in range(0, n, batch):
+            sel = perm[s:s + batch]
+            pred = net((inputs(sel) - mean) / std)
+            loss = torch.mean((pred - Y[sel]) ** 2)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += float(loss.detach()) * len(sel)
+        losses.append(total / n)
+        log.info("garment model epoch %d/%d: loss %.4f", ep + 1, epochs, losses[-1])
+        if progress is not None and progress((ep + 1) / epochs, losses[-1]):
+            raise Cancelled("training of the garment model was cancelled")
+    linear = [m for m in net if isinstance(m, torch.nn.Linear)]
+    arrays = {"input_mean": mean.double().numpy(), "input_std": std.double().numpy(),
+              "label_bodies": tables["bodies"].astype(np.float32)}
+    for i, m in enumerate(linear):
+        arrays[f"W{i}"] = m.weight.detach().numpy().astype(np.float32)
+        arrays[f"b{i}"] = m.bias.detach().double().numpy()
+    body = tables["body"]
+    seconds = time.perf_counter() - t0
+    metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, "targets": list(targets),
+                "layers": len(linear), "hidden": list(hidden), "use_label": bool(use_label),
+                "garment_inputs": bool(garment_inputs),
+                "output_scale": out_scale.tolist(), "garment_features": list(GARMENT_FEATURES),
+                "neighbourhood_shares": list(NEIGHBOURHOOD_SHARES), "cover_distance": None,
+                "source": {"name": body.name, "n_vertices": body.n_vertices, "n_faces": body.n_faces,
+                           "n_triangles": body.n_triangles, "faces_hash": faces_hash(body)},
+                "training": {"epochs": epochs, "batch": batch, "lr": lr, "seed": seed, "samples": int(n),
+                             "garments": int(G), "seconds": round(seconds, 2),
+                             "final_loss": losses[-1] if losses else None}}
+    info = {"seconds": seconds, "samples": int(n), "epochs": epochs, "losses": losses}
+    return GarmentFitModel(arrays, metadata, "garment fit model"), info

@@ -1,0 +1,190 @@
+"""The garment fit model against direct transfer and the paper's model, with ablations, in one run.
+
+Parts (``--parts``, default all):
+
+* ``demo``: the demo's 15 training garments (and the extra generated ones, ``--extra``) train every
+  model; its 5 test garments go to the targets (``--targets``). Methods: direct transfer (anchors
+  everywhere, and only where the garment rests on the body), the paper's shared model (decoder at the
+  mean latent), the garment fit model with anchors everywhere and with contact anchors, without the
+  target label, without the garment's distance and direction, and the held-out garment's own
+  embedded deformation with contact anchors (the ceiling of any body field here).
+* ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
+  test garments go to it with label weights read from its shape (between the training bodies), against
+  the same model trained on every target.
+* ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
+  turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
+
+Usage::
+
+    nice python -m lab.garment_model [--parts demo,unseen_body,makehuman] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from garment_transfer.dataset import load_dataset
+from garment_transfer.files import write_json_atomic
+from garment_transfer.garment_model import label_weights
+from garment_transfer.garment_training import train_garment_model, training_tables
+from garment_transfer.metrics import evaluate
+from garment_transfer.transfer import prepare_garment, transfer_garment
+
+from . import experiment
+from .experiment import METHODS, run_experiment
+from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
+
+DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
+                "garment_blind_contact", "oracle_contact"]
+MH_METHODS = ["direct", "direct_contact", "ours", "garment_contact", "garment_blind_contact", "oracle_contact"]
+FIGURES = [("vertex_error_mean", "vertex error", 1000.0), ("drape_error_relative", "drape rel.", 1.0),
+           ("mdc", "MDC", 1.0), ("penetrating_vertices", "inside", 1.0)]
+
+
+def summarise(rows, methods, reference, targets, scale=1000.0, unit="mm"):
+    """Printed table: per target and method, the mean over test garments; ratios to direct."""
+    lines = [f"{'target':10s} {'method':26s} {'vertex ' + unit:>10s} {'x direct':>8s} {'drape rel':>9s} "
+             f"{'MDC':>7s} {'x direct':>8s} {'inside':>6s}"]
+    table = {}
+    for t in targets:
+        def mean(m, key):
+            v = [r[key] for r in rows if r["method"] == m and r["target"] == t and r.get(key) is not None]
+            return float(np.mean(v)) if v else float("nan")
+
+        d_ve, d_mdc = mean("direct", "vertex_error_mean"), mean("direct", "mdc")
+        for m in [reference] + methods:
+            ve, mdc = mean(m, "vertex_error_mean"), mean(m, "mdc")
+            entry = {"vertex_error": ve * scale, "vertex_ratio": ve / d_ve, "drape_relative":
+                     mean(m, "drape_error_relative"), "mdc": mdc, "mdc_ratio": mdc / d_mdc,
+                     "inside": sum(r["penetrating_vertices"] for r in rows if r["method"] == m and r["target"] == t)}
+            table[f"{t}/{m}"] = entry
+            lines.append(f"{t:10s} {m:26s} {entry['vertex_error']:10.1f} {entry['vertex_ratio']:8.2f} "
+                         f"{entry['drape_relative']:9.3f} {entry['mdc']:7.4f} {entry['mdc_ratio']:8.2f} "
+                         f"{entry['inside']:6d}")
+    return "\n".join(lines), table
+
+
+def demo_part(args, say):
+    ds = load_dataset(args.data)
+    train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
+    test = list(ds.manifest["test_garments"])
+    say(f"demo: {len(train)} training garments, {len(test)} test garments, targets {args.targets}")
+    res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], args.methods,
+                         args.epochs, seed=args.seed, threads=args.threads,
+                         progress=lambda f, s: say(f"demo: {s}"))
+    text, table = summarise(res["rows"], args.methods, "simulation", args.targets)
+    return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text,
+            "train": train, "test": test}
+
+
+def unseen_body_part(args, say):
+    """The garment fit model on a target body it was not trained on, against the same with it."""
+    ds = load_dataset(args.data)
+    source = ds.manifest["source"]
+    train, test = list(ds.manifest["train_garments"]), list(ds.manifest["test_garments"])
+    src = ds.body(source)
+    body = ds.body(args.unseen)
+    rows, info = [], {}
+    for with_it in (True, False):
+        targets = [t for t in args.targets if with_it or t != args.unseen]
+        tables = training_tables(ds, source, targets, train)
+        model, tinfo = train_garment_model(tables, targets, epochs=experiment.GARMENT_EPOCHS, seed=args.seed,
+                                           threads=args.threads)
+        weights = model.label_weights_for(body, args.unseen if with_it else None)
+        info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
+                                                  "train_seconds": tinfo["seconds"]}
+        say(f"unseen body: trained on {targets} in {tinfo['seconds']:.0f}s; label weights of "
+            f"{args.unseen}: {np.round(weights, 3).tolist()}")
+        for g in test:
+            garment = ds.garment(g, source)
+            prepared = prepare_garment(src, garment, anchoring="contact")
+            ref = ds.garment(g, args.unseen)
+            runs = [("garment_contact", dict(method="model", model=model,
+                                             target=args.unseen if with_it else None))]
+            if with_it:
+                runs.append(("direct", dict(method="direct")))
+            for key, kw in runs:
+                r = transfer_garment(src, body, garment, prepared=prepared, **kw)
+                e = evaluate(garment, garment.with_vertices(r.V), body, reference=ref)
+                e.update(garment=g, target=args.unseen, method=key if with_it or key == "direct"
+                         else "garment_contact_unseen")
+                rows.append(e)
+    bodies = np.stack([ds.body(t).V for t in args.targets if t != args.unseen])
+    info["shape_weights_of_unseen"] = label_weights(body.V, bodies).tolist()
+
+    def mean(m, k):
+        return float(np.mean([r[k] for r in rows if r["method"] == m]))
+
+    lines = [f"{'method':26s} {'vertex mm':>9s} {'drape rel':>9s} {'MDC':>7s}"]
+    for m in ("direct", "garment_contact", "garment_contact_unseen"):
+        lines.append(f"{m:26s} {1000 * mean(m, 'vertex_error_mean'):9.1f} {mean(m, 'drape_error_relative'):9.3f} "
+                     f"{mean(m, 'mdc'):7.4f}")
+    ratio = mean("garment_contact_unseen", "vertex_error_mean") / mean("garment_contact", "vertex_error_mean")
+    lines.append(f"vertex error, body unseen / body in training: {ratio:.2f}")
+    info.update(rows=rows, ratio=ratio, text="\n".join(lines))
+    return info
+
+
+def makehuman_part(args, say):
+    folder = makehuman_folder()
+    if folder is None:
+        say("makehuman: fixtures not found (set GARMENT_TRANSFER_MAKEHUMAN); skipped")
+        return None
+    ds = load_dataset(folder)
+    held = args.makehuman_garments or ds.garments
+    folds = [([g for g in ds.garments if g != h], [h]) for h in held]
+    methods = [m for m in args.methods if m in MH_METHODS]
+    res = run_experiment(folder, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS), folds, methods, args.epochs,
+                         reference="fitted", seed=args.seed, threads=args.threads,
+                         progress=lambda f, s: say(f"makehuman: {s}"))
+    # Decimetres: vertex errors in mm are 100 x.
+    text, table = summarise(res["rows"], methods, "fitted", list(MAKEHUMAN_TARGETS), scale=100.0)
+    return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text, "held_out": held}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--parts", default="demo,unseen_body,makehuman")
+    ap.add_argument("--data", default=str(DEMO_DATA))
+    ap.add_argument("--targets", default="pear,heavy,hourglass")
+    ap.add_argument("--extra", default="", help="extra training garments of --data, comma-separated")
+    ap.add_argument("--unseen", default="hourglass")
+    ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
+    ap.add_argument("--methods", default=",".join(DEMO_METHODS),
+                    help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
+    ap.add_argument("--epochs", type=int, default=300, help="epochs of the paper's shared model")
+    ap.add_argument("--garment-epochs", type=int, default=experiment.GARMENT_EPOCHS,
+                    help="passes over the samples of the garment fit model")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    args.targets = args.targets.split(",")
+    args.methods = args.methods.split(",")
+    experiment.GARMENT_EPOCHS = args.garment_epochs
+    args.extra = [g for g in args.extra.split(",") if g]
+    args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
+    t0 = time.perf_counter()
+
+    def say(text):
+        print(f"[{time.perf_counter() - t0:6.0f}s] {text}", flush=True)
+
+    out = {"command": " ".join(["python -m lab.garment_model", *(argv if argv is not None else sys.argv[1:])])}
+    for part in args.parts.split(","):
+        fn = {"demo": demo_part, "unseen_body": unseen_body_part, "makehuman": makehuman_part}[part]
+        out[part] = fn(args, say)
+        if out[part]:
+            print(f"\n== {part}\n{out[part]['text']}\n", flush=True)
+        if args.json:
+            write_json_atomic(args.json, out)
+    for key in args.methods:
+        print(f"{key:26s} {METHODS[key].label}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
