@@ -76,3 +76,63 @@ def poll_objects(cls, context, choices):
         cls.poll_message_set("Switch to Object Mode first")
         return False
     return True
+
+
+class ModalSteps:
+    """Long work as a generator of fractions done (``self._steps``, made by ``_start``).
+
+    ``invoke`` advances it on a timer with a progress bar and a status text, and Esc cancels it; the
+    operator's own ``execute`` drains it, so scripts, tests and the background mode run the same steps.
+    An operator sets ``status_text``, ``cancel_text`` and ``timer_seconds`` and implements
+    ``_start(context)`` (False: nothing to do) and ``_finish(context, result)``; ``_on_progress`` is
+    called with each fraction.
+    """
+
+    timer_seconds = 0.1
+    status_text = "Working"
+    cancel_text = "Cancelled"
+    _timer = None
+
+    def invoke(self, context, event):
+        try:
+            if self._start(context) is False:
+                return {'CANCELLED'}
+        except Exception as exc:
+            return report_failure(self, exc)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(self.timer_seconds, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        return {'RUNNING_MODAL'}
+
+    def modal(self, context, event):
+        if event.type == 'ESC':
+            self._steps.close()
+            self._end_modal(context)
+            self.report({'WARNING'}, self.cancel_text)
+            return {'CANCELLED'}
+        if event.type != 'TIMER':
+            return {'PASS_THROUGH'}
+        try:
+            fraction = next(self._steps)
+        except StopIteration as stop:
+            self._end_modal(context)
+            return self._finish(context, stop.value)
+        except Exception as exc:
+            self._end_modal(context)
+            return report_failure(self, exc)
+        self._on_progress(context, fraction)
+        context.window_manager.progress_update(int(100 * fraction))
+        context.workspace.status_text_set(f"{self.status_text}: {fraction:.0%} (Esc to cancel)")
+        return {'RUNNING_MODAL'}
+
+    def _on_progress(self, context, fraction):
+        pass
+
+    def _end_modal(self, context):
+        wm = context.window_manager
+        if self._timer is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+        wm.progress_end()
+        context.workspace.status_text_set(None)

@@ -18,7 +18,7 @@ import numpy as np
 from bpy.props import BoolProperty, FloatProperty, StringProperty
 
 from . import convert
-from .reporting import poll_objects, report_failure
+from .reporting import ModalSteps, poll_objects, report_failure
 
 #: Variables of these types read two targets; the others one (CONTEXT_PROP reads none).
 TWO_TARGETS = {'LOC_DIFF', 'ROTATION_DIFF'}
@@ -286,7 +286,7 @@ def drain(steps):
             return stop.value
 
 
-class GARMENT_TRANSFER_OT_fit_shape_keys(bpy.types.Operator):
+class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
     """Fit the garment to each shape key of the source body: a new object <garment>_fitted with a
     shape key per body key, driven by the body's sliders, keeping the garment's rigging"""
 
@@ -312,7 +312,9 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(bpy.types.Operator):
         description="Add a Shrinkwrap modifier (Outside mode, last in the stack) that moves only the "
                     "vertices a mix of sliders or a pose puts inside the body back onto its surface")
 
-    _timer = None
+    status_text = "Fitting to shape keys"
+    cancel_text = "Fitting to shape keys cancelled; nothing was made"
+    timer_seconds = 0.05
     _steps = None
 
     @classmethod
@@ -355,45 +357,6 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(bpy.types.Operator):
         except Exception as exc:
             return report_failure(self, exc)
         return self._finish(context, outcome)
-
-    def invoke(self, context, event):
-        try:
-            self._start(context)
-        except Exception as exc:
-            return report_failure(self, exc)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.05, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.modal_handler_add(self)
-        return {'RUNNING_MODAL'}
-
-    def modal(self, context, event):
-        if event.type == 'ESC':
-            self._steps.close()
-            self._end_modal(context)
-            self.report({'WARNING'}, "Fitting to shape keys cancelled; nothing was made")
-            return {'CANCELLED'}
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        try:
-            fraction = next(self._steps)
-        except StopIteration as stop:
-            self._end_modal(context)
-            return self._finish(context, stop.value)
-        except Exception as exc:
-            self._end_modal(context)
-            return report_failure(self, exc)
-        context.window_manager.progress_update(int(100 * fraction))
-        context.workspace.status_text_set(f"Fitting to shape keys: {fraction:.0%} (Esc to cancel)")
-        return {'RUNNING_MODAL'}
-
-    def _end_modal(self, context):
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
-        context.workspace.status_text_set(None)
 
 
 CLASSES = (GARMENT_TRANSFER_OT_fit_shape_keys,)

@@ -15,7 +15,7 @@ import time
 
 import bpy
 
-from .reporting import report_failure
+from .reporting import ModalSteps, report_failure
 
 TORCH_PIN = "torch==2.13.0"
 
@@ -119,7 +119,7 @@ def drain(steps, pause=0.02):
         time.sleep(pause)
 
 
-class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
+class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
     """Train a model of how garments deform between the dataset's bodies and save it as a model
     file (needs PyTorch; Esc cancels without writing a file)"""
 
@@ -127,7 +127,9 @@ class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
     bl_label = "Train Model"
     bl_options = {'REGISTER', 'UNDO'}
 
-    _timer = None
+    status_text = "Training model"
+    cancel_text = "Training cancelled; no model file was written"
+
     _run = None
     _steps = None
     _plan = None
@@ -190,47 +192,8 @@ class GARMENT_TRANSFER_OT_train(bpy.types.Operator):
             return report_failure(self, exc)
         return self._finish(context, summary)
 
-    def invoke(self, context, event):
-        try:
-            if not self._start(context):
-                return {'CANCELLED'}
-        except Exception as exc:
-            return report_failure(self, exc)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.modal_handler_add(self)
-        return {'RUNNING_MODAL'}
-
-    def modal(self, context, event):
-        settings = context.scene.garment_transfer
-        if event.type == 'ESC':
-            self._steps.close()
-            self._end_modal(context)
-            self.report({'WARNING'}, "Training cancelled; no model file was written")
-            return {'CANCELLED'}
-        if event.type != 'TIMER':
-            return {'PASS_THROUGH'}
-        try:
-            fraction = next(self._steps)
-        except StopIteration as stop:
-            self._end_modal(context)
-            return self._finish(context, stop.value)
-        except Exception as exc:
-            self._end_modal(context)
-            return report_failure(self, exc)
-        settings.train_progress = 100.0 * fraction
-        context.window_manager.progress_update(int(100 * fraction))
-        context.workspace.status_text_set(f"Training model: {fraction:.0%} (Esc to cancel)")
-        return {'RUNNING_MODAL'}
-
-    def _end_modal(self, context):
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
-        context.workspace.status_text_set(None)
+    def _on_progress(self, context, fraction):
+        context.scene.garment_transfer.train_progress = 100.0 * fraction
 
 
 CLASSES = (GARMENT_TRANSFER_OT_train,)
