@@ -18,26 +18,23 @@ case "$cmd" in
     bash tools/setup.sh
     if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest -q "$@"; fi
     versions=("bpy42:Blender 4.2 LTS" "bpy45:Blender 4.5 LTS" "bpy52:Blender 5.2")
-    # The other Blenders' environments are set up (mostly downloads) while the main suite runs; one
-    # after the other, since each installs this checkout (editable) into its environment.
+    # The other Blenders' environments are set up (mostly downloads) while the main suite runs.
     logs="$(mktemp -d)"
     trap 'rm -rf "$logs"' EXIT
-    (
-      for version in "${versions[@]}"; do
-        v="${version%%:*}"
-        rc=0
-        bash tools/setup.sh "--$v" >"$logs/$v.log" 2>&1 || rc=$?
-        echo "$rc" >"$logs/$v.rc"
-      done
-    ) &
-    setups=$!
+    setups=()
+    for version in "${versions[@]}"; do
+      v="${version%%:*}"
+      ( rc=0; bash tools/setup.sh "--$v" >"$logs/$v.log" 2>&1 || rc=$?; echo "$rc" >"$logs/$v.rc" ) &
+      setups+=($!)
+    done
     status=0
     echo "== all tests under Blender 5.0 (.venv) ==" >&2
     .venv/bin/python -m pytest -q || status=$?
-    for version in "${versions[@]}"; do
+    for i in "${!versions[@]}"; do
+      version="${versions[$i]}"
       v="${version%%:*}"
       echo "== tests/blender under ${version#*:} (.venv-$v) ==" >&2
-      while [ ! -f "$logs/$v.rc" ] && kill -0 "$setups" 2>/dev/null; do sleep 2; done
+      while [ ! -f "$logs/$v.rc" ] && kill -0 "${setups[$i]}" 2>/dev/null; do sleep 2; done
       cat "$logs/$v.log" >&2 2>/dev/null || true
       if [ "$(cat "$logs/$v.rc" 2>/dev/null)" = 0 ]; then
         # The lab's Blender scripts (renders, demo data) run in the project's own Blender only.
@@ -47,7 +44,7 @@ case "$cmd" in
         status=1
       fi
     done
-    wait "$setups" || true
+    wait "${setups[@]}" || true
     exit $status ;;
   *) echo "usage: bash tools/run.sh demo|test [args]" >&2; exit 2 ;;
 esac

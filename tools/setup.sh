@@ -61,10 +61,13 @@ want="$(cat "$reqs" pyproject.toml | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: installing Python packages into $venv ($blender; the first time takes a few minutes)" >&2
   log="$venv/pip.log"
+  # Several environments may be set up at once (tools/run.sh does): the editable install writes into
+  # this checkout, so it takes a lock. --no-compile: Python compiles what is imported, when it is.
+  lock=(); command -v flock >/dev/null 2>&1 && lock=(flock "$root/tools/setup.sh")
   if ! { "$venv/bin/python" -m pip install -q --upgrade pip &&
-         "$venv/bin/python" -m pip install -q -r "$reqs" &&
+         "$venv/bin/python" -m pip install -q --no-compile -r "$reqs" &&
          # The core and the lab, installed from this checkout (editable): one garment_transfer in every process.
-         "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e . ; } >"$log" 2>&1; then
+         ${lock[@]+"${lock[@]}"} "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e . ; } >"$log" 2>&1; then
     echo "setup: pip could not install $reqs into $venv (the first install downloads from PyPI: is the" \
          "network reachable?). The end of $log:" >&2
     tail -n 15 "$log" >&2
