@@ -252,3 +252,21 @@ def test_far_sides_by_groups_equal_the_winding_number_of_each_point():
     np.testing.assert_array_equal(np.isneginf(each), convex_inside(V, body_V, body_F) & np.isinf(each))
     out, info = penetration.fix_penetration(V, sheet.F, s, offset=0.01, adjacency=A)
     assert info["inside_after"] == 0 and (s.signed_distance(out)[0] < 0).sum() == 0
+
+
+def test_large_queries_split_over_threads_give_the_one_piece_answer(monkeypatch):
+    """Huge meshes: the per-point work runs in pieces on threads; the pieces give exactly the answer
+    of one piece, and every array is one row per point (memory linear in the points)."""
+    import garment_transfer.proximity as proximity
+
+    V, F = icosphere(3)
+    P = np.random.default_rng(3).normal(size=(5000, 3)) * 1.3
+    surface = TriangleSurface(V, F)
+    monkeypatch.setattr(proximity, "THREADS", 1)
+    one = surface.signed_distance(P)
+    monkeypatch.setattr(proximity, "THREADS", 3)
+    monkeypatch.setattr(proximity, "THREAD_MIN", 100)
+    pieces = surface.signed_distance(P)
+    for a, b in zip(one, pieces):
+        assert a.shape[0] == P.shape[0]
+        assert np.array_equal(a, b)

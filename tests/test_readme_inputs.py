@@ -59,7 +59,7 @@ ROWS = {
         "test_careless_inputs.py::test_out_that_is_not_a_regular_file_is_refused",
         "test_careless_inputs.py::test_out_in_a_missing_or_read_only_folder_or_empty_names_the_users_path",
         "blender/test_careless_blender.py::test_batch_outputs_are_checked_before_the_run"],
-    "huge meshes": ["test_geometry.py::test_closest_in_chunks_equals_one_batch"],
+    "huge meshes": ["test_proximity.py::test_large_queries_split_over_threads_give_the_one_piece_answer"],
     "an interrupted training, write or run": [
         "test_careless_inputs.py::test_ctrl_c_is_one_line_exit_130_and_no_file",
         "test_careless_inputs.py::test_output_files_get_the_umask_permissions",
