@@ -42,7 +42,7 @@ import numpy as np
 
 from garment_transfer.files import json_default, write_text_atomic
 
-from .bench import PAPER_SECONDS, machine_description
+from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description
 from .experiment import METHODS as ALL_METHODS
 from .experiment import curve_recorder, run_experiment, thin
 from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder
@@ -398,7 +398,7 @@ def memory_case(triangles) -> dict:
     garment = tube_dress(source, int(triangles))
     before = peak_rss_mb()
     t = time.perf_counter()
-    r = transfer_garment(source, bodies[0], garment)
+    r = transfer_garment(source, bodies[0], garment, resolve_crossings=TUBE_CROSSINGS)
     wall = time.perf_counter() - t
     peak = peak_rss_mb()
     return {"triangles": garment.n_triangles, "vertices": garment.n_vertices,

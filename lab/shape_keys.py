@@ -95,18 +95,18 @@ def combinations(names, count, seed=0, fewest=3, most=6):
 
 def bench(folder, repeats=1):
     """Seconds to fit 10 keys with one preparation, and 10 independent cold transfers."""
-    from .bench import tube_dress
+    from .bench import TUBE_CROSSINGS, tube_dress
 
     basis, shapes = body_with_keys(folder)
     garment = tube_dress(basis, 40000)
     fitted = []
     for _ in range(repeats):
         t = time.perf_counter()
-        fit = fit_shape_keys(basis, shapes, garment)
+        fit = fit_shape_keys(basis, shapes, garment, resolve_crossings=TUBE_CROSSINGS)
         fitted.append(time.perf_counter() - t)
     t = time.perf_counter()
     for name, V in shapes.items():
-        transfer_garment(basis, basis.with_vertices(V, name=name), garment)
+        transfer_garment(basis, basis.with_vertices(V, name=name), garment, resolve_crossings=TUBE_CROSSINGS)
     cold = time.perf_counter() - t
     inside = sum(fit.info[n]["penetrating_vertices"] for n in shapes)
     stages = {stage: float(np.mean([fit.info[n]["seconds"].get(stage, 0.0) for n in shapes]))

@@ -13,8 +13,8 @@ the same closest points). ``--baseline REV`` runs the same measurement on the pa
 commit (``git archive``) in a subprocess, so both columns come from one run on one machine.
 The 1M-triangle transfer runs in a fresh process, so its peak memory (max resident set) is its own.
 
-The garment is ``garment_transfer.bench.tube_dress`` around the source body of
-``garment_transfer.bench.bench_bodies`` (MakeHuman bodies when ../shared/data/makehuman exists).
+The garment is ``lab.bench.tube_dress`` around the source body of
+``lab.bench.bench_bodies`` (MakeHuman bodies when ../shared/data/makehuman exists).
 """
 
 from __future__ import annotations
@@ -67,10 +67,24 @@ def exactness(V_result, body, rng):
     return float(np.max(np.abs(d - ref) / np.maximum(ref, 1e-300)))
 
 
+def _transfer(*args, **options):
+    """``transfer_garment`` as the benchmark times it: without the crossing pass (``bench.TUBE_CROSSINGS``)
+    where the package measured has one (a baseline commit may predate it)."""
+    import inspect
+
+    from garment_transfer.transfer import transfer_garment
+
+    from .bench import TUBE_CROSSINGS
+
+    if "resolve_crossings" in inspect.signature(transfer_garment).parameters:
+        options["resolve_crossings"] = TUBE_CROSSINGS
+    return transfer_garment(*args, **options)
+
+
 def measure(sizes, repeats, check=True):
     """Cold and reused transfers at each size; returns a list of records."""
-    from garment_transfer.bench import bench_bodies, tube_dress
-    from garment_transfer.transfer import prepare_garment, transfer_garment
+    from .bench import bench_bodies, tube_dress
+    from garment_transfer.transfer import prepare_garment
 
     source, bodies = bench_bodies(1)
     target = bodies[0]
@@ -83,7 +97,7 @@ def measure(sizes, repeats, check=True):
             prepared = prepare_garment(source, garment) if kind == "reused" else None
             for _ in range(repeats):
                 c, t = time.process_time(), time.perf_counter()
-                r = transfer_garment(source, target, garment, prepared=prepared)
+                r = _transfer(source, target, garment, prepared=prepared)
                 wall, cpu = time.perf_counter() - t, time.process_time() - c
                 if kind not in best or wall < best[kind]["wall"]:
                     best[kind] = dict(r.seconds, wall=wall, cpu=cpu, inside=r.penetrating_vertices)
@@ -97,13 +111,12 @@ def measure(sizes, repeats, check=True):
 
 def million(triangles=1_000_000):
     """One cold transfer of a garment of ``triangles`` triangles; its time and this process's peak."""
-    from garment_transfer.bench import bench_bodies, tube_dress
-    from garment_transfer.transfer import transfer_garment
+    from .bench import bench_bodies, tube_dress
 
     source, bodies = bench_bodies(1)
     garment = tube_dress(source, triangles)
     t = time.perf_counter()
-    r = transfer_garment(source, bodies[0], garment)
+    r = _transfer(source, bodies[0], garment)
     wall = time.perf_counter() - t
     return {"triangles": garment.n_triangles, "vertices": garment.n_vertices, "wall": wall,
             "stages": r.seconds, "inside": r.penetrating_vertices, "peak_mb": peak_mb()}
@@ -203,7 +216,7 @@ def main(argv=None):
             base = run_worker(["sizes", *common], pkg)
             base_mill = None if args.no_million else run_worker(["million"], pkg)
     load1 = os.getloadavg() if hasattr(os, "getloadavg") else None
-    from garment_transfer.bench import machine_description
+    from .bench import machine_description
 
     machine = machine_description()
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, numpy {machine['numpy']}; "

@@ -161,11 +161,13 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
         return True
 
     def _start(self, context):
+        # The settings and the output are checked first: a wrong path is reported even where torch is
+        # missing, and before anything is installed for nothing.
+        self._plan = training_plan(context.scene.garment_transfer)
         message = torch_missing_message()
         if message:
             self.report({'ERROR'}, message)
             return False
-        self._plan = training_plan(context.scene.garment_transfer)
         self._run = TrainingRun(training_call(self._plan))
         self._steps = self._run.steps()
         return True

@@ -94,7 +94,7 @@ def run_batch(tmp_path, *args):
 
 
 def write(path, V, F, extra=""):
-    path.write_text(extra + "".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V)
+    path.write_text(extra + "".join(f"v {float(x)!r} {float(y)!r} {float(z)!r}\n" for x, y, z in V)
                     + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in F))
     return path
 
