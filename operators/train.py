@@ -67,6 +67,20 @@ class TrainingRun:
         return self.result
 
 
+def training_output(settings):
+    """The model file to write, and the training numbers, checked: a missing or read-only folder must
+    not cost a whole training (nor an install of torch). Returns the path."""
+    from ..garment_transfer.files import check_output
+    from ..garment_transfer.training import check_training_settings
+
+    out = bpy.path.abspath(settings.train_output)
+    if not out.lower().endswith(".npz") and not os.path.isdir(out):
+        out += ".npz"
+    check_output(out, (), "Save Model As")
+    check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
+    return out
+
+
 def training_plan(settings):
     """Dataset, source body, targets and output file from the panel's settings (checked).
 
@@ -77,15 +91,8 @@ def training_plan(settings):
     """
     from ..garment_transfer.dataset import load_dataset
     from ..garment_transfer.errors import DatasetError
-    from ..garment_transfer.files import check_output
-    from ..garment_transfer.training import check_training_settings
 
-    # Settings and output first: a missing or read-only folder must not cost a whole training.
-    out = bpy.path.abspath(settings.train_output)
-    if not out.lower().endswith(".npz") and not os.path.isdir(out):
-        out += ".npz"
-    check_output(out, (), "Save Model As")
-    check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
+    out = training_output(settings)
     folder = bpy.path.abspath(settings.dataset_path)
     dataset = load_dataset(folder)
     source = settings.dataset_source.strip() or dataset.bodies[0]
@@ -161,13 +168,15 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
         return True
 
     def _start(self, context):
-        # The settings and the output are checked first: a wrong path is reported even where torch is
-        # missing, and before anything is installed for nothing.
-        self._plan = training_plan(context.scene.garment_transfer)
+        settings = context.scene.garment_transfer
+        # The output first (a wrong path is reported even where torch is missing), then torch, then the
+        # dataset.
+        training_output(settings)
         message = torch_missing_message()
         if message:
             self.report({'ERROR'}, message)
             return False
+        self._plan = training_plan(settings)
         self._run = TrainingRun(training_call(self._plan))
         self._steps = self._run.steps()
         return True
