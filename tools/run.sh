@@ -29,7 +29,8 @@ case "$cmd" in
     done
     status=0
     echo "== all tests under Blender 5.0 (.venv) ==" >&2
-    .venv/bin/python -m pytest -q || status=$?
+    # On both cores: the tests are independent of each other (their own temporary folders).
+    .venv/bin/python -m pytest -q -n 2 || status=$?
     for i in "${!versions[@]}"; do
       version="${versions[$i]}"
       v="${version%%:*}"
@@ -38,7 +39,7 @@ case "$cmd" in
       cat "$logs/$v.log" >&2 2>/dev/null || true
       if [ "$(cat "$logs/$v.rc" 2>/dev/null)" = 0 ]; then
         # The lab's Blender scripts (renders, demo data) run in the project's own Blender only.
-        ".venv-$v/bin/python" -m pytest -q -m "not lab" tests/blender || status=$?
+        ".venv-$v/bin/python" -m pytest -q -n 2 -m "not lab" tests/blender || status=$?
       else
         echo "run: the set-up of .venv-$v failed (above); its tests did not run" >&2
         status=1
