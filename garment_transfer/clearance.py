@@ -26,9 +26,9 @@ import logging
 
 import numpy as np
 
-from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_distances
+from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest
 from .penetration import spread_displacement, vertex_adjacency
-from .proximity import TriangleSurface
+from .proximity import TriangleSurface, closest_on_triangles
 
 log = logging.getLogger(__name__)
 
@@ -46,60 +46,92 @@ GAIN = 0.5
 PROTECT_ROUNDS = 3
 
 
-def crossing_pushes(V, F, body: TriangleSurface, c, offset, gain=1.0):
-    """Outward moves of the garment vertices that take part in crossings.
+class Lifts:
+    """Lower bounds on the garment's displacement D, one per contact: ``sum_j w_j n . D[v_j] >= h``
+    (a point of the garment, given by its vertices and their weights, rises by ``h`` along ``n``).
+    Collected over a round and met together by ``lift_displacement``."""
+
+    def __init__(self):
+        self.vid, self.weight, self.normal, self.need = [], [], [], []
+
+    def add(self, vid, weight, normal, need):
+        """Add bounds; those with ``need <= 0`` are met already and left out.
+
+        Parameters
+        ----------
+        vid : (k,j) int
+            The garment vertices of each point.
+        weight : (k,j) float
+            Their weights (barycentric coordinates).
+        normal : (k,3) float
+            Unit directions.
+        need : (k,) float
+        """
+        keep = need > 0
+        if keep.any():
+            self.vid.append(np.asarray(vid, np.int64)[keep])
+            self.weight.append(np.asarray(weight, np.float64)[keep])
+            self.normal.append(np.asarray(normal, np.float64)[keep])
+            self.need.append(np.asarray(need, np.float64)[keep])
+
+    def __len__(self):
+        return int(sum(h.shape[0] for h in self.need))
+
+    def arrays(self):
+        """The bounds as ``row (r,), vid (r,), weight (r,)`` (one entry per vertex of a point) and
+        ``normal (c,3), need (c,)`` (one per bound)."""
+        rows, vid, weight, start = [], [], [], 0
+        for v, w in zip(self.vid, self.weight):
+            k, j = v.shape
+            rows.append(np.repeat(np.arange(start, start + k), j))
+            vid.append(v.ravel())
+            weight.append(w.ravel())
+            start += k
+        return (np.concatenate(rows), np.concatenate(vid), np.concatenate(weight),
+                np.concatenate(self.normal), np.concatenate(self.need))
+
+
+def crossing_lifts(V, F, body: TriangleSurface, c, clear, lifts):
+    """Bounds that take the garment out of every crossing, by ``clear``.
+
+    A garment edge through a body triangle: each end to ``clear`` outside the triangle's plane. A
+    body edge through a garment triangle: the triangle's point over each end of the edge (its
+    barycentric coordinates) to ``clear`` past that end along the skin's normal; the corners then
+    share the lift by their weights, so a corner far from the body edge hardly moves.
 
     Parameters
     ----------
     V : (n,3) float64
-        Garment vertices.
     F : (m,3) int64
-        Garment triangles.
     body : TriangleSurface
     c : dict
         ``intersections.crossings(V, F, body.V, body.F)``.
-    offset : float
-    gain : float
-        Multiplies the clearance asked for.
-
-    Returns
-    -------
-    index : (k,) int64
-        Garment vertices to move (each once).
-    move : (k,3) float64
-        Their displacement (the largest asked for, where several crossings ask).
+    clear : float
+    lifts : Lifts
+        Added to.
     """
-    ids, moves = [], []
-    clear = gain * offset
     if c["a_pairs"].shape[0]:
-        # Garment edge through a body triangle: both ends to the triangle's outer side.
         n = body.face_normals[c["a_triangles"]]
         a = body.V[body.F[c["a_triangles"], 0]]
         for end in (0, 1):
-            x = V[c["a_pairs"][:, end]]
-            need = clear - np.einsum("ij,ij->i", x - a, n)
-            ids.append(c["a_pairs"][:, end])
-            moves.append(np.maximum(need, 0.0)[:, None] * n)
+            vid = c["a_pairs"][:, end]
+            lifts.add(vid[:, None], np.ones((vid.shape[0], 1)), n,
+                      clear - np.einsum("ij,ij->i", V[vid] - a, n))
     if c["b_pairs"].shape[0]:
-        # Body edge through a garment triangle: the triangle over both ends of the edge.
-        u, w = body.V[c["b_pairs"][:, 0]], body.V[c["b_pairs"][:, 1]]
         n = body.vertex_normals[c["b_pairs"][:, 0]] + body.vertex_normals[c["b_pairs"][:, 1]]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        for corner in range(3):
-            vid = F[c["b_triangles"], corner]
-            x = V[vid]
-            need = np.maximum(np.einsum("ij,ij->i", u - x, n), np.einsum("ij,ij->i", w - x, n)) + clear
-            ids.append(vid)
-            moves.append(np.maximum(need, 0.0)[:, None] * n)
-    if not ids:
-        return np.zeros(0, np.int64), np.zeros((0, 3))
-    return largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
+        tri = F[c["b_triangles"]]
+        for end in (0, 1):
+            q = body.V[c["b_pairs"][:, end]]
+            p, bary = closest_on_triangles(q, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
+            lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + clear)
 
 
-def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
-    """Outward moves of garment parts closer to the body than ``near`` (no crossing needed):
-    a garment vertex near a body triangle goes to ``offset`` away, a garment triangle near a body
-    vertex and a garment edge near a body edge to ``CLEARANCE_PUSH * near`` away.
+def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, lifts):
+    """Bounds that take garment parts closer to the body than ``near`` away (no crossing needed): a
+    garment vertex to ``offset`` (what the penetration fix gave it), the point of a garment triangle
+    nearest a body vertex and the point of a garment edge nearest a body edge to ``CLEARANCE_PUSH *
+    near``.
 
     Parameters
     ----------
@@ -111,36 +143,29 @@ def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
     body_E : (f,2) int64
         The body's edges.
     offset, near : float
+    lifts : Lifts
+        Added to.
 
     Returns
     -------
-    index : (k,) int64
-    move : (k,3) float64
     count : int
         Garment-body primitive pairs closer than ``near``.
     """
-    ids, moves, count = [], [], 0
+    count = 0
     lo, hi = V.min(axis=0) - near, V.max(axis=0) + near
-    # Garment vertex - body triangle.
-    sd, closest, normal, _ = body.signed_distance(V)
+    sd, _, normal, _ = body.signed_distance(V)
     close = np.flatnonzero(sd < near)
     count += close.size
-    ids.append(close)
-    moves.append((closest[close] + offset * normal[close]) - V[close])
-    # Body vertex - garment triangle: the garment triangle lifted over the body vertex.
+    lifts.add(close[:, None], np.ones((close.size, 1)), normal[close], offset - sd[close])
     bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
     if bv.size:
-        cloth = TriangleSurface(V, F)
-        _, d, tri, _ = cloth.closest(body.V[bv])
+        _, d, tri, bary = TriangleSurface(V, F).closest(body.V[bv])
         k = d < near
         count += int(k.sum())
+        q, tri, bary = body.V[bv[k]], F[tri[k]], bary[k]
         n = body.vertex_normals[bv[k]]
-        for corner in range(3):
-            vid = F[tri[k], corner]
-            need = np.einsum("ij,ij->i", body.V[bv[k]] - V[vid], n) + CLEARANCE_PUSH * near
-            ids.append(vid)
-            moves.append(np.maximum(need, 0.0)[:, None] * n)
-    # Garment edge - body edge.
+        p = np.einsum("ij,ijk->ik", bary, V[tri])
+        lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
     P0, P1 = V[E[:, 0]], V[E[:, 1]]
     Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
     kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
@@ -148,19 +173,45 @@ def near_pushes(V, F, E, body: TriangleSurface, body_E, offset, near):
                       np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
     if pairs.size:
         i, j = pairs[:, 0], kb[pairs[:, 1]]
-        d = segment_distances(P0[i], P1[i], Q0[j], Q1[j])
-        k = d < near
+        s, t = segment_closest(P0[i], P1[i], Q0[j], Q1[j])
+        p = P0[i] + s[:, None] * (P1[i] - P0[i])
+        q = Q0[j] + t[:, None] * (Q1[j] - Q0[j])
+        k = np.linalg.norm(p - q, axis=1) < near
         count += int(k.sum())
         n = body.vertex_normals[body_E[j[k], 0]] + body.vertex_normals[body_E[j[k], 1]]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        for end in (0, 1):
-            vid = E[i[k], end]
-            need = np.maximum(np.einsum("ij,ij->i", Q0[j[k]] - V[vid], n),
-                              np.einsum("ij,ij->i", Q1[j[k]] - V[vid], n)) + CLEARANCE_PUSH * near
-            ids.append(vid)
-            moves.append(np.maximum(need, 0.0)[:, None] * n)
-    index, move = largest_per_vertex(np.concatenate(ids), np.concatenate(moves))
-    return index, move, count
+        lifts.add(E[i[k]], np.stack([1.0 - s[k], s[k]], axis=1), n,
+                  np.einsum("ij,ij->i", q[k] - p[k], n) + CLEARANCE_PUSH * near)
+    return count
+
+
+def lift_displacement(A, lifts: Lifts, rings):
+    """A smooth displacement that meets the bounds: each bound's lift goes to its vertices in
+    proportion to their weights (the least lift that raises the point by ``h``: a corner far from
+    the contact hardly moves), each vertex takes the largest it is given, and the moves are spread
+    over ``rings`` rings of the garment (``penetration.spread_displacement``, a screened Laplace
+    problem, which never moves a vertex further than the moves it spreads).
+
+    Parameters
+    ----------
+    A : (n,n) sparse adjacency (csr, 0/1)
+    lifts : Lifts
+    rings : float
+
+    Returns
+    -------
+    D : (n,3) float64
+    """
+    if not len(lifts):
+        return np.zeros((A.shape[0], 3))
+    row, vid, weight, normal, need = lifts.arrays()
+    norm2 = np.zeros(need.size)
+    np.add.at(norm2, row, weight ** 2)
+    move = (weight * need[row] / norm2[row])[:, None] * normal[row]
+    index, move = largest_per_vertex(vid, move)
+    fixed = np.zeros(A.shape[0], bool)
+    fixed[index] = True
+    return spread_displacement(A, fixed, move, rings)
 
 
 def largest_per_vertex(index, move):
@@ -246,20 +297,16 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     near = CLEARANCE_SHARE * offset if keep_offset else 0.0
     c = crossings(V, F, body.V, body.F)
     info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
-    near_index, near_move, n_near = (near_pushes(V, F, E, body, body_E, offset, near) if keep_offset
-                                     else (np.zeros(0, np.int64), np.zeros((0, 3)), 0))
+    lifts = Lifts()
+    n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
     V_start = V.copy()
     rounds = 0
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
-        index, move = crossing_pushes(V, F, body, c, offset, gain=1.0 + GAIN * (rounds - 1))
-        index, move = largest_per_vertex(np.concatenate([index, near_index]),
-                                         np.concatenate([move, near_move]))
-        fixed = np.zeros(V.shape[0], bool)
-        fixed[index] = True
-        D = spread_displacement(A, fixed, move, spread_rings)
+        crossing_lifts(V, F, body, c, CLEARANCE_PUSH * CLEARANCE_SHARE * offset + GAIN * (rounds - 1) * offset, lifts)
+        D = lift_displacement(A, lifts, spread_rings)
         step = np.any(D != 0, axis=1)
         V_new = V.copy()
         V_new[step] += D[step]
@@ -273,9 +320,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         moved |= np.any(V_new != V, axis=1)
         V = V_new
         c = crossings(V, F, body.V, body.F)
+        lifts = Lifts()
         if keep_offset:
             last = n_near
-            near_index, near_move, n_near = near_pushes(V, F, E, body, body_E, offset, near)
+            n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts)
             if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last:
                 break   # only the clearance is left and it no longer improves
     info["rounds"] = rounds

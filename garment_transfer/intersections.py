@@ -390,6 +390,23 @@ def segment_distances(P0, P1, Q0, Q1):
     -------
     d : (k,) float64
     """
+    s, t = segment_closest(P0, P1, Q0, Q1)
+    diff = (P0 + s[:, None] * (P1 - P0)) - (Q0 + t[:, None] * (Q1 - Q0))
+    return np.linalg.norm(diff, axis=1)
+
+
+def segment_closest(P0, P1, Q0, Q1):
+    """Parameters of the closest points of segments P0P1 and Q0Q1, pairwise (Lumelsky).
+
+    Parameters
+    ----------
+    P0, P1, Q0, Q1 : (k,3) float64
+
+    Returns
+    -------
+    s, t : (k,) float64
+        In [0, 1]: the closest points are ``P0 + s (P1 - P0)`` and ``Q0 + t (Q1 - Q0)``.
+    """
     u, v, w = P1 - P0, Q1 - Q0, P0 - Q0
     a = np.einsum("ij,ij->i", u, u)
     b = np.einsum("ij,ij->i", u, v)
@@ -402,8 +419,7 @@ def segment_distances(P0, P1, Q0, Q1):
     t = np.divide(b * s + e, c, out=np.zeros_like(c), where=c > 0)
     t_c = np.clip(t, 0.0, 1.0)
     s = np.where(t != t_c, np.clip(np.divide(b * t_c - d, a, out=np.zeros_like(a), where=a > 0), 0.0, 1.0), s)
-    diff = (P0 + s[:, None] * u) - (Q0 + t_c[:, None] * v)
-    return np.linalg.norm(diff, axis=1)
+    return s, t_c
 
 
 def minimum_distance(V_a, F_a, V_b, F_b, check_crossings=True):

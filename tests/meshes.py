@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from garment_transfer.mesh import mesh_from_polygons
-from lab.paths import SHARED_MAKEHUMAN
+from lab.paths import SHARED_MAKEHUMAN, makehuman_folder
 
-MAKEHUMAN = SHARED_MAKEHUMAN
+MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN
 
 
 def require_makehuman():
-    """The MakeHuman fixtures folder; skips the test where a clone has no ../shared."""
+    """The MakeHuman fixtures folder ($GARMENT_TRANSFER_MAKEHUMAN or ../shared); skips the test where there is none."""
     if not (MAKEHUMAN / "bodies").is_dir():
         pytest.skip(f"MakeHuman fixtures not found at {MAKEHUMAN}")
     return MAKEHUMAN
