@@ -26,6 +26,7 @@ import logging
 
 import numpy as np
 
+from .metrics import discrete_curvature
 from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface, closest_on_triangles
@@ -44,6 +45,12 @@ SPREAD_RINGS = 2.0
 GAIN = 0.5
 #: Rounds in which a push that makes the cloth cross itself is held back; later the body comes first.
 PROTECT_ROUNDS = 3
+#: Self-intersections the source does not have are undone to this share of the offset apart ...
+UNTANGLE_GAP = 0.1
+#: ... as long as the garment's MDC against its source stays under this share of the pass's input's
+#: (the design comes first: a tangle whose undoing would crease the cloth is left).
+UNTANGLE_BUDGET = 1.08
+UNTANGLE_TRIES = 4
 
 
 class Lifts:
@@ -73,6 +80,13 @@ class Lifts:
             self.weight.append(np.asarray(weight, np.float64)[keep])
             self.normal.append(np.asarray(normal, np.float64)[keep])
             self.need.append(np.asarray(need, np.float64)[keep])
+
+    def extend(self, other):
+        """Add every bound of another ``Lifts``."""
+        self.vid += other.vid
+        self.weight += other.weight
+        self.normal += other.normal
+        self.need += other.need
 
     def __len__(self):
         return int(sum(h.shape[0] for h in self.need))
@@ -252,8 +266,51 @@ def local_self_pairs(V, F, E, moved):
     return out
 
 
+def untangle_lifts(V, F, E, source_V, pairs, body: TriangleSurface, gap, lifts):
+    """Bounds that undo self-intersections the source garment does not have: the side of the
+    triangle its edge was on in the source is restored, ``gap`` past the triangle's plane. Only the
+    outer of the two moves (the one the body's outward normal points to in that layout), outward,
+    so untangling never pushes cloth toward the body.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    source_V : (n,3) float64
+        The garment's source shape (same vertex order).
+    pairs : (k,2) int64
+        (edge index, triangle index) pairs that meet in V and not in source_V.
+    body : TriangleSurface
+    gap : float
+    lifts : Lifts
+        Added to.
+    """
+    if pairs.shape[0] == 0:
+        return
+    e, t = E[pairs[:, 0]], F[pairs[:, 1]]
+    S, T = source_V[t], V[t]
+    ns = np.cross(S[:, 1] - S[:, 0], S[:, 2] - S[:, 0])
+    side = np.sign(np.einsum("ij,ij->i", source_V[e].mean(axis=1) - S[:, 0], ns))
+    nc = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    length = np.linalg.norm(nc, axis=1)
+    ok = (length > 0) & (side != 0)
+    e, t, T, side = e[ok], t[ok], T[ok], side[ok]
+    u = side[:, None] * nc[ok] / length[ok, None]
+    outward = body.signed_distance(V[e].mean(axis=1))[2]
+    edge_outer = np.einsum("ij,ij->i", u, outward) > 0
+    k = edge_outer
+    for end in (0, 1):
+        x = V[e[:, end]]
+        need = gap - np.einsum("ij,ij->i", x - T[:, 0], u)
+        lifts.add(e[k, end][:, None], np.ones((int(k.sum()), 1)), u[k], need[k])
+        p, bary = closest_on_triangles(x[~k], T[~k, 0], T[~k, 1], T[~k, 2])
+        lifts.add(t[~k], bary, -u[~k], gap + np.einsum("ij,ij->i", p - x[~k], u[~k]))
+
+
 def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
-             keep_offset=True):
+             keep_offset=True, source_V=None):
     """Remove every crossing between a garment and a body, keeping the folds.
 
     Parameters
@@ -275,6 +332,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     keep_offset : bool
         Also push out garment parts closer to the body than ``CLEARANCE_SHARE * offset`` (vertex
         to triangle both ways, edge to edge): the smallest distance kept.
+    source_V : (n,3) float, optional
+        The garment's source shape. With it, the self-intersections of V that the source does not
+        have (the transfer pressed close layers of cloth through each other) are undone too
+        (``untangle_lifts``), and the counts are reported.
 
     Returns
     -------
@@ -285,7 +346,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         ``near_before``, ``near_after`` (primitive pairs closer than ``CLEARANCE_SHARE * offset``),
         ``clearance`` (that distance),
         ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
-        them), ``undone`` (pushes taken back because they made the cloth cross itself).
+        them), ``undone`` (pushes taken back because they made the cloth cross itself). With
+        ``source_V``: ``self_intersections_source``, ``self_intersections_before``,
+        ``self_intersections_after`` (edge-triangle pairs) and ``self_intersections_new`` (pairs
+        left that the source does not have).
     """
     V = np.array(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -297,57 +361,149 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     near = CLEARANCE_SHARE * offset if keep_offset else 0.0
     c = crossings(V, F, body.V, body.F)
     info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
+    track = source_V is not None
+    if track:
+        source_V = np.asarray(source_V, dtype=np.float64)
+        if source_V.shape != V.shape:
+            raise ValueError(f"source_V must have the garment's shape {V.shape}, got {source_V.shape}")
+        source_pairs = _pair_set(edge_triangle_pairs(source_V, E, source_V, F, same_mesh=True)[0])
+        pairs = _pair_set(edge_triangle_pairs(V, E, V, F, same_mesh=True)[0])
+        info["self_intersections_source"] = len(source_pairs)
+        info["self_intersections_before"] = len(pairs)
+    given_up = set()
+    n_new = len(pairs - source_pairs) if track else 0
+    if n_new:
+        curvature_source = discrete_curvature(source_V, F)
+        budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V, F)).sum()
     lifts = Lifts()
     n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
     V_start = V.copy()
     rounds = 0
-    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
+    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near or n_new) and rounds < max_rounds:
         rounds += 1
-        crossing_lifts(V, F, body, c, CLEARANCE_PUSH * CLEARANCE_SHARE * offset + GAIN * (rounds - 1) * offset, lifts)
-        D = lift_displacement(A, lifts, spread_rings)
+        crossing_lifts(V, F, body, c, CLEARANCE_PUSH * near + GAIN * (rounds - 1) * offset, lifts)
+        if n_new:
+            todo = np.array(sorted(pairs - source_pairs - given_up), np.int64).reshape(-1, 2)
+            D, dropped = _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, spread_rings,
+                                                 curvature_source, budget)
+            given_up |= dropped
+        else:
+            D = lift_displacement(A, lifts, spread_rings)
         step = np.any(D != 0, axis=1)
         V_new = V.copy()
         V_new[step] += D[step]
         crossing = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
+        before = _touching(pairs, E, F, step) if track else local_self_pairs(V, F, E, step)
         if rounds <= PROTECT_ROUNDS or not crossing:
             # A crossing of the body comes first: after these rounds, it is removed even where
             # the cloth then crosses itself (counted in self_intersections_added). The clearance
             # alone never makes the cloth cross itself.
-            V_new, undone = _keep_self_intersections(V, V_new, F, E, step, A)
+            V_new, undone, after = _keep_self_intersections(V, V_new, F, E, step, A, before)
             info["undone"] += undone
+        elif track:
+            after = local_self_pairs(V_new, F, E, step)
+        if track:
+            pairs = (pairs - before) | after
         moved |= np.any(V_new != V, axis=1)
         V = V_new
         c = crossings(V, F, body.V, body.F)
         lifts = Lifts()
+        last_near, last_new = n_near, n_new
         if keep_offset:
-            last = n_near
             n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts)
-            if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last:
-                break   # only the clearance is left and it no longer improves
+        n_new = len(pairs - source_pairs - given_up) if track else 0
+        log.debug("round %d: %d crossings, %d near, %d new self-intersections, %d vertices moved",
+                  rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, n_new, int(step.sum()))
+        if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last_near and n_new >= last_new:
+            break   # only the clearance and self-intersections are left, and they no longer improve
     info["rounds"] = rounds
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
     info["near_after"] = n_near
     info["moved_vertices"] = int(moved.sum())
-    info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
-                                        - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
+    if track:
+        info["self_intersections_after"] = len(pairs)
+        info["self_intersections_new"] = len(pairs - source_pairs)
+        info["self_intersections_added"] = len(pairs) - info["self_intersections_before"]
+    else:
+        info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
+                                            - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
     if info["crossings_after"]:
         log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
     return V, info
 
 
-def _keep_self_intersections(V_old, V_new, F, E, step, A):
+def _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, rings, curvature_source, budget):
+    """The round's displacement with the untangling of ``todo`` pairs added, as far as the MDC budget
+    allows: if the garment would leave it, the pairs whose undoing changes the curvature most are
+    given up (until the excess is paid for) and the displacement solved again, a few times; if still
+    over, no pair is untangled this round (all are given up).
+
+    Returns
+    -------
+    D : (n,3) float64
+    given_up : set of (int, int)
+    """
+    def solve(chosen):
+        both = Lifts()
+        both.extend(lifts)
+        untangle_lifts(V, F, E, source_V, chosen, body, UNTANGLE_GAP * offset, both)
+        D = lift_displacement(A, both, rings)
+        dev = np.abs(curvature_source - discrete_curvature(V + D, F))
+        return D, dev
+
+    D, dev = solve(todo)
+    base = np.abs(curvature_source - discrete_curvature(V, F))
+    keep = np.arange(todo.shape[0])
+    for _ in range(UNTANGLE_TRIES):
+        if dev.sum() <= budget:
+            return D, _pair_set(np.delete(todo, keep, axis=0))
+        cost = np.maximum(dev - base, 0.0)
+        chosen = todo[keep]
+        per_pair = np.maximum(cost[E[chosen[:, 0]]].max(axis=1), cost[F[chosen[:, 1]]].max(axis=1))
+        order = np.argsort(-per_pair)
+        cut = int(np.searchsorted(np.cumsum(per_pair[order]), dev.sum() - budget)) + 1
+        keep = np.sort(keep[order[cut:]])
+        if keep.size == 0:
+            break
+        D, dev = solve(todo[keep])
+    return lift_displacement(A, lifts, rings), _pair_set(todo)
+
+
+def _pair_set(pairs):
+    """(k,2) int (edge, triangle) pairs as a set of tuples."""
+    return set(zip(pairs[:, 0].tolist(), pairs[:, 1].tolist()))
+
+
+def _touching(pairs, E, F, moved):
+    """The (edge, triangle) pairs of a set that involve a moved vertex ((n,) bool)."""
+    return {(a, b) for a, b in pairs if moved[E[a]].any() or moved[F[b]].any()}
+
+
+def _keep_self_intersections(V_old, V_new, F, E, step, A, before):
     """Take back moves that made the garment cross itself: halve them around the new
     self-intersections until none is new (at most a few times, then the old positions there).
+
+    Parameters
+    ----------
+    V_old, V_new : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+    step : (n,) bool
+        The vertices that moved.
+    A : (n,n) sparse adjacency
+    before : set of (int, int)
+        ``local_self_pairs(V_old, F, E, step)``.
 
     Returns
     -------
     V : (n,3) float64
     undone : int
         Vertices whose move was reduced.
+    after : set of (int, int)
+        ``local_self_pairs(V, F, E, step)`` of the V returned.
     """
-    before = local_self_pairs(V_old, F, E, step)
     undone = 0
     for attempt in range(4):
         after = local_self_pairs(V_new, F, E, step)
@@ -355,7 +511,7 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A):
         # Pairs are named by edge and triangle; a move that trades one for another nearby does
         # not add a self-intersection, so the count decides.
         if len(after) <= len(before):
-            return V_new, undone
+            return V_new, undone, after
         edges = E[[a for a, _ in added]].ravel()
         verts = np.unique(np.concatenate([edges, F[[b for _, b in added]].ravel()]))
         region = np.zeros(V_new.shape[0], bool)
@@ -366,4 +522,4 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A):
         keep = 0.5 if attempt < 3 else 0.0
         V_new = V_new.copy()
         V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
-    return V_new, undone
+    return V_new, undone, local_self_pairs(V_new, F, E, step)

@@ -297,6 +297,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         ``progress(fraction, stage)``; returning True cancels (raises Cancelled).
     resolve_crossings : bool
         After the penetration fix, remove every edge-triangle crossing between garment and body
+        and undo the self-intersections the source garment does not have, within an MDC budget
         (``clearance.separate``; only with ``fix_penetration``).
 
     Returns
@@ -364,7 +365,8 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     if fix_penetration and resolve_crossings:
         step(0.9, "crossings")
         t = time.perf_counter()
-        V, sep_info = clearance.separate(V, garment.F, target_body.V, target_body.F, offset, surface=surface)
+        V, sep_info = clearance.separate(V, garment.F, target_body.V, target_body.F, offset, surface=surface,
+                                         source_V=garment.V)
         info.update(sep_info)
         if sep_info["moved_vertices"]:
             inside = int((surface.signed_distance(V)[0] < 0).sum())
