@@ -27,7 +27,7 @@ import logging
 import numpy as np
 
 from .metrics import discrete_curvature
-from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest
+from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest, segment_distances
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface, closest_on_triangles
 
@@ -141,7 +141,75 @@ def crossing_lifts(V, F, body: TriangleSurface, c, clear, lifts):
             lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + clear)
 
 
-def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, lifts):
+def near_pairs(V, F, E, body: TriangleSurface, body_E, near, active=None):
+    """Garment-body pairs closer than ``near``: garment vertex - body triangle, body vertex - garment
+    triangle, garment edge - body edge.
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    body : TriangleSurface
+    body_E : (f,2) int64
+        The body's edges.
+    near : float
+    active : (n,) bool, optional
+        Only garment vertices, triangles and edges with an active vertex are looked at.
+
+    Returns
+    -------
+    dict
+        ``vertex`` (k,) garment vertices, ``triangle`` (k,2) (body vertex, garment triangle),
+        ``edge`` (k,2) (garment edge, body edge).
+    """
+    if active is None:
+        active = np.ones(V.shape[0], bool)
+    out = {"vertex": np.zeros(0, np.int64), "triangle": np.zeros((0, 2), np.int64),
+           "edge": np.zeros((0, 2), np.int64)}
+    idx = np.flatnonzero(active)
+    if idx.size == 0:
+        return out
+    out["vertex"] = idx[body.signed_distance(V[idx])[0] < near]
+    t_act = np.flatnonzero(active[F].any(axis=1))
+    e_act = np.flatnonzero(active[E].any(axis=1))
+    T = V[F[t_act]]
+    lo, hi = T.min(axis=(0, 1)) - near, T.max(axis=(0, 1)) + near
+    bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
+    if bv.size and t_act.size:
+        pairs = box_pairs(body.V[bv] - near, body.V[bv] + near, T.min(axis=1), T.max(axis=1))
+        i, j = bv[pairs[:, 0]], pairs[:, 1]
+        p, _ = closest_on_triangles(body.V[i], T[j, 0], T[j, 1], T[j, 2])
+        k = np.linalg.norm(p - body.V[i], axis=1) < near
+        out["triangle"] = np.stack([i[k], t_act[j[k]]], axis=1)
+    P0, P1 = V[E[e_act, 0]], V[E[e_act, 1]]
+    Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
+    kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
+    if kb.size and e_act.size:
+        pairs = box_pairs(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near,
+                          np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
+        i, j = e_act[pairs[:, 0]], kb[pairs[:, 1]]
+        k = segment_distances(V[E[i, 0]], V[E[i, 1]], Q0[j], Q1[j]) < near
+        out["edge"] = np.stack([i[k], j[k]], axis=1)
+    return out
+
+
+def near_pairs_again(V, F, E, body: TriangleSurface, body_E, near, pairs, moved):
+    """``near_pairs`` after only the ``moved`` ((n,) bool) vertices moved: the pairs of unmoved
+    garment parts are kept, the others found again."""
+    out = near_pairs(V, F, E, body, body_E, near, moved)
+    keep = {"vertex": ~moved[pairs["vertex"]], "triangle": ~moved[F[pairs["triangle"][:, 1]]].any(axis=1),
+            "edge": ~moved[E[pairs["edge"][:, 0]]].any(axis=1)}
+    return {k: np.concatenate([pairs[k][keep[k]], out[k]]) for k in out}
+
+
+def near_count(pairs):
+    """The number of pairs in a ``near_pairs`` answer."""
+    return sum(int(v.shape[0]) for v in pairs.values())
+
+
+def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, pairs, lifts):
     """Bounds that take garment parts closer to the body than ``near`` away (no crossing needed): a
     garment vertex to ``offset`` (what the penetration fix gave it), the point of a garment triangle
     nearest a body vertex and the point of a garment edge nearest a body edge to ``CLEARANCE_PUSH *
@@ -157,46 +225,31 @@ def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, lifts):
     body_E : (f,2) int64
         The body's edges.
     offset, near : float
+    pairs : dict
+        ``near_pairs(...)``.
     lifts : Lifts
         Added to.
-
-    Returns
-    -------
-    count : int
-        Garment-body primitive pairs closer than ``near``.
     """
-    count = 0
-    lo, hi = V.min(axis=0) - near, V.max(axis=0) + near
-    sd, _, normal, _ = body.signed_distance(V)
-    close = np.flatnonzero(sd < near)
-    count += close.size
-    lifts.add(close[:, None], np.ones((close.size, 1)), normal[close], offset - sd[close])
-    bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
-    if bv.size:
-        _, d, tri, bary = TriangleSurface(V, F).closest(body.V[bv])
-        k = d < near
-        count += int(k.sum())
-        q, tri, bary = body.V[bv[k]], F[tri[k]], bary[k]
-        n = body.vertex_normals[bv[k]]
-        p = np.einsum("ij,ijk->ik", bary, V[tri])
+    close = pairs["vertex"]
+    if close.size:
+        sd, _, normal, _ = body.signed_distance(V[close])
+        lifts.add(close[:, None], np.ones((close.size, 1)), normal, offset - sd)
+    if pairs["triangle"].shape[0]:
+        q = body.V[pairs["triangle"][:, 0]]
+        tri = F[pairs["triangle"][:, 1]]
+        p, bary = closest_on_triangles(q, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
+        n = body.vertex_normals[pairs["triangle"][:, 0]]
         lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
-    P0, P1 = V[E[:, 0]], V[E[:, 1]]
-    Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
-    kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
-    pairs = box_pairs(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near,
-                      np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
-    if pairs.size:
-        i, j = pairs[:, 0], kb[pairs[:, 1]]
-        s, t = segment_closest(P0[i], P1[i], Q0[j], Q1[j])
-        p = P0[i] + s[:, None] * (P1[i] - P0[i])
-        q = Q0[j] + t[:, None] * (Q1[j] - Q0[j])
-        k = np.linalg.norm(p - q, axis=1) < near
-        count += int(k.sum())
-        n = body.vertex_normals[body_E[j[k], 0]] + body.vertex_normals[body_E[j[k], 1]]
+    if pairs["edge"].shape[0]:
+        i, j = pairs["edge"][:, 0], pairs["edge"][:, 1]
+        P0, P1 = V[E[i, 0]], V[E[i, 1]]
+        Q0, Q1 = body.V[body_E[j, 0]], body.V[body_E[j, 1]]
+        s, t = segment_closest(P0, P1, Q0, Q1)
+        p = P0 + s[:, None] * (P1 - P0)
+        q = Q0 + t[:, None] * (Q1 - Q0)
+        n = body.vertex_normals[body_E[j, 0]] + body.vertex_normals[body_E[j, 1]]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        lifts.add(E[i[k]], np.stack([1.0 - s[k], s[k]], axis=1), n,
-                  np.einsum("ij,ij->i", q[k] - p[k], n) + CLEARANCE_PUSH * near)
-    return count
+        lifts.add(E[i], np.stack([1.0 - s, s], axis=1), n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
 
 
 def lift_displacement(A, lifts: Lifts, rings):
@@ -376,7 +429,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         curvature_source = discrete_curvature(source_V, F)
         budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V, F)).sum()
     lifts = Lifts()
-    n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts) if keep_offset else 0
+    if keep_offset:
+        close = near_pairs(V, F, E, body, body_E, near)
+        near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
+    n_near = near_count(close) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
     V_start = V.copy()
@@ -406,13 +462,16 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
             after = local_self_pairs(V_new, F, E, step)
         if track:
             pairs = (pairs - before) | after
-        moved |= np.any(V_new != V, axis=1)
+        changed = np.any(V_new != V, axis=1)
+        moved |= changed
         V = V_new
-        c = crossings(V, F, body.V, body.F)
+        c = crossings_again(V, F, E, body, body_E, c, changed)
         lifts = Lifts()
         last_near, last_new = n_near, n_new
         if keep_offset:
-            n_near = near_lifts(V, F, E, body, body_E, offset, near, lifts)
+            close = near_pairs_again(V, F, E, body, body_E, near, close, changed)
+            near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
+            n_near = near_count(close)
         n_new = len(pairs - source_pairs - given_up) if track else 0
         log.debug("round %d: %d crossings, %d near, %d new self-intersections, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, n_new, int(step.sum()))
@@ -469,6 +528,25 @@ def _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, rin
             break
         D, dev = solve(todo[keep])
     return lift_displacement(A, lifts, rings), _pair_set(todo)
+
+
+def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
+    """``crossings(V, F, body.V, body.F)`` after only the ``moved`` ((n,) bool) vertices moved: the
+    pairs of unmoved garment edges and triangles are kept from ``c``, the others checked again
+    (exactly; the body does not move). Same keys as ``crossings`` that the pass uses."""
+    keep_a = ~moved[c["a_pairs"]].any(axis=1)
+    keep_b = ~moved[F[c["b_triangles"]]].any(axis=1)
+    e_mov = np.flatnonzero(moved[E].any(axis=1))
+    t_mov = np.flatnonzero(moved[F].any(axis=1))
+    pa, _ = edge_triangle_pairs(V, E[e_mov], body.V, body.F)
+    pb, _ = edge_triangle_pairs(body.V, body_E, V, F[t_mov])
+    out = {"a_pairs": np.concatenate([c["a_pairs"][keep_a], E[e_mov[pa[:, 0]]].reshape(-1, 2)]),
+           "a_triangles": np.concatenate([c["a_triangles"][keep_a], pa[:, 1]]),
+           "b_pairs": np.concatenate([c["b_pairs"][keep_b], body_E[pb[:, 0]].reshape(-1, 2)]),
+           "b_triangles": np.concatenate([c["b_triangles"][keep_b], t_mov[pb[:, 1]]])}
+    out["a_edge_pairs"] = int(out["a_triangles"].shape[0])
+    out["b_edge_pairs"] = int(out["b_triangles"].shape[0])
+    return out
 
 
 def _pair_set(pairs):

@@ -2,8 +2,9 @@
 
 Per garment and target it prints the exact crossings (garment edges through the body + body edges
 through the garment, as edge-triangle pairs) before and after the pass, self-intersections of the
-source garment, before and after the pass, the smallest garment-body distance kept, MDC against the
-source garment without and with the pass, and the time of the transfer and of the pass.
+source garment, before and after the pass (and, after, how many of them the source does not have),
+the smallest garment-body distance kept, MDC against the source garment without and with the pass
+and their ratio, the time of the transfer and of the pass, and their ratio.
 
 Sections: ``demo`` (every demo test garment on every target), ``makehuman`` (every fixture garment
 from female_average to every other body), ``outfits`` (two layered outfits from the demo garments
@@ -40,8 +41,8 @@ OUTFITS = (("tshirt", "shift_dress"), ("shorts", "wrap_dress"))
 SPEED = (("wrap_dress", 1), ("formal_dress", 1), ("wrap_dress", 2), ("pleated_skirt", 2))
 
 HEADER = (f"{'garment':<20} {'target':<18} {'tris':>6} {'cross':>5} {'after':>5} {'self src':>8} "
-          f"{'before':>6} {'after':>5} {'min dist':>9} {'MDC off':>8} {'MDC on':>8} {'ratio':>5} "
-          f"{'transfer s':>10} {'pass s':>6}")
+          f"{'before':>6} {'after':>5} {'new':>4} {'min dist':>9} {'MDC off':>8} {'MDC on':>8} {'ratio':>5} "
+          f"{'transfer s':>10} {'pass s':>6} {'pass/tr':>7}")
 
 
 def crossing_count(V, F, body):
@@ -55,7 +56,7 @@ def study_pair(source_body, target_body, garment, label, target):
     plain = transfer_garment(source_body, target_body, garment, resolve_crossings=False)
     t_transfer = time.perf_counter() - t
     t = time.perf_counter()
-    V, info = separate(plain.V, garment.F, target_body.V, target_body.F, plain.info["offset"])
+    V, info = separate(plain.V, garment.F, target_body.V, target_body.F, plain.info["offset"], source_V=garment.V)
     t_pass = time.perf_counter() - t
     F = garment.F
     row = {"garment": label, "target": target, "triangles": garment.n_triangles,
@@ -66,6 +67,7 @@ def study_pair(source_body, target_body, garment, label, target):
            "min_distance": minimum_distance(V, F, target_body.V, target_body.F),
            "offset": plain.info["offset"],
            "mdc_off": mdc(garment.V, plain.V, F), "mdc_on": mdc(garment.V, V, F),
+           "self_new": info["self_intersections_new"],
            "transfer_s": t_transfer, "pass_s": t_pass, "rounds": info["rounds"]}
     row["mdc_ratio"] = row["mdc_on"] / row["mdc_off"] if row["mdc_off"] > 0 else 1.0
     return row
@@ -74,8 +76,9 @@ def study_pair(source_body, target_body, garment, label, target):
 def format_row(r):
     return (f"{r['garment']:<20} {r['target']:<18} {r['triangles']:>6} {r['crossings_before']:>5} "
             f"{r['crossings_after']:>5} {r['self_source']:>8} {r['self_before']:>6} {r['self_after']:>5} "
-            f"{r['min_distance']:>9.3g} {r['mdc_off']:>8.4f} {r['mdc_on']:>8.4f} {r['mdc_ratio']:>5.2f} "
-            f"{r['transfer_s']:>10.2f} {r['pass_s']:>6.2f}")
+            f"{r['self_new']:>4} {r['min_distance']:>9.3g} {r['mdc_off']:>8.4f} {r['mdc_on']:>8.4f} "
+            f"{r['mdc_ratio']:>5.3f} {r['transfer_s']:>10.2f} {r['pass_s']:>6.2f} "
+            f"{r['pass_s'] / r['transfer_s']:>7.2f}")
 
 
 def summary(name, rows):
@@ -84,9 +87,13 @@ def summary(name, rows):
     left = sum(r["crossings_after"] > 0 for r in rows)
     had = sum(r["crossings_before"] > 0 for r in rows)
     more_self = sum(r["self_after"] > r["self_before"] for r in rows)
+    above_src = sum(r["self_after"] > r["self_source"] for r in rows)
+    above_src_before = sum(r["self_before"] > r["self_source"] for r in rows)
     over = sum(r["mdc_ratio"] > 1.10 for r in rows)
     return (f"{name}: {len(rows)} pairs; crossings in {had} before the pass, {left} after; "
-            f"self-intersections increased by the pass in {more_self}; MDC more than 10% above "
+            f"self-intersections increased by the pass in {more_self}; more self-intersections than the "
+            f"source in {above_src_before} before the pass, {above_src} after (pairs the source lacks, after: "
+            f"{sum(r['self_new'] for r in rows)} in all); MDC more than 10% above "
             f"without the pass in {over} (worst ratio {max(r['mdc_ratio'] for r in rows):.3f}); "
             f"smallest distance kept {min(r['min_distance'] for r in rows):.3g} "
             f"(offset {min(r['offset'] for r in rows):.3g}); pass / transfer time: median "

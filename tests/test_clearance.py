@@ -4,13 +4,16 @@ a crossing, folds kept, and what happens to the MakeHuman garments that cross th
 import json
 
 import numpy as np
+import pytest
 
 from lab.paths import DEMO_DATA
-from garment_transfer.clearance import largest_per_vertex, separate
-from garment_transfer.intersections import crossings, self_intersections
+from garment_transfer.clearance import (crossings_again, largest_per_vertex, near_pairs, near_pairs_again,
+                                        separate)
+from garment_transfer.intersections import crossings, mesh_edges, self_intersections
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.metrics import evaluate, mdc
 from garment_transfer.obj import read_obj
+from garment_transfer.proximity import TriangleSurface
 from garment_transfer.transfer import transfer_garment
 from meshes import icosphere, require_makehuman
 
@@ -91,7 +94,7 @@ def test_makehuman_source_garment_crossing_its_body(tmp_path):
     assert e["garment_edges_through_body"] == e["body_edges_through_garment"] == 0
     assert e["min_body_distance"] > 0
     assert result.info["self_intersections_added"] <= 0
-    assert e["self_intersections"] <= self_intersections(without.V, garment.F)[0]
+    assert e["self_intersections"] <= e["self_intersections_source"] < self_intersections(without.V, garment.F)[0]
     assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
 
 
@@ -109,3 +112,88 @@ def test_demo_dress_crossing_the_heavy_body_keeps_its_design():
     assert self_intersections(result.V, garment.F)[0] <= self_intersections(without.V, garment.F)[0]
     assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
     assert result.info["near_after"] == 0
+
+
+def two_sheets(z_low=1.10, z_high=1.13, n=7, size=0.6):
+    """Two parallel square sheets over the unit sphere's top, one mesh: (V (2n^2,3), F)."""
+    V, F = sheet(n=n, size=size, z=z_low)
+    V2, _ = sheet(n=n, size=size, z=z_high)
+    return np.vstack([V, V2]), np.vstack([F, F + V.shape[0]])
+
+
+def test_pressed_layers_are_untangled_to_their_source_side():
+    """The upper of two sheets is pushed down through the lower one (what the penetration fix does
+    to layers closer than the offset): with the source shape, the pass lifts it back above, and the
+    lower layer, the one next to the body, does not move toward it."""
+    BV, BF = icosphere(3)
+    S, F = two_sheets()
+    n = S.shape[0] // 2
+    V = S.copy()
+    middle = n + (n - 1) // 2
+    V[middle, 2] = 1.05
+    assert self_intersections(S, F)[0] == 0 and self_intersections(V, F)[0] > 0
+    out, info = separate(V, F, BV, BF, offset=0.01, source_V=S)
+    assert self_intersections(out, F)[0] == 0
+    assert info["self_intersections_source"] == 0 and info["self_intersections_after"] == 0
+    assert info["self_intersections_before"] == self_intersections(V, F)[0]
+    assert out[middle, 2] > out[(n - 1) // 2, 2]
+    assert np.all(out[:n, 2] >= V[:n, 2] - 1e-12)
+    c = crossings(out, F, BV, BF)
+    assert c["a_edge_pairs"] == c["b_edge_pairs"] == 0
+    # Without the source shape there is no layout to restore: nothing moves (no crossing, no body near).
+    same, _ = separate(V, F, BV, BF, offset=0.01)
+    assert np.array_equal(same, V)
+
+
+def test_source_shape_must_match():
+    BV, BF = icosphere(2)
+    V, F = sheet(z=1.2)
+    with pytest.raises(ValueError, match="source_V"):
+        separate(V, F, BV, BF, offset=0.01, source_V=V[:-1])
+
+
+def test_crossings_and_near_pairs_found_again_where_moved_equal_a_full_check():
+    BV, BF = icosphere(3)
+    GV, GF = icosphere(2, radius=1.01)
+    rng = np.random.default_rng(3)
+    moved = rng.random(GV.shape[0]) < 0.3
+    V = GV.copy()
+    V[moved] += rng.normal(scale=0.03, size=(int(moved.sum()), 3))
+    body = TriangleSurface(BV, BF)
+    E, body_E = mesh_edges(GF), mesh_edges(BF)
+    again = crossings_again(V, GF, E, body, body_E, crossings(GV, GF, BV, BF), moved)
+    full = crossings(V, GF, BV, BF)
+    assert full["a_edge_pairs"] > 0 and full["b_edge_pairs"] > 0
+
+    def key(pairs, tris):
+        return sorted(zip(map(tuple, np.sort(pairs, axis=1).tolist()), tris.tolist()))
+
+    assert key(again["a_pairs"], again["a_triangles"]) == key(full["a_pairs"], full["a_triangles"])
+    assert key(again["b_pairs"], again["b_triangles"]) == key(full["b_pairs"], full["b_triangles"])
+    near = 0.02
+    again = near_pairs_again(V, GF, E, body, body_E, near, near_pairs(GV, GF, E, body, body_E, near), moved)
+    full = near_pairs(V, GF, E, body, body_E, near)
+    assert all(full[k].shape[0] > 0 for k in full)
+    for k in full:
+        assert sorted(map(str, again[k].tolist())) == sorted(map(str, full[k].tolist()))
+
+
+def test_makehuman_suit_pressed_on_the_pear_keeps_its_design_and_gains_no_self_intersection():
+    """male_casualsuit04 on female_pear: the skin-tight suit the old pass changed most (MDC 1.26x) and
+    whose close layers the transfer pressed through each other (55 self-intersections, none on the
+    source)."""
+    root = require_makehuman()
+    src = read_obj(root / "bodies" / "female_average.obj")
+    tgt = read_obj(root / "bodies" / "female_pear.obj")
+    garment = read_obj(root / "garments" / "male_casualsuit04" / "female_average.obj")
+    without = transfer_garment(src, tgt, garment, resolve_crossings=False)
+    result = transfer_garment(src, tgt, garment)
+    c0 = crossings(without.V, garment.F, tgt.V, tgt.F)
+    c1 = crossings(result.V, garment.F, tgt.V, tgt.F)
+    assert c0["a_edge_pairs"] + c0["b_edge_pairs"] > 0
+    assert c1["a_edge_pairs"] == c1["b_edge_pairs"] == 0
+    source_self = self_intersections(garment.V, garment.F)[0]
+    assert self_intersections(without.V, garment.F)[0] > source_self
+    assert self_intersections(result.V, garment.F)[0] <= source_self
+    assert result.info["self_intersections_after"] == self_intersections(result.V, garment.F)[0]
+    assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
