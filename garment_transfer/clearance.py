@@ -27,7 +27,8 @@ import logging
 import numpy as np
 
 from .metrics import discrete_curvature
-from .intersections import box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest, segment_distances
+from .intersections import (box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest, segment_distances,
+                            segments_meet_triangles)
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface, closest_on_triangles
 
@@ -400,7 +401,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         ``clearance`` (that distance),
         ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
         them), ``undone`` (pushes taken back because they made the cloth cross itself). With
-        ``source_V``: ``self_intersections_source``, ``self_intersections_before``,
+        ``source_V``: ``self_intersections_before``,
         ``self_intersections_after`` (edge-triangle pairs) and ``self_intersections_new`` (pairs
         left that the source does not have).
     """
@@ -419,12 +420,12 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         source_V = np.asarray(source_V, dtype=np.float64)
         if source_V.shape != V.shape:
             raise ValueError(f"source_V must have the garment's shape {V.shape}, got {source_V.shape}")
-        source_pairs = _pair_set(edge_triangle_pairs(source_V, E, source_V, F, same_mesh=True)[0])
+        # Only the pairs that meet in V are asked about on the source (exactly, pair by pair).
+        in_source = _SourcePairs(source_V, F, E)
         pairs = _pair_set(edge_triangle_pairs(V, E, V, F, same_mesh=True)[0])
-        info["self_intersections_source"] = len(source_pairs)
         info["self_intersections_before"] = len(pairs)
     given_up = set()
-    n_new = len(pairs - source_pairs) if track else 0
+    n_new = len(in_source.new(pairs)) if track else 0
     if n_new:
         curvature_source = discrete_curvature(source_V, F)
         budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V, F)).sum()
@@ -441,7 +442,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         rounds += 1
         crossing_lifts(V, F, body, c, CLEARANCE_PUSH * near + GAIN * (rounds - 1) * offset, lifts)
         if n_new:
-            todo = np.array(sorted(pairs - source_pairs - given_up), np.int64).reshape(-1, 2)
+            todo = np.array(sorted(in_source.new(pairs) - given_up), np.int64).reshape(-1, 2)
             D, dropped = _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, spread_rings,
                                                  curvature_source, budget)
             given_up |= dropped
@@ -472,7 +473,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
             close = near_pairs_again(V, F, E, body, body_E, near, close, changed)
             near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
             n_near = near_count(close)
-        n_new = len(pairs - source_pairs - given_up) if track else 0
+        n_new = len(in_source.new(pairs) - given_up) if track else 0
         log.debug("round %d: %d crossings, %d near, %d new self-intersections, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, n_new, int(step.sum()))
         if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last_near and n_new >= last_new:
@@ -483,7 +484,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     info["moved_vertices"] = int(moved.sum())
     if track:
         info["self_intersections_after"] = len(pairs)
-        info["self_intersections_new"] = len(pairs - source_pairs)
+        info["self_intersections_new"] = len(in_source.new(pairs))
         info["self_intersections_added"] = len(pairs) - info["self_intersections_before"]
     else:
         info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
@@ -547,6 +548,25 @@ def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
     out["a_edge_pairs"] = int(out["a_triangles"].shape[0])
     out["b_edge_pairs"] = int(out["b_triangles"].shape[0])
     return out
+
+
+class _SourcePairs:
+    """Which (edge, triangle) pairs of the garment meet on its source shape, asked pair by pair
+    (exact test) and remembered."""
+
+    def __init__(self, source_V, F, E):
+        self.S, self.F, self.E = source_V, F, E
+        self.known = {}
+
+    def new(self, pairs):
+        """The pairs of a set that do not meet on the source."""
+        ask = np.array([p for p in pairs if p not in self.known], np.int64).reshape(-1, 2)
+        if ask.shape[0]:
+            e, t = self.E[ask[:, 0]], self.F[ask[:, 1]]
+            meet, _ = segments_meet_triangles(self.S[e[:, 0]], self.S[e[:, 1]], self.S[t[:, 0]], self.S[t[:, 1]],
+                                              self.S[t[:, 2]])
+            self.known.update(zip(map(tuple, ask.tolist()), meet.tolist()))
+        return {p for p in pairs if not self.known[p]}
 
 
 def _pair_set(pairs):
