@@ -4,20 +4,35 @@ The vertex push-out (``penetration.fix_penetration``) leaves a garment whose ver
 the body, but an edge can still cut through a body part narrower than the edge (a finger, the gap
 between the thighs) and a body vertex can still poke through a garment triangle (a breast or
 shoulder under a coarse garment). This pass finds every such crossing with the exact test of
-``intersections.crossings``, pushes the garment vertices involved outward (along the crossed body
-triangle's normal, or along the skin's normal at the poking body edge) until they clear the body
-by the offset, spreads each push smoothly over a few rings of the garment (the folds, which are
-shorter than the spread, stay), and checks again, exactly. The same pushes keep a clearance:
-garment-body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`` of the
-offset are pushed apart too. It ends when no crossing and no such pair is left or after
+``intersections.crossings`` and turns each into a lower bound on the garment's outward move at one
+point (``Lifts``): a garment edge through a body triangle lifts its ends past the triangle's
+plane; a body edge through a garment triangle lifts the triangle's point over it, shared by the
+corners by their barycentric weights (the least lift of the corners that raises that point, so a
+corner far from the contact hardly moves). Each vertex takes the largest lift it is given, the lifts
+are spread over a few rings of the garment (a screened Laplace problem: the folds, shorter than the
+spread, stay), and what moved is checked again, exactly. The same bounds keep a clearance: garment-
+body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`` of the offset are
+lifted to ``CLEARANCE_PUSH`` times that, and crossings are cleared to the same distance, not to the
+whole offset (further lifts only cost the design). It ends when nothing is left or after
 ``max_rounds`` (the result says how many are left; it never hides one).
 
-Moving cloth can make it cross itself. Every round is also checked against that: the
-self-intersections among the triangles it moved are counted before and after, and a round that
-adds some is halved on the garment parts involved (at most three times, then taken back there).
-After ``PROTECT_ROUNDS`` rounds a crossing of the body comes first: it is removed even if the
-cloth then crosses itself, and the result counts what was added. The clearance is best effort:
-it never makes the cloth cross itself, and the result counts the pairs still too close.
+Moving cloth can make it cross itself. Every round is checked against that: the self-intersections
+among the triangles it moved are counted before and after, and a round that adds some is halved on
+the garment parts involved (at most three times, then taken back there). After ``PROTECT_ROUNDS``
+rounds a crossing of the body comes first: it is removed even if the cloth then crosses itself, and
+the result counts what was added. The clearance is best effort: it never makes the cloth cross
+itself, and the result counts the pairs still too close.
+
+Given the source shape, the pass also undoes the self-intersections that the source does not have:
+layers of cloth closer than the offset (a waistband, a pocket, a fold) are pushed onto the same
+offset surface by the vertex push-out and pass through each other. For each such (edge, triangle)
+pair, the outer of the two (on the body's outer side in the source layout) is lifted back to its
+source side of the other, outward only. Design comes first: if the garment's MDC against its source
+would rise above ``UNTANGLE_BUDGET`` times the pass's input's, the pairs whose undoing creases the
+cloth most are left (counted in ``self_intersections_new``).
+
+Between rounds only what moved is checked again (``crossings_again``, ``near_pairs_again``): the
+body does not move, so the pairs of unmoved garment parts stay as they were.
 """
 
 from __future__ import annotations
@@ -377,7 +392,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     body_F : (q,3) int
         The body (or, for outfits, the body and the layers under this one, as one mesh).
     offset : float
-        Clearance asked for where a crossing is resolved.
+        The cloth's thickness: garment vertices near the body are lifted to it; crossings and the
+        other close pairs are cleared to ``CLEARANCE_PUSH * CLEARANCE_SHARE`` of it (more in later
+        rounds, by ``GAIN`` of it per round).
     spread_rings : float
         Rings of garment vertices over which a push fades.
     max_rounds : int
@@ -440,7 +457,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     rounds = 0
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near or n_new) and rounds < max_rounds:
         rounds += 1
-        crossing_lifts(V, F, body, c, CLEARANCE_PUSH * near + GAIN * (rounds - 1) * offset, lifts)
+        crossing_lifts(V, F, body, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
         if n_new:
             todo = np.array(sorted(in_source.new(pairs) - given_up), np.int64).reshape(-1, 2)
             D, dropped = _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, spread_rings,
