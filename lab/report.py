@@ -459,8 +459,11 @@ def training_at_scale(epochs) -> dict:
 # The whole report
 
 
+SECTIONS = ("quality", "speed", "memory", "training")
+
+
 def run_report(out, settings: ReportSettings | None = None, quick=False, progress=None,
-               demo_dataset=DEMO_DATA, makehuman=None, command=None) -> dict:
+               demo_dataset=DEMO_DATA, makehuman=None, command=None, only=None) -> dict:
     """Measure everything and write ``out/report.md``, ``out/report.json`` and the plots.
 
     Parameters
@@ -476,6 +479,9 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
         The MakeHuman fixtures (default: ``bench.makehuman_folder()``).
     command : str, optional
         The command line, written into the report.
+    only : sequence of str, optional
+        Measure only these of ``SECTIONS`` again and keep the others from the report already in
+        ``out`` (its ``report.json``); the report says which sections were measured when.
 
     Returns
     -------
@@ -486,6 +492,17 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
 
     settings = settings or (quick_settings() if quick else ReportSettings())
     out = Path(out)
+    only = tuple(SECTIONS if only is None else only)
+    unknown = sorted(set(only) - set(SECTIONS))
+    if unknown:
+        raise ValueError(f"unknown report sections {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    earlier = None
+    if set(only) != set(SECTIONS):
+        try:
+            earlier = json.loads((out / "report.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{out / 'report.json'}: cannot keep the sections not measured again "
+                             f"({exc}); run the whole report first") from None
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     seconds = {}
@@ -519,36 +536,50 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
                         "seconds_by_triangles": {str(k): v for k, v in PAPER_SECONDS.items()},
                         "note": "published figures of Shi et al., typed in from the paper"}}
 
-    t = time.perf_counter()
-    demo = demo_quality(settings, demo_dataset, progress=section("quality_demo"))
-    seconds["quality_demo"] = time.perf_counter() - t
-    t = time.perf_counter()
-    mh = makehuman_quality(settings, makehuman, progress=section("quality_makehuman"))
-    seconds["quality_makehuman"] = time.perf_counter() - t
-    report["quality"] = {}
-    for key, res in (("demo", demo), ("makehuman", mh)):
-        if "skipped" not in res:
-            res["summary"] = summarise(res)
-            res["worse_than_ours"] = worse_than_ours(res, res["summary"])
-        report["quality"][key] = res
+    if earlier is not None:
+        for key in SECTIONS:
+            if key not in only:
+                report[key] = earlier[key]
+        report["measured"] = dict(earlier.get("measured") or {key: earlier["date"] for key in SECTIONS})
+        seconds.update({k: v for k, v in earlier["seconds"].items() if not k.startswith("total")})
+    report.setdefault("measured", {})
+    for key in only:
+        report["measured"][key] = report["date"]
 
-    t = time.perf_counter()
-    report["speed"] = run_bench(sizes=settings.sizes, repeats=settings.repeats, targets=settings.targets,
-                                progress=section("speed"))
-    seconds["speed"] = time.perf_counter() - t
+    if "quality" in only:
+        t = time.perf_counter()
+        demo = demo_quality(settings, demo_dataset, progress=section("quality_demo"))
+        seconds["quality_demo"] = time.perf_counter() - t
+        t = time.perf_counter()
+        mh = makehuman_quality(settings, makehuman, progress=section("quality_makehuman"))
+        seconds["quality_makehuman"] = time.perf_counter() - t
+        report["quality"] = {}
+        for key, res in (("demo", demo), ("makehuman", mh)):
+            if "skipped" not in res:
+                res["summary"] = summarise(res)
+                res["worse_than_ours"] = worse_than_ours(res, res["summary"])
+            report["quality"][key] = res
 
-    t = time.perf_counter()
-    mem_progress = section("memory")
-    report["memory"] = []
-    for i, n in enumerate(settings.memory_sizes):
-        mem_progress(i / len(settings.memory_sizes), f"{n} triangles in a fresh process")
-        report["memory"].append(measure_memory(n))
-    seconds["memory"] = time.perf_counter() - t
+    if "speed" in only:
+        t = time.perf_counter()
+        report["speed"] = run_bench(sizes=settings.sizes, repeats=settings.repeats, targets=settings.targets,
+                                    progress=section("speed"))
+        seconds["speed"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    section("training")(0.0, "paper scale")
-    report["training"] = training_at_scale(settings.scale_epochs)
-    seconds["training"] = time.perf_counter() - t
+    if "memory" in only:
+        t = time.perf_counter()
+        mem_progress = section("memory")
+        report["memory"] = []
+        for i, n in enumerate(settings.memory_sizes):
+            mem_progress(i / len(settings.memory_sizes), f"{n} triangles in a fresh process")
+            report["memory"].append(measure_memory(n))
+        seconds["memory"] = time.perf_counter() - t
+
+    if "training" in only:
+        t = time.perf_counter()
+        section("training")(0.0, "paper scale")
+        report["training"] = training_at_scale(settings.scale_epochs)
+        seconds["training"] = time.perf_counter() - t
 
     machine["load_average_end"] = list(os.getloadavg())
     seconds["total_before_writing"] = time.perf_counter() - t_start
@@ -850,6 +881,10 @@ def format_report(report) -> str:
              f"{', '.join(f'{x:.1f}' for x in m['load_average_start'])}, at the end "
              f"{', '.join(f'{x:.1f}' for x in m.get('load_average_end', []))}: other work on the machine "
              "slows every time below.", ""]
+    measured = report.get("measured") or {}
+    if len(set(measured.values())) > 1:
+        lines += ["Sections measured at different times (the others kept from an earlier run): " +
+                  "; ".join(f"{k} {v}" for k, v in measured.items()) + ".", ""]
     if report["settings"].get("quick"):
         lines += ["**Quick run** (tiny sizes and epochs, for the tests): the figures below mean nothing.", ""]
     lines += ["Every figure here comes from this run, except the paper's published figures (Shi et al., "

@@ -65,6 +65,23 @@ def test_quick_report(tmp_path):
     for heading in ("## Quality", "## Speed and scale", "### Peak memory", "## Training"):
         assert heading in md
 
+    # The speed section again, the others kept from the report in the folder.
+    rep["measured"] = {k: "earlier" for k in ("quality", "speed", "memory", "training")}
+    (out / "report.json").write_text(json.dumps(rep))
+    p = subprocess.run([sys.executable, "-m", "lab", "report", str(out), "--quick", "--only", "speed"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    again = json.loads((out / "report.json").read_text())
+    for key in ("quality", "memory", "training"):
+        assert again[key] == rep[key], key
+        assert again["measured"][key] == "earlier"
+    assert again["measured"]["speed"] == again["date"] != "earlier"
+    assert again["speed"]["sizes"][0]["cold"]["wall"] != rep["speed"]["sizes"][0]["cold"]["wall"]
+    assert "Sections measured at different times" in (out / "report.md").read_text()
+    bad = subprocess.run([sys.executable, "-m", "lab", "report", str(tmp_path / "none"), "--only", "speed"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "report.json" in bad.stderr and not (tmp_path / "none").exists()
+
 
 def test_peak_rss_is_the_child_own():
     # A small process started from a big one reports its own peak, not its parent's size.
