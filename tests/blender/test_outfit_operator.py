@@ -175,6 +175,14 @@ def test_bad_outfits_name_the_object_and_change_nothing(outfit):
     with pytest.raises(RuntimeError, match="Add the outfit's garments"):
         bpy.ops.garment_transfer.transfer_outfit()
     assert scene_state() == before
+    other = mesh_object(outfit.meshes[INNER], "other_body")     # a body of another mesh
+    bpy.context.view_layer.update()
+    set_layers(settings, [o[INNER], o[OUTER]])
+    settings.target_body = other
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="other_body: an outfit is transferred onto the source body's own mesh"):
+        bpy.ops.garment_transfer.transfer_outfit()
+    assert scene_state() == before
 
 
 def test_model_method_needs_a_model_file(outfit):
@@ -191,3 +199,23 @@ def test_outfit_error_is_an_outfit_error_in_the_core(outfit, extension):
     source, target, g_in, g_out = core_meshes(extension, (o["banana"], o["pear"], o[INNER], o[OUTER]))
     with pytest.raises(OutfitError, match=OUTER):
         transfer_outfit(source, target, [g_out, g_in])
+
+
+def test_a_failure_while_making_the_objects_leaves_the_scene_as_it_was(outfit, extension, monkeypatch):
+    # The second layer's object cannot be made: the first one, already made, is taken back.
+    convert = extension.operators.convert
+    made = []
+
+    def failing_second(garment, *args, **kwargs):
+        if made:
+            raise MemoryError("no room for the second layer")
+        made.append(real(garment, *args, **kwargs))
+        return made[-1]
+
+    real = convert.new_result_object
+    monkeypatch.setattr(convert, "new_result_object", failing_second)
+    set_layers(outfit.settings, [outfit.objects[INNER], outfit.objects[OUTER]])
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="MemoryError"):
+        bpy.ops.garment_transfer.transfer_outfit()
+    assert len(made) == 1 and scene_state() == before
