@@ -219,3 +219,22 @@ def test_a_failure_while_making_the_objects_leaves_the_scene_as_it_was(outfit, e
     with pytest.raises(RuntimeError, match="MemoryError"):
         bpy.ops.garment_transfer.transfer_outfit()
     assert len(made) == 1 and scene_state() == before
+
+
+def test_undo_takes_the_outfit_and_a_reordering_back(outfit):
+    set_layers(outfit.settings, [outfit.objects[OUTER], outfit.objects[INNER]])
+    outfit.settings.outfit_index = 1
+    bpy.ops.ed.undo_push(message="before")
+    names = sorted(o.name for o in bpy.data.objects)
+
+    def layers():
+        return [layer.garment.name for layer in bpy.context.scene.garment_transfer.outfit_layers]
+
+    assert bpy.ops.garment_transfer.outfit_move('EXEC_DEFAULT', True, direction='UP') == {'FINISHED'}
+    assert layers() == [INNER, OUTER]
+    assert bpy.ops.garment_transfer.transfer_outfit('EXEC_DEFAULT', True) == {'FINISHED'}
+    assert sorted(o.name for o in bpy.data.objects) == sorted(names + [f"{INNER}_on_pear", f"{OUTER}_on_pear"])
+    assert bpy.ops.ed.undo() == {'FINISHED'}
+    assert sorted(o.name for o in bpy.data.objects) == names and layers() == [INNER, OUTER]
+    assert bpy.ops.ed.undo() == {'FINISHED'}
+    assert layers() == [OUTER, INNER]
