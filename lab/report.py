@@ -14,6 +14,9 @@ Sections:
   direct deformation transfer (the body's own gradients), Blender's Surface Deform modifier (bound to
   the source body, evaluated on the target shape; ``lab/blender/surface_deform_baseline.py`` in a
   subprocess) and the reference itself (simulation or fitted garment). Figures: ``metrics.evaluate``.
+* **Outfits** of several layers (``lab/outfits.py``): two outfits of demo garments transferred together to
+  the demo targets, per layer crossings with the body and the layers under it, self-intersections,
+  smallest distances, MDC, and the refusal of each outfit's reversed order.
 * **Speed and scale**: ``lab.bench.run_bench`` per stage, cold and with the garment's factor reused, from
   28K to 300K triangles, against the paper's times; one garment to six bodies.
 * **Peak memory**: the largest benchmark size and a 1M-triangle garment, each in a fresh process
@@ -45,6 +48,7 @@ from garment_transfer.files import json_default, write_text_atomic
 from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description
 from .experiment import METHODS as ALL_METHODS
 from .experiment import curve_recorder, run_experiment, thin
+from .outfits import outfits_markdown, run_outfits
 from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder
 
 log = logging.getLogger(__name__)
@@ -102,6 +106,8 @@ class ReportSettings:
         At most this many MakeHuman garments and targets (None: all).
     makehuman_folds : int or None
         Hold out only the first this many of those garments (None: each in turn).
+    outfit_targets : int or None
+        The layered outfits go to at most this many demo targets (None: all).
     quick : bool
     """
 
@@ -118,6 +124,7 @@ class ReportSettings:
     makehuman_garments: int | None = None
     makehuman_targets: int | None = None
     makehuman_folds: int | None = None
+    outfit_targets: int | None = None
     quick: bool = False
 
 
@@ -125,7 +132,7 @@ def quick_settings() -> ReportSettings:
     """Tiny sizes and few epochs: the whole report in seconds (for tests; its numbers mean nothing)."""
     return ReportSettings(sizes=(2000, 4000), repeats=1, targets=2, memory_sizes=(3000,), demo_epochs=5,
                           makehuman_epochs=5, scale_epochs=3, demo_test=1, demo_targets=2, demo_train=2,
-                          makehuman_garments=3, makehuman_targets=2, makehuman_folds=1,
+                          makehuman_garments=3, makehuman_targets=2, makehuman_folds=1, outfit_targets=1,
                           quick=True)
 
 
@@ -339,6 +346,15 @@ def demo_quality(settings, dataset=DEMO_DATA, progress=None):
     return out
 
 
+def demo_outfits(settings, dataset=DEMO_DATA, progress=None):
+    """The layered outfits (``lab.outfits``) on the demo targets; ``{"skipped": why}`` without the data."""
+    manifest_path = Path(dataset) / "manifest.json"
+    if not manifest_path.is_file():
+        return {"skipped": f"no demo data manifest at {manifest_path} (the data is not generated)"}
+    targets = list(json.loads(manifest_path.read_text())["targets"])[:settings.outfit_targets]
+    return run_outfits(dataset, targets, progress=progress)
+
+
 def makehuman_quality(settings, folder=None, progress=None):
     """Leave-one-garment-out quality on the MakeHuman fixtures; ``{"skipped": why}`` without them."""
     from garment_transfer.dataset import load_dataset
@@ -459,7 +475,7 @@ def training_at_scale(epochs) -> dict:
 # The whole report
 
 
-SECTIONS = ("quality", "speed", "memory", "training")
+SECTIONS = ("quality", "outfits", "speed", "memory", "training")
 
 
 def run_report(out, settings: ReportSettings | None = None, quick=False, progress=None,
@@ -507,8 +523,8 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
     t_start = time.perf_counter()
     seconds = {}
     # Share of the run each section takes at full size (measured), for progress only.
-    spans = [("quality_demo", 0.15), ("quality_makehuman", 0.35), ("speed", 0.2), ("memory", 0.1),
-             ("training", 0.2)]
+    spans = [("quality_demo", 0.13), ("outfits", 0.02), ("quality_makehuman", 0.35), ("speed", 0.2),
+             ("memory", 0.1), ("training", 0.2)]
     bounds, acc = {}, 0.0
     for name, share in spans:
         bounds[name] = (acc, acc + share)
@@ -539,7 +555,7 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
     if earlier is not None:
         for key in SECTIONS:
             if key not in only:
-                report[key] = earlier[key]
+                report[key] = earlier.get(key)
         report["measured"] = dict(earlier.get("measured") or {key: earlier["date"] for key in SECTIONS})
         seconds.update({k: v for k, v in earlier["seconds"].items() if not k.startswith("total")})
     report.setdefault("measured", {})
@@ -559,6 +575,11 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
                 res["summary"] = summarise(res)
                 res["worse_than_ours"] = worse_than_ours(res, res["summary"])
             report["quality"][key] = res
+
+    if "outfits" in only:
+        t = time.perf_counter()
+        report["outfits"] = demo_outfits(settings, demo_dataset, progress=section("outfits"))
+        seconds["outfits"] = time.perf_counter() - t
 
     if "speed" in only:
         t = time.perf_counter()
@@ -897,6 +918,8 @@ def format_report(report) -> str:
               "", "![quality](quality.png)", ""]
     for key in ("demo", "makehuman"):
         lines += _quality_md(key, report["quality"][key])
+    if "outfits" in report:
+        lines += outfits_markdown(report["outfits"])
 
     sp = report["speed"]
     lines += ["## Speed and scale", "",
