@@ -45,7 +45,7 @@ import numpy as np
 
 from garment_transfer.files import json_default, write_text_atomic
 
-from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description
+from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description, solver_text
 from .experiment import METHODS as ALL_METHODS
 from .experiment import curve_recorder, run_experiment, thin
 from .outfits import outfits_markdown, run_outfits
@@ -108,6 +108,8 @@ class ReportSettings:
         Hold out only the first this many of those garments (None: each in turn).
     outfit_targets : int or None
         The layered outfits go to at most this many demo targets (None: all).
+    exact_sample : int
+        Points per speed size whose closest points are checked against brute force.
     quick : bool
     """
 
@@ -125,6 +127,7 @@ class ReportSettings:
     makehuman_targets: int | None = None
     makehuman_folds: int | None = None
     outfit_targets: int | None = None
+    exact_sample: int = 500
     quick: bool = False
 
 
@@ -133,6 +136,7 @@ def quick_settings() -> ReportSettings:
     return ReportSettings(sizes=(2000, 4000), repeats=1, targets=2, memory_sizes=(3000,), demo_epochs=5,
                           makehuman_epochs=5, scale_epochs=3, demo_test=1, demo_targets=2, demo_train=2,
                           makehuman_garments=3, makehuman_targets=2, makehuman_folds=1, outfit_targets=1,
+                          exact_sample=40,
                           quick=True)
 
 
@@ -584,7 +588,7 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
     if "speed" in only:
         t = time.perf_counter()
         report["speed"] = run_bench(sizes=settings.sizes, repeats=settings.repeats, targets=settings.targets,
-                                    progress=section("speed"))
+                                    progress=section("speed"), exact_sample=settings.exact_sample)
         seconds["speed"] = time.perf_counter() - t
 
     if "memory" in only:
@@ -931,14 +935,15 @@ def format_report(report) -> str:
               "Paper: published total times (i7-8750H laptop) at about the same garment sizes.", "",
               "![speed](speed.png)", "",
               "| triangles | cold (s) | reused (s) | paper, published (s) | paper / cold | paper / reused | "
-              "stages, cold (s) |",
-              "|---:|---:|---:|---:|---:|---:|---|"]
+              "closest points vs brute force | Poisson solver | stages, cold (s) |",
+              "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for r in sp["sizes"]:
         st = ", ".join(f"{k} {v:.2f}" for k, v in r["cold"].items()
                        if k not in ("wall", "total", "penetrating_vertices"))
+        exact = (f"{r['exact']:.1e} ({r['exact_sample']} points)" if r.get("exact") is not None else "-")
         lines.append(f"| {r['triangles']} | {r['cold']['wall']:.3f} | {r['reused']['wall']:.3f} | "
                      f"{_f(r['paper_seconds'])} | {_f(r['speedup_cold'], '.1f')} | "
-                     f"{_f(r['speedup_reused'], '.1f')} | {st} |")
+                     f"{_f(r['speedup_reused'], '.1f')} | {exact} | {solver_text(r)} | {st} |")
     mt = sp.get("multi_target")
     if mt:
         lines += ["", f"One garment ({mt['triangles']} triangles) to {len(mt['targets'])} bodies: "

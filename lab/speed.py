@@ -53,11 +53,11 @@ def brute_force_distance(P, V, F, closest_on_triangles, chunk=8):
     return out
 
 
-def exactness(V_result, body, rng):
-    """Max relative difference of TriangleSurface.closest against brute force on 2,000 points."""
+def exactness(V_result, body, rng, sample=SAMPLE):
+    """Max relative difference of TriangleSurface.closest against brute force on ``sample`` points."""
     from garment_transfer.proximity import TriangleSurface, closest_on_triangles
 
-    pick = rng.choice(V_result.shape[0], min(SAMPLE, V_result.shape[0]), replace=False)
+    pick = rng.choice(V_result.shape[0], min(sample, V_result.shape[0]), replace=False)
     P = V_result[pick].copy()
     scale = float(np.ptp(body.V, axis=0).max())
     # Half where the fix queries (the garment), half spread around it.

@@ -55,6 +55,8 @@ def test_quick_report(tmp_path):
     for r in sizes:
         assert {"field", "bind", "factor", "solve", "fix", "wall"} <= set(r["cold"])
         assert "wall" in r["reused"]
+        assert r["exact"] < 1e-12 and r["exact_sample"] == rep["settings"]["exact_sample"]
+        assert set(r["solver"].values()) <= {"factor", "multigrid"}
     assert rep["speed"]["multi_target"]["per_target_seconds"]
     assert [m["triangles"] > 0 and m["peak_rss_mb"] >= m["rss_before_mb"] > 0 for m in rep["memory"]] == \
         [True] * len(rep["settings"]["memory_sizes"])
