@@ -264,13 +264,18 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
     if method == "model":
         if model is None:
             raise ModelError("model", "the model method needs a model file (--model)")
-        model.check_source_body(source_body)
         if getattr(model, "conditions_on_garment", False):
+            model.check_source_body(source_body)
             return model.body_field(target, garment=garment, source_body=source_body, target_body=target_body)
         if target is None:
             raise ModelError(getattr(model, "name", "model"),
                              f"say which target to transfer to; the model knows {', '.join(model.targets)}")
-        return model.body_field(target)
+        if not hasattr(model, "same_body"):
+            model.check_source_body(source_body)
+            return model.body_field(target)
+        from .field_mapping import model_field
+
+        return model_field(model, target, source_body)
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
