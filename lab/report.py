@@ -560,7 +560,8 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
         for key in SECTIONS:
             if key not in only:
                 report[key] = earlier.get(key)
-        report["measured"] = dict(earlier.get("measured") or {key: earlier["date"] for key in SECTIONS})
+        report["measured"] = dict(earlier.get("measured") or {key: earlier["date"] for key in SECTIONS
+                                                              if earlier.get(key) is not None})
         seconds.update({k: v for k, v in earlier["seconds"].items() if not k.startswith("total")})
     report.setdefault("measured", {})
     for key in only:
@@ -922,7 +923,7 @@ def format_report(report) -> str:
               "", "![quality](quality.png)", ""]
     for key in ("demo", "makehuman"):
         lines += _quality_md(key, report["quality"][key])
-    if "outfits" in report:
+    if report.get("outfits") is not None:
         lines += outfits_markdown(report["outfits"])
 
     sp = report["speed"]
