@@ -8,6 +8,7 @@ Each MakeHuman garment goes to the MakeHuman body paired with a mannequin label,
 MakeHuman's own fit of that garment on that body (the reference) and with direct transfer.
 
     python -m lab.cross_family [--epochs 400] [--pairs female_pear:pear,female_slim_banana:slim]
+    python -m lab.cross_family --renders DIR      # each family's garment on the other's body, rendered
 """
 
 from __future__ import annotations
@@ -79,12 +80,81 @@ def run(epochs=400, pairs=None, say=print):
     return rows
 
 
+#: (figure, source body, garment, target body) of ``renders``: each family's garment on the other family.
+FIGURES = (
+    ("mannequin_garment_on_makehuman", ("demo", "banana"), ("demo", "tshirt"), ("makehuman", "female_average")),
+    ("makehuman_garment_on_mannequin", ("makehuman", "female_average"), ("makehuman", "female_casualsuit01"),
+     ("demo", "pear")),
+)
+
+
+def renders(out, samples=16, say=print):
+    """Each family's garment transferred onto the other family's body (registered), rendered with
+    Blender beside the garment on its own body: ``out/<figure>.png``; the penetration and the fit's
+    residual of each are printed and returned."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    from garment_transfer.obj import read_obj, write_obj
+    from garment_transfer.registration import transfer_to_any_body
+
+    root = makehuman_folder()
+    if root is None:
+        raise SystemExit("the MakeHuman fixtures are not there (../shared/data/makehuman)")
+    out = Path(out)
+    meshes = out / "meshes"
+    meshes.mkdir(parents=True, exist_ok=True)
+    frame = {"demo": {"scale": 1.0, "up": "Z"}, "makehuman": {"scale": 0.1, "up": "Y"}}
+
+    def body_path(family, name):
+        return (DEMO_DATA if family == "demo" else root) / "bodies" / f"{name}.obj"
+
+    def garment_path(family, name, body):
+        return (DEMO_DATA if family == "demo" else root) / "garments" / name / f"{body}.obj"
+
+    results = []
+    for fig, (sf, sname), (gf, gname), (tf, tname) in FIGURES:
+        source, target = read_obj(body_path(sf, sname)), read_obj(body_path(tf, tname))
+        garment = read_obj(garment_path(gf, gname, sname))
+        r, reg = transfer_to_any_body(source, target, garment)
+        moved = meshes / f"{fig}.obj"
+        write_obj(moved, garment, r.V)
+        q = reg.quality
+        rec = {"figure": fig, "garment": gname, "source": sname, "target": tname,
+               "inside": int(r.penetrating_vertices), "vertices": garment.n_vertices,
+               "residual_p95_share": [q.get("to_target_p95_share"), q.get("from_target_p95_share")]}
+        results.append(rec)
+        say(f"{gname} from {sname} onto {tname}: {rec['inside']} of {rec['vertices']} vertices inside; fit residual "
+            f"p95 {100 * rec['residual_p95_share'][0]:.2f}% / {100 * rec['residual_p95_share'][1]:.2f}% of the height")
+        spec = {"size": [900, 520], "columns": [
+            {"meshes": [dict(obj=str(body_path(sf, sname)), kind="body", **frame[sf]),
+                        dict(obj=str(garment_path(gf, gname, sname)), kind="source", **frame[sf])]},
+            {"meshes": [dict(obj=str(body_path(tf, tname)), kind="body", **frame[tf]),
+                        dict(obj=str(moved), kind="ours", **frame[tf])]}]}
+        spec_path = meshes / f"{fig}.json"
+        spec_path.write_text(json.dumps(spec, indent=1))
+        proc = subprocess.run([sys.executable, "-m", "lab.blender.render_columns", "--spec", str(spec_path),
+                               "--out", str(out / f"{fig}.png"), "--samples", str(samples)],
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"rendering {fig} failed: {proc.stderr[-2000:]}")
+        say(proc.stdout.strip().splitlines()[-1])
+    return results
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m lab.cross_family", description=__doc__.split("\n\n")[0])
     ap.add_argument("--epochs", type=int, default=400)
     ap.add_argument("--pairs", help="makehuman_body:mannequin_label,... (default: "
                     + ",".join(f"{k}:{v}" for k, v in PAIRS.items()) + ")")
+    ap.add_argument("--renders", metavar="DIR", help="only render each family's garment on the other family's "
+                    "body into DIR (Blender, Cycles on the CPU)")
+    ap.add_argument("--samples", type=int, default=16)
     args = ap.parse_args(argv)
+    if args.renders:
+        renders(args.renders, args.samples)
+        return 0
     pairs = dict(p.split(":") for p in args.pairs.split(",")) if args.pairs else None
     run(args.epochs, pairs)
     return 0
