@@ -187,8 +187,11 @@ def check_polygons(V, face_vertices, face_start, name):
 
 def edge_lengths_mean(V, F) -> float:
     """Mean edge length of the triangles F over V (a length scale for tolerances)."""
-    e = np.concatenate([V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 1]], V[F[:, 0]] - V[F[:, 2]]])
-    return float(np.mean(np.linalg.norm(e, axis=1))) if e.size else 0.0
+    if len(F) == 0:
+        return 0.0
+    P = V[F]
+    e = P[:, [1, 2, 0]] - P
+    return float(np.mean(np.sqrt(np.einsum("mkj,mkj->mk", e, e))))
 
 
 def triangle_normals(V, F):

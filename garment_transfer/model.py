@@ -20,6 +20,11 @@ hands, feet for most garments) carry no learned value; they take the source body
 gradient towards the target (what direct deformation transfer would use), so a new garment reaching
 there follows the body instead of an arbitrary untrained output.
 
+*Another body*: a model file also holds the body it was trained on (``source_V``, and its polygons as
+``source_face_vertices`` and ``source_face_start``). A garment dressed on another body mesh (another
+topology, family, units or axes) is then served through ``field_mapping.model_field``: the model's
+body is registered onto that body and the field carried across.
+
 File format: an ``.npz`` of plain numeric arrays and one JSON string ``metadata`` (format version,
 source body counts and faces hash, target labels, latent size, normalisation, training settings,
 losses). It is read with ``allow_pickle=False`` only: a model file cannot run code.
@@ -124,6 +129,36 @@ class SharedDeformationModel:
         need(a["latent_mean"].shape == (K, L), "'latent_mean' must be (K,L)")
         need(a["train_latents"].ndim == 3 and a["train_latents"].shape[1:] == (K, L),
              "'train_latents' must be (G,K,L)")
+        body_keys = ("source_V", "source_face_vertices", "source_face_start")
+        if any(k in a for k in body_keys):
+            need(all(k in a for k in body_keys), "holds part of its source body (source_V, "
+                                                 "source_face_vertices, source_face_start go together)")
+            need(a["source_V"].shape == (int(md["source"].get("n_vertices", -1)), 3),
+                 "'source_V' does not match the source body's vertex count")
+
+    @property
+    def source_body(self):
+        """The body the model was trained on (a Mesh), or None when the file does not hold it."""
+        if "source_V" not in self.arrays:
+            return None
+        if "source_body" not in self._cache:
+            from .mesh import Mesh, check_polygons, faces_hash, triangulate
+
+            a = self.arrays
+            V = a["source_V"].astype(np.float64)
+            fv = a["source_face_vertices"].astype(np.int64)
+            fs = a["source_face_start"].astype(np.int64)
+            name = self.metadata["source"].get("name") or "model body"
+            try:
+                check_polygons(V, fv, fs, name)
+            except Exception as exc:
+                raise ModelError(self.name, f"its source body is damaged: {exc}") from None
+            F, tri_to_face = triangulate(V, fv, fs)
+            body = Mesh(V, F, fv, fs, tri_to_face, name)
+            if faces_hash(body) != self.metadata["source"].get("faces_hash"):
+                raise ModelError(self.name, "its source body does not match its faces hash")
+            self._cache["source_body"] = body
+        return self._cache["source_body"]
 
     @property
     def targets(self) -> list:
@@ -156,8 +191,19 @@ class SharedDeformationModel:
                                         f"{', '.join(self.metadata['targets'])}")
         return self.metadata["targets"].index(target)
 
+    def same_body(self, mesh) -> bool:
+        """Whether ``mesh`` has the topology of the body the model was trained on."""
+        from .mesh import faces_hash
+
+        src = self.metadata["source"]
+        return ((mesh.n_vertices, mesh.n_faces, mesh.n_triangles, faces_hash(mesh)) ==
+                (src.get("n_vertices"), src.get("n_faces"), src.get("n_triangles"), src.get("faces_hash")))
+
     def check_source_body(self, mesh):
-        """Raise ModelError unless ``mesh`` has the topology of the body the model was trained on."""
+        """Raise ModelError unless the model can serve garments dressed on ``mesh``: the topology of the
+        body it was trained on, or any body when the file holds that body (registered onto it)."""
+        if self.source_body is not None:
+            return
         from .mesh import faces_hash
 
         src = self.metadata["source"]
@@ -168,7 +214,8 @@ class SharedDeformationModel:
                 self.name,
                 f"was trained on source body {src.get('name', '?')!r} ({want[0]} vertices, {want[1]} faces, "
                 f"faces hash {want[3]}), but {mesh.name} has {have[0]} vertices, {have[1]} faces, faces "
-                f"hash {have[3]}: use the model with the body it was trained on")
+                f"hash {have[3]}: use the model with the body it was trained on (a model trained by this "
+                "version holds its body and serves any body)")
 
     def _onehot(self, k, n):
         oh = np.zeros((n, len(self.targets)))

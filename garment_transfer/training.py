@@ -447,6 +447,10 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     arrays["mean_field"] = _mean_field(fields)
     arrays["latent_mean"] = np.zeros((K, latent))
     arrays["train_latents"] = np.zeros((G, K, latent))
+    # The body itself, so that the model can serve garments dressed on other bodies (field_mapping).
+    arrays["source_V"] = np.asarray(body.V, dtype=np.float64)
+    arrays["source_face_vertices"] = np.asarray(body.face_vertices, dtype=np.int64)
+    arrays["source_face_start"] = np.asarray(body.face_start, dtype=np.int64)
     settings = {"garments": list(fields.garments), "epochs": int(epochs), "epochs_run": stopped["epochs"],
                 "optimizer": optimizer, "lr": lr, "seed": int(seed), "masked": bool(masked),
                 "hidden": [int(h) for h in hidden], "threads": threads, "seconds": round(seconds, 3),

@@ -31,7 +31,7 @@ from .errors import Cancelled, MeshError, ModelError, SettingError
 from .gradients import deformation_gradients
 from .mesh import Mesh, degenerate_triangles, edge_lengths_mean, require_same_topology
 from . import clearance, penetration
-from .poisson import PoissonSolver, anchor_weight_for
+from .poisson import PoissonSolver, anchor_weight_for, choose_method
 from .proximity import TriangleSurface
 
 METHODS = ("direct", "model", "surface")
@@ -187,7 +187,8 @@ def anchor_weights(garment: Mesh, distance, scale, stiffness, anchoring="everywh
 
 
 def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiffness=None,
-                    need_solver=True, anchoring="everywhere", contact=None) -> PreparedGarment:
+                    need_solver=True, anchoring="everywhere", contact=None, reused=True,
+                    solver_method=None) -> PreparedGarment:
     """The target-independent part of a transfer: embedding, binding, Poisson factor.
 
     Parameters
@@ -207,6 +208,11 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         Where the garment is tied to the body (``anchor_weights``).
     contact : float, optional
         For ``contact``: the distance under which the garment rests on the body.
+    reused : bool
+        Whether the garment goes to several targets: a factor then pays for itself; for one target a
+        large garment is solved by multigrid (``poisson.choose_method``).
+    solver_method : {"factor", "multigrid"}, optional
+        The Poisson solver, instead of the choice by size and ``reused``.
     """
     if anchoring not in ANCHORINGS:
         raise ValueError(f"anchoring must be one of {', '.join(ANCHORINGS)}, got {anchoring!r}")
@@ -234,7 +240,9 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         scale = body_scale(source_body.V)
         length = stiffness if stiffness else STIFFNESS_SHARE * scale
         w = anchor_weights(garment, binding.distance, scale, length, anchoring, contact, edge_length=h)
-        solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64))
+        method = solver_method or choose_method(garment.n_vertices, reused)
+        solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
+                               method=method)
         seconds["factor"] = time.perf_counter() - t
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
                            edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring)
@@ -256,13 +264,18 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
     if method == "model":
         if model is None:
             raise ModelError("model", "the model method needs a model file (--model)")
-        model.check_source_body(source_body)
         if getattr(model, "conditions_on_garment", False):
+            model.check_source_body(source_body)
             return model.body_field(target, garment=garment, source_body=source_body, target_body=target_body)
         if target is None:
             raise ModelError(getattr(model, "name", "model"),
                              f"say which target to transfer to; the model knows {', '.join(model.targets)}")
-        return model.body_field(target)
+        if not hasattr(model, "same_body"):
+            model.check_source_body(source_body)
+            return model.body_field(target)
+        from .field_mapping import model_field
+
+        return model_field(model, target, source_body)
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
@@ -323,7 +336,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     step(0.15, "prepare")
     if prepared is None:
         prepared = prepare_garment(source_body, garment, interpolate=interpolate, stiffness=stiffness,
-                                   need_solver=method != "surface", anchoring=anchoring)
+                                   need_solver=method != "surface", anchoring=anchoring, reused=False)
         seconds.update(prepared.seconds)
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
@@ -362,6 +375,8 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         inside = int((surface.signed_distance(V)[0] < 0).sum())
     seconds["fix"] = time.perf_counter() - t
     info["resolve_crossings"] = bool(fix_penetration and resolve_crossings)
+    if prepared.solver is not None:
+        info["solver"] = prepared.solver.method
     if fix_penetration and resolve_crossings:
         step(0.9, "crossings")
         t = time.perf_counter()

@@ -49,8 +49,13 @@ def cmd_report(args):
     check_output_folder(args.dir, "the report folder")
     from .report import run_report
 
-    command = f"python -m lab report {args.dir}" + (" --quick" if args.quick else "")
-    out = run_report(args.dir, quick=args.quick, progress=stderr_progress("report"), command=command)
+    command = (f"python -m lab report {args.dir}" + (" --quick" if args.quick else "")
+               + (f" --only {','.join(args.only)}" if args.only else ""))
+    try:
+        out = run_report(args.dir, quick=args.quick, progress=stderr_progress("report"), command=command,
+                         only=args.only)
+    except ValueError as exc:
+        raise SystemExit(f"error: {exc}") from None
     path = os.path.join(args.dir, "report.md")
     _print(args, {"report": path, "seconds": out["seconds"]},
            [f"wrote {path}, report.json and {', '.join(out['plots'])} in {out['seconds']['total']:.0f} s"])
@@ -65,6 +70,16 @@ def _sizes(text):
         return [parse(x) for x in text.split(",")]
     except argparse.ArgumentTypeError as exc:
         raise argparse.ArgumentTypeError(f"in {text!r}: {exc} (garment triangle counts, comma-separated)")
+
+
+def _sections(text):
+    from .report import SECTIONS
+
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    bad = [x for x in names if x not in SECTIONS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: choose from {', '.join(SECTIONS)}")
+    return names
 
 
 def build_parser():
@@ -85,6 +100,8 @@ def build_parser():
     r = sub.add_parser("report", help="the benchmark report: every method and baseline, speed, memory, training")
     r.add_argument("dir", help="folder to write report.md, report.json and the plots into")
     r.add_argument("--quick", action="store_true", help="tiny sizes and epochs (a smoke test)")
+    r.add_argument("--only", type=_sections, help="measure only these sections again (comma-separated: "
+                   "quality,speed,memory,training) and keep the others from DIR/report.json")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_report)
     for name, (_, text) in SCRIPTS.items():

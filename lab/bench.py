@@ -113,9 +113,16 @@ def _time_transfer(source, target, garment, prepared=None):
     return wall, r
 
 
-def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progress=None):
+#: Points per size whose closest points are checked against a brute-force search over all body
+#: triangles (about 9 s per size on 2 cores; ``python -m lab.speed`` checks 2,000).
+EXACT_SAMPLE = 500
+
+
+def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progress=None,
+              exact_sample=EXACT_SAMPLE):
     """Time the transfer at each garment size, cold and with the factor reused, and one garment to
-    several targets.
+    several targets; check the closest points of ``exact_sample`` points near each result against
+    brute force (``exact``: the largest relative difference; 0 to rounding means the same points).
 
     Returns
     -------
@@ -124,6 +131,8 @@ def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progres
         ``reused`` seconds and ``paper_seconds``), ``multi_target``.
     """
     from garment_transfer.transfer import prepare_garment
+
+    from .speed import exactness
 
     source, bodies = bench_bodies(max(targets, 1))
     target = bodies[0]
@@ -138,14 +147,18 @@ def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progres
             wall, r = _time_transfer(source, target, garment)
             if cold is None or wall < cold["wall"]:
                 cold = dict(r.seconds, wall=wall, penetrating_vertices=r.penetrating_vertices)
+                cold_solver = r.info.get("solver")
         prepared = prepare_garment(source, garment)
         for _ in range(repeats):
             wall, r = _time_transfer(source, target, garment, prepared)
             if reused is None or wall < reused["wall"]:
                 reused = dict(r.seconds, wall=wall)
         paper = PAPER_SECONDS.get(n)
+        solver = {"cold": cold_solver, "reused": r.info.get("solver")}
+        exact = exactness(r.V, target, np.random.default_rng(0), exact_sample) if exact_sample else None
         records.append({"triangles": garment.n_triangles, "requested": n, "vertices": garment.n_vertices,
-                        "cold": cold, "reused": reused, "paper_seconds": paper,
+                        "cold": cold, "reused": reused, "paper_seconds": paper, "solver": solver,
+                        "exact": exact, "exact_sample": exact_sample,
                         "speedup_cold": paper / cold["wall"] if paper else None,
                         "speedup_reused": paper / reused["wall"] if paper else None})
     multi = None
@@ -189,15 +202,16 @@ def format_bench(out):
     lines = [f"machine: {m['cpu']}, {m['cores']} cores; body {out['body']['name']} "
              f"({out['body']['triangles']} triangles); best of repeats, seconds",
              f"{'triangles':>10} {'cold':>7} {'reused':>7} {'paper':>7} {'x cold':>7} {'x reused':>8}"
-             "   stages (cold)"]
+             f" {'exact':>8} {'solver':>16}   stages (cold)"]
     for r in out["sizes"]:
         stages = " ".join(f"{k}={v:.3f}" for k, v in r["cold"].items()
                           if k not in ("wall", "total", "penetrating_vertices"))
         paper = f"{r['paper_seconds']:.3f}" if r["paper_seconds"] else "-"
         sc = f"{r['speedup_cold']:.1f}" if r["speedup_cold"] else "-"
         sr = f"{r['speedup_reused']:.1f}" if r["speedup_reused"] else "-"
+        ex = f"{r['exact']:.1e}" if r.get("exact") is not None else "-"
         lines.append(f"{r['triangles']:>10} {r['cold']['wall']:7.3f} {r['reused']['wall']:7.3f} "
-                     f"{paper:>7} {sc:>7} {sr:>8}   {stages}")
+                     f"{paper:>7} {sc:>7} {sr:>8} {ex:>8} {solver_text(r):>16}   {stages}")
     mt = out.get("multi_target")
     if mt:
         lines.append(f"one garment ({mt['triangles']} triangles) to {len(mt['targets'])} bodies: "
@@ -205,5 +219,12 @@ def format_bench(out):
                      f"(prepare {mt['prepare_seconds']:.2f} s, then "
                      f"{np.mean(mt['per_target_seconds']):.3f} s per body) against "
                      f"{mt['without_reuse_seconds']:.2f} s cold each time")
-    lines.append("paper: Shi et al., published times on an i7-8750H laptop")
+    lines.append("paper: Shi et al., published times on an i7-8750H laptop; exact: largest relative difference "
+                 "of the closest points near the result from a brute-force search; solver: the Poisson "
+                 "solve cold/reused")
     return lines
+
+
+def solver_text(r):
+    s = r.get("solver") or {}
+    return f"{s.get('cold') or 'factor'}/{s.get('reused') or 'factor'}"

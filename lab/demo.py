@@ -26,6 +26,7 @@ from garment_transfer.obj import write_obj
 
 from .experiment import METHODS as ALL_METHODS
 from .experiment import run_experiment
+from .outfits import outfits_markdown, run_outfits
 from .paths import BLENDER_SCRIPTS, DEMO_DATA
 
 log = logging.getLogger(__name__)
@@ -56,7 +57,8 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
     Returns
     -------
     dict
-        ``rows`` (one per garment, target and method), ``training``, ``seconds``, ``report``.
+        ``rows`` (one per garment, target and method), ``outfits`` (``lab.outfits.run_outfits``: the
+        layered outfits on the targets, one target when quick), ``training``, ``seconds``, ``report``.
     """
     t_start = time.perf_counter()
     out = Path(out)
@@ -97,11 +99,15 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
     for b in [source] + targets:
         write_obj(meshes / f"body__{b}.obj", ds.body(b))
 
+    t_outfits = time.perf_counter()
+    # Quick: one target, so that the tests stay short; the refusal of the reversed order is kept.
+    outfits = run_outfits(dataset, targets[:1] if quick else targets,
+                          progress=lambda f, stage: step(0.9 + 0.02 * f, stage))
     training = {t["variant"]: {k: v for k, v in t.items() if k != "curve"} for t in res["trainings"]}
-    seconds = {"total_before_render": time.perf_counter() - t_start}
+    seconds = {"outfits": time.perf_counter() - t_outfits, "total_before_render": time.perf_counter() - t_start}
     summary = {"dataset": str(dataset), "source": source, "targets": targets, "train_garments": train,
                "test_garments": test, "epochs": epochs, "training": training, "rows": res["rows"],
-               "seconds": seconds}
+               "outfits": outfits, "seconds": seconds}
     report = format_report(summary)
     write_text_atomic(out / "report.md", report)
     write_json_atomic(out / "results.json", summary)
@@ -189,7 +195,9 @@ def format_report(summary) -> str:
                          f"{_fmt(mean('drape_error_relative'))} | {_fmt(mean('vertex_error_mean'), '.4f')} | "
                          f"{_fmt(float(np.mean(secs)) if secs else None)} |")
     lines += ["", "Methods:", ""] + [f"- `{k}`: {ALL_METHODS[k].label}" for k in METHODS] + [
-        "- `simulation`: the garment draped on the target body by Blender's cloth solver (the reference).",
-        "", f"Written by `python -m lab demo` in "
+        "- `simulation`: the garment draped on the target body by Blender's cloth solver (the reference).", ""]
+    if "outfits" in summary:
+        lines += outfits_markdown(summary["outfits"])
+    lines += [f"Written by `python -m lab demo` in "
             f"{summary['seconds']['total_before_render']:.0f} s (before rendering).", ""]
     return "\n".join(lines)

@@ -64,10 +64,18 @@ def _drape_log(work):
 
 
 def pack(work, out=PACKED, source="banana", targets=("pear", "slim", "heavy", "apple", "hourglass")):
-    """Pack every garment of ``work`` draped on the source and all targets into ``out`` (.npz)."""
+    """Pack every garment of ``work`` draped on the source and all targets into ``out`` (.npz); the
+    garments ``out`` already holds and ``work`` does not are kept (generation runs in parts)."""
     work = Path(work)
     drape = _drape_log(work)
     arrays, done = {}, []
+    kept = {}
+    if Path(out).exists():
+        with np.load(out, allow_pickle=False) as npz:
+            old = json.loads(str(npz["metadata"]))
+            if old.get("source") == source and list(old.get("targets", [])) == list(targets):
+                kept = {g: {k: npz[f"{g}/{k}"] for k in ("quads", "source", "offsets")} for g in old["garments"]}
+                drape = {**old.get("drape_log", {}), **drape}
     for folder in sorted((work / "garments").glob("*")):
         g = folder.name
         files = [folder / f"{b}.obj" for b in (source, *targets)]
@@ -84,6 +92,11 @@ def pack(work, out=PACKED, source="banana", targets=("pear", "slim", "heavy", "a
         arrays[f"{g}/offsets"] = np.stack([np.round((m.V - back) / OFFSET_STEP) for m in meshes[1:]]
                                           ).astype(np.int16)
         done.append(g)
+    for g, parts in kept.items():
+        if g not in done:
+            arrays.update({f"{g}/{k}": v for k, v in parts.items()})
+            done.append(g)
+    done.sort()
     meta = {"source": source, "targets": list(targets), "garments": done, "source_step": SOURCE_STEP,
             "offset_step": OFFSET_STEP, "drape_log": {g: drape[g] for g in done}, "units": "metres"}
     arrays["metadata"] = np.array(json.dumps(meta))

@@ -30,14 +30,14 @@ from garment_transfer.intersections import crossings, minimum_distance, self_int
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.metrics import mdc
 from garment_transfer.obj import read_obj
-from garment_transfer.outfit import OutfitError, transfer_outfit
 from garment_transfer.transfer import transfer_garment
 
+from .outfits import crossings_left
+from .outfits import run_outfits as run_outfit_study
 from .paths import DEMO_DATA as DEMO
 from .paths import SHARED_MAKEHUMAN, makehuman_folder
 
 MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN
-OUTFITS = (("tshirt", "shift_dress"), ("shorts", "wrap_dress"))
 SPEED = (("wrap_dress", 1), ("formal_dress", 1), ("wrap_dress", 2), ("pleated_skirt", 2))
 
 HEADER = (f"{'garment':<20} {'target':<18} {'tris':>6} {'cross':>5} {'after':>5} {'self src':>8} "
@@ -133,37 +133,30 @@ def run_makehuman(quick):
     return rows
 
 
+def format_outfit_row(r):
+    under = f"{r['layer_crossings_source']:>6} {r['layer_crossings']:>5}" if r["layer"] > 1 else f"{'-':>6} {'-':>5}"
+    dist = "-" if r["min_layer_distance"] is None else f"{r['min_layer_distance']:.3g}"
+    return (f"{r['outfit']:<22} {r['target']:<10} {r['layer']:>5} {r['garment']:<12} "
+            f"{r['garment_edge_body_pairs']:>5} {r['body_edge_garment_pairs']:>5} {under} "
+            f"{r['self_intersections_source']:>8} {r['self_intersections']:>5} {r['min_body_distance']:>9.3g} "
+            f"{dist:>9} {r['mdc']:>8.4f}")
+
+
 def run_outfits(quick):
-    manifest = json.loads((DEMO / "manifest.json").read_text())
-    source = read_obj(DEMO / "bodies" / f"{manifest['source']}.obj")
-    targets = manifest["targets"][:2] if quick else manifest["targets"]
-    print(f"{'outfit':<22} {'target':<10} {'layer cross src':>15} {'after':>5} {'body':>5} "
-          f"{'MDC layers':>20} {'MDC vs separated src':>22} {'seconds (sep src, transfer, sep tgt)':>38}")
-    lines = []
-    for layers in OUTFITS:
-        garments = [read_obj(DEMO / "garments" / g / f"{manifest['source']}.obj", name=g) for g in layers]
-        before = crossing_count(garments[1].V, garments[1].F, garments[0])
-        for t in targets:
-            body = read_obj(DEMO / "bodies" / f"{t}.obj")
-            r = transfer_outfit(source, body, garments)
-            between = crossing_count(r.V[1], garments[1].F, garments[0].with_vertices(r.V[0]))
-            with_body = sum(crossing_count(V, g.F, body) for V, g in zip(r.V, garments))
-            m = [mdc(g.V, V, g.F) for g, V in zip(garments, r.V)]
-            ms = [mdc(s, V, g.F) for g, s, V in zip(garments, r.source_V, r.V)]
-            s = r.seconds
-            line = (f"{' under '.join(layers):<22} {t:<10} {before:>15} {between:>5} {with_body:>5} "
-                    f"{' '.join(f'{x:.4f}' for x in m):>20} {' '.join(f'{x:.4f}' for x in ms):>22} "
-                    f"{s['separate_source']:>12.2f} {s['transfer']:>8.2f} {s['separate_target']:>8.2f}")
-            print(line, flush=True)
-            lines.append((between, with_body))
-        try:
-            transfer_outfit(source, read_obj(DEMO / "bodies" / f"{targets[0]}.obj"), garments[::-1])
-            print(f"{' over '.join(layers)}: the wrong order was NOT refused")
-        except OutfitError as exc:
-            print(f"the wrong order is refused: {exc}")
-    crossed = sum(b + w > 0 for b, w in lines)
-    return (f"outfits: {len(lines)} outfit transfers; crossings left (between layers or with the body) "
-            f"in {crossed}")
+    targets = json.loads((DEMO / "manifest.json").read_text())["targets"]
+    print(f"{'outfit':<22} {'target':<10} {'layer':>5} {'garment':<12} {'g>b':>5} {'b>g':>5} "
+          f"{'under src':>6} {'after':>5} {'self src':>8} {'after':>5} {'min body':>9} {'min under':>9} "
+          f"{'MDC':>8}")
+    res = run_outfit_study(DEMO, targets[:2] if quick else targets,
+                           on_row=lambda r: print(format_outfit_row(r), flush=True))
+    for ref in res["refusals"]:
+        given = " under ".join(ref["order"])
+        print(f"the wrong order ({given}) is refused: {ref['message']}" if ref["refused"]
+              else f"{given}: the wrong order was NOT refused")
+    transfers = {(r["outfit"], r["target"]) for r in res["rows"]}
+    crossed = {(r["outfit"], r["target"]) for r in crossings_left(res)}
+    return (f"outfits: {len(transfers)} outfit transfers; crossings left (between layers or with the body) "
+            f"in {len(crossed)}")
 
 
 def subdivide(V, F):

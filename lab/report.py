@@ -14,6 +14,9 @@ Sections:
   direct deformation transfer (the body's own gradients), Blender's Surface Deform modifier (bound to
   the source body, evaluated on the target shape; ``lab/blender/surface_deform_baseline.py`` in a
   subprocess) and the reference itself (simulation or fitted garment). Figures: ``metrics.evaluate``.
+* **Outfits** of several layers (``lab/outfits.py``): two outfits of demo garments transferred together to
+  the demo targets, per layer crossings with the body and the layers under it, self-intersections,
+  smallest distances, MDC, and the refusal of each outfit's reversed order.
 * **Speed and scale**: ``lab.bench.run_bench`` per stage, cold and with the garment's factor reused, from
   28K to 300K triangles, against the paper's times; one garment to six bodies.
 * **Peak memory**: the largest benchmark size and a 1M-triangle garment, each in a fresh process
@@ -42,9 +45,10 @@ import numpy as np
 
 from garment_transfer.files import json_default, write_text_atomic
 
-from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description
+from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description, solver_text
 from .experiment import METHODS as ALL_METHODS
 from .experiment import curve_recorder, run_experiment, thin
+from .outfits import outfits_markdown, run_outfits
 from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder
 
 log = logging.getLogger(__name__)
@@ -102,6 +106,10 @@ class ReportSettings:
         At most this many MakeHuman garments and targets (None: all).
     makehuman_folds : int or None
         Hold out only the first this many of those garments (None: each in turn).
+    outfit_targets : int or None
+        The layered outfits go to at most this many demo targets (None: all).
+    exact_sample : int
+        Points per speed size whose closest points are checked against brute force.
     quick : bool
     """
 
@@ -118,6 +126,8 @@ class ReportSettings:
     makehuman_garments: int | None = None
     makehuman_targets: int | None = None
     makehuman_folds: int | None = None
+    outfit_targets: int | None = None
+    exact_sample: int = 500
     quick: bool = False
 
 
@@ -125,7 +135,8 @@ def quick_settings() -> ReportSettings:
     """Tiny sizes and few epochs: the whole report in seconds (for tests; its numbers mean nothing)."""
     return ReportSettings(sizes=(2000, 4000), repeats=1, targets=2, memory_sizes=(3000,), demo_epochs=5,
                           makehuman_epochs=5, scale_epochs=3, demo_test=1, demo_targets=2, demo_train=2,
-                          makehuman_garments=3, makehuman_targets=2, makehuman_folds=1,
+                          makehuman_garments=3, makehuman_targets=2, makehuman_folds=1, outfit_targets=1,
+                          exact_sample=40,
                           quick=True)
 
 
@@ -339,6 +350,15 @@ def demo_quality(settings, dataset=DEMO_DATA, progress=None):
     return out
 
 
+def demo_outfits(settings, dataset=DEMO_DATA, progress=None):
+    """The layered outfits (``lab.outfits``) on the demo targets; ``{"skipped": why}`` without the data."""
+    manifest_path = Path(dataset) / "manifest.json"
+    if not manifest_path.is_file():
+        return {"skipped": f"no demo data manifest at {manifest_path} (the data is not generated)"}
+    targets = list(json.loads(manifest_path.read_text())["targets"])[:settings.outfit_targets]
+    return run_outfits(dataset, targets, progress=progress)
+
+
 def makehuman_quality(settings, folder=None, progress=None):
     """Leave-one-garment-out quality on the MakeHuman fixtures; ``{"skipped": why}`` without them."""
     from garment_transfer.dataset import load_dataset
@@ -459,8 +479,11 @@ def training_at_scale(epochs) -> dict:
 # The whole report
 
 
+SECTIONS = ("quality", "outfits", "speed", "memory", "training")
+
+
 def run_report(out, settings: ReportSettings | None = None, quick=False, progress=None,
-               demo_dataset=DEMO_DATA, makehuman=None, command=None) -> dict:
+               demo_dataset=DEMO_DATA, makehuman=None, command=None, only=None) -> dict:
     """Measure everything and write ``out/report.md``, ``out/report.json`` and the plots.
 
     Parameters
@@ -476,6 +499,9 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
         The MakeHuman fixtures (default: ``bench.makehuman_folder()``).
     command : str, optional
         The command line, written into the report.
+    only : sequence of str, optional
+        Measure only these of ``SECTIONS`` again and keep the others from the report already in
+        ``out`` (its ``report.json``); the report says which sections were measured when.
 
     Returns
     -------
@@ -486,12 +512,23 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
 
     settings = settings or (quick_settings() if quick else ReportSettings())
     out = Path(out)
+    only = tuple(SECTIONS if only is None else only)
+    unknown = sorted(set(only) - set(SECTIONS))
+    if unknown:
+        raise ValueError(f"unknown report sections {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    earlier = None
+    if set(only) != set(SECTIONS):
+        try:
+            earlier = json.loads((out / "report.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{out / 'report.json'}: cannot keep the sections not measured again "
+                             f"({exc}); run the whole report first") from None
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     seconds = {}
     # Share of the run each section takes at full size (measured), for progress only.
-    spans = [("quality_demo", 0.15), ("quality_makehuman", 0.35), ("speed", 0.2), ("memory", 0.1),
-             ("training", 0.2)]
+    spans = [("quality_demo", 0.13), ("outfits", 0.02), ("quality_makehuman", 0.35), ("speed", 0.2),
+             ("memory", 0.1), ("training", 0.2)]
     bounds, acc = {}, 0.0
     for name, share in spans:
         bounds[name] = (acc, acc + share)
@@ -519,36 +556,56 @@ def run_report(out, settings: ReportSettings | None = None, quick=False, progres
                         "seconds_by_triangles": {str(k): v for k, v in PAPER_SECONDS.items()},
                         "note": "published figures of Shi et al., typed in from the paper"}}
 
-    t = time.perf_counter()
-    demo = demo_quality(settings, demo_dataset, progress=section("quality_demo"))
-    seconds["quality_demo"] = time.perf_counter() - t
-    t = time.perf_counter()
-    mh = makehuman_quality(settings, makehuman, progress=section("quality_makehuman"))
-    seconds["quality_makehuman"] = time.perf_counter() - t
-    report["quality"] = {}
-    for key, res in (("demo", demo), ("makehuman", mh)):
-        if "skipped" not in res:
-            res["summary"] = summarise(res)
-            res["worse_than_ours"] = worse_than_ours(res, res["summary"])
-        report["quality"][key] = res
+    if earlier is not None:
+        for key in SECTIONS:
+            if key not in only:
+                report[key] = earlier.get(key)
+        report["measured"] = dict(earlier.get("measured") or {key: earlier["date"] for key in SECTIONS
+                                                              if earlier.get(key) is not None})
+        seconds.update({k: v for k, v in earlier["seconds"].items() if not k.startswith("total")})
+    report.setdefault("measured", {})
+    for key in only:
+        report["measured"][key] = report["date"]
 
-    t = time.perf_counter()
-    report["speed"] = run_bench(sizes=settings.sizes, repeats=settings.repeats, targets=settings.targets,
-                                progress=section("speed"))
-    seconds["speed"] = time.perf_counter() - t
+    if "quality" in only:
+        t = time.perf_counter()
+        demo = demo_quality(settings, demo_dataset, progress=section("quality_demo"))
+        seconds["quality_demo"] = time.perf_counter() - t
+        t = time.perf_counter()
+        mh = makehuman_quality(settings, makehuman, progress=section("quality_makehuman"))
+        seconds["quality_makehuman"] = time.perf_counter() - t
+        report["quality"] = {}
+        for key, res in (("demo", demo), ("makehuman", mh)):
+            if "skipped" not in res:
+                res["summary"] = summarise(res)
+                res["worse_than_ours"] = worse_than_ours(res, res["summary"])
+            report["quality"][key] = res
 
-    t = time.perf_counter()
-    mem_progress = section("memory")
-    report["memory"] = []
-    for i, n in enumerate(settings.memory_sizes):
-        mem_progress(i / len(settings.memory_sizes), f"{n} triangles in a fresh process")
-        report["memory"].append(measure_memory(n))
-    seconds["memory"] = time.perf_counter() - t
+    if "outfits" in only:
+        t = time.perf_counter()
+        report["outfits"] = demo_outfits(settings, demo_dataset, progress=section("outfits"))
+        seconds["outfits"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    section("training")(0.0, "paper scale")
-    report["training"] = training_at_scale(settings.scale_epochs)
-    seconds["training"] = time.perf_counter() - t
+    if "speed" in only:
+        t = time.perf_counter()
+        report["speed"] = run_bench(sizes=settings.sizes, repeats=settings.repeats, targets=settings.targets,
+                                    progress=section("speed"), exact_sample=settings.exact_sample)
+        seconds["speed"] = time.perf_counter() - t
+
+    if "memory" in only:
+        t = time.perf_counter()
+        mem_progress = section("memory")
+        report["memory"] = []
+        for i, n in enumerate(settings.memory_sizes):
+            mem_progress(i / len(settings.memory_sizes), f"{n} triangles in a fresh process")
+            report["memory"].append(measure_memory(n))
+        seconds["memory"] = time.perf_counter() - t
+
+    if "training" in only:
+        t = time.perf_counter()
+        section("training")(0.0, "paper scale")
+        report["training"] = training_at_scale(settings.scale_epochs)
+        seconds["training"] = time.perf_counter() - t
 
     machine["load_average_end"] = list(os.getloadavg())
     seconds["total_before_writing"] = time.perf_counter() - t_start
@@ -850,6 +907,10 @@ def format_report(report) -> str:
              f"{', '.join(f'{x:.1f}' for x in m['load_average_start'])}, at the end "
              f"{', '.join(f'{x:.1f}' for x in m.get('load_average_end', []))}: other work on the machine "
              "slows every time below.", ""]
+    measured = report.get("measured") or {}
+    if len(set(measured.values())) > 1:
+        lines += ["Sections measured at different times (the others kept from an earlier run): " +
+                  "; ".join(f"{k} {v}" for k, v in measured.items()) + ".", ""]
     if report["settings"].get("quick"):
         lines += ["**Quick run** (tiny sizes and epochs, for the tests): the figures below mean nothing.", ""]
     lines += ["Every figure here comes from this run, except the paper's published figures (Shi et al., "
@@ -862,6 +923,8 @@ def format_report(report) -> str:
               "", "![quality](quality.png)", ""]
     for key in ("demo", "makehuman"):
         lines += _quality_md(key, report["quality"][key])
+    if report.get("outfits") is not None:
+        lines += outfits_markdown(report["outfits"])
 
     sp = report["speed"]
     lines += ["## Speed and scale", "",
@@ -873,14 +936,15 @@ def format_report(report) -> str:
               "Paper: published total times (i7-8750H laptop) at about the same garment sizes.", "",
               "![speed](speed.png)", "",
               "| triangles | cold (s) | reused (s) | paper, published (s) | paper / cold | paper / reused | "
-              "stages, cold (s) |",
-              "|---:|---:|---:|---:|---:|---:|---|"]
+              "closest points vs brute force | Poisson solver | stages, cold (s) |",
+              "|---:|---:|---:|---:|---:|---:|---:|---|---|"]
     for r in sp["sizes"]:
         st = ", ".join(f"{k} {v:.2f}" for k, v in r["cold"].items()
                        if k not in ("wall", "total", "penetrating_vertices"))
+        exact = (f"{r['exact']:.1e} ({r['exact_sample']} points)" if r.get("exact") is not None else "-")
         lines.append(f"| {r['triangles']} | {r['cold']['wall']:.3f} | {r['reused']['wall']:.3f} | "
                      f"{_f(r['paper_seconds'])} | {_f(r['speedup_cold'], '.1f')} | "
-                     f"{_f(r['speedup_reused'], '.1f')} | {st} |")
+                     f"{_f(r['speedup_reused'], '.1f')} | {exact} | {solver_text(r)} | {st} |")
     mt = sp.get("multi_target")
     if mt:
         lines += ["", f"One garment ({mt['triangles']} triangles) to {len(mt['targets'])} bodies: "

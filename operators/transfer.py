@@ -34,6 +34,20 @@ def model_frame(model):
     raise ModelError(model.name, f"was trained on data whose up axis is {up!r}; Y or Z is needed")
 
 
+def chosen_model(method, model_path, source):
+    """The model of the ``MODEL`` method (checked against the source body, a core Mesh) and the
+    (3,3) rotation into its frame; (None, identity) for the other methods."""
+    from ..garment_transfer.errors import ModelError
+
+    if method != "MODEL":
+        return None, np.eye(3)
+    if not model_path:
+        raise ModelError("model file", "none chosen; choose one, or use the Direct method")
+    model = load_model_cached(model_path)
+    model.check_source_body(source)
+    return model, model_frame(model)
+
+
 def result_name(garment, target_body):
     return f"{garment.name}_on_{target_body.name}"
 
@@ -61,7 +75,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     metrics : dict
         ``evaluate`` of the result against the garment on the target body.
     """
-    from ..garment_transfer.errors import MeshError, ModelError
+    from ..garment_transfer.errors import MeshError
     from ..garment_transfer.metrics import evaluate
     from ..garment_transfer.registration import transfer_to_any_body
 
@@ -76,14 +90,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
 
-    model = None
-    frame = np.eye(3)
-    if method == "MODEL":
-        if not model_path:
-            raise ModelError("model file", "none chosen; choose one, or use the Direct method")
-        model = load_model_cached(model_path)
-        model.check_source_body(source)
-        frame = model_frame(model)
+    model, frame = chosen_model(method, model_path, source)
 
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lab.outfits import OUTFITS
 from lab.paths import makehuman_folder
 from lab.report import METHODS, PAPER_TABLE1, peak_rss_mb
 
@@ -25,8 +26,8 @@ def test_quick_report(tmp_path):
     for name in ("report.md", "report.json", "speed.png", "training.png"):
         assert (out / name).is_file(), name
     rep = json.loads((out / "report.json").read_text())
-    assert {"date", "machine", "command", "settings", "paper", "quality", "speed", "memory", "training",
-            "seconds", "plots"} <= set(rep)
+    assert {"date", "machine", "command", "settings", "paper", "quality", "outfits", "speed", "memory",
+            "training", "seconds", "plots"} <= set(rep)
     assert rep["settings"]["quick"] is True
     assert {"cpu", "cores", "load_average_start", "load_average_end"} <= set(rep["machine"])
     assert rep["paper"]["table1"] == PAPER_TABLE1
@@ -54,6 +55,8 @@ def test_quick_report(tmp_path):
     for r in sizes:
         assert {"field", "bind", "factor", "solve", "fix", "wall"} <= set(r["cold"])
         assert "wall" in r["reused"]
+        assert r["exact"] < 1e-12 and r["exact_sample"] == rep["settings"]["exact_sample"]
+        assert set(r["solver"].values()) <= {"factor", "multigrid"}
     assert rep["speed"]["multi_target"]["per_target_seconds"]
     assert [m["triangles"] > 0 and m["peak_rss_mb"] >= m["rss_before_mb"] > 0 for m in rep["memory"]] == \
         [True] * len(rep["settings"]["memory_sizes"])
@@ -62,8 +65,34 @@ def test_quick_report(tmp_path):
         assert tr["body_triangles"] == 37744 and tr["garments"] == 15
         assert len(tr["curve"]) == tr["epochs"] == rep["settings"]["scale_epochs"]
     md = (out / "report.md").read_text()
-    for heading in ("## Quality", "## Speed and scale", "### Peak memory", "## Training"):
+    for heading in ("## Quality", "## Outfits of several layers", "## Speed and scale", "### Peak memory",
+                    "## Training"):
         assert heading in md
+
+    outfits = rep["outfits"]
+    assert outfits["targets"] == outfits["targets"][:rep["settings"]["outfit_targets"]]
+    assert len(outfits["rows"]) == 2 * len(OUTFITS) * len(outfits["targets"]) > 0
+    for r in outfits["rows"]:
+        assert r["garment_edge_body_pairs"] == r["body_edge_garment_pairs"] == r["layer_crossings"] == 0, r
+    assert all(f["refused"] for f in outfits["refusals"]) and len(outfits["refusals"]) == len(OUTFITS)
+    assert f"Crossings left: 0 of {len(outfits['rows'])} layers" in md
+
+    # The speed section again, the others kept from the report in the folder.
+    rep["measured"] = {k: "earlier" for k in ("quality", "outfits", "speed", "memory", "training")}
+    (out / "report.json").write_text(json.dumps(rep))
+    p = subprocess.run([sys.executable, "-m", "lab", "report", str(out), "--quick", "--only", "speed"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    again = json.loads((out / "report.json").read_text())
+    for key in ("quality", "outfits", "memory", "training"):
+        assert again[key] == rep[key], key
+        assert again["measured"][key] == "earlier"
+    assert again["measured"]["speed"] == again["date"] != "earlier"
+    assert again["speed"]["sizes"][0]["cold"]["wall"] != rep["speed"]["sizes"][0]["cold"]["wall"]
+    assert "Sections measured at different times" in (out / "report.md").read_text()
+    bad = subprocess.run([sys.executable, "-m", "lab", "report", str(tmp_path / "none"), "--only", "speed"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "report.json" in bad.stderr and not (tmp_path / "none").exists()
 
 
 def test_peak_rss_is_the_child_own():

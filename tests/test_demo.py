@@ -2,12 +2,20 @@
 
 import json
 
+import pytest
+
 from lab.demo import run_demo
+from lab.outfits import OUTFITS
 
 
-def test_quick_demo_writes_meshes_report_and_results(tmp_path):
-    out = tmp_path / "results"
-    summary = run_demo(out, quick=True, epochs=20, render=False)
+@pytest.fixture(scope="module")
+def quick_demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "results"
+    return out, run_demo(out, quick=True, epochs=20, render=False)
+
+
+def test_quick_demo_writes_meshes_report_and_results(quick_demo):
+    out, summary = quick_demo
     report = (out / "report.md").read_text()
     assert "Table 1" in report
     data = json.loads((out / "results.json").read_text())
@@ -27,3 +35,23 @@ def test_quick_demo_writes_meshes_report_and_results(tmp_path):
         assert r["mdc"] < 0.5 * sim[(r["garment"], r["target"])]["mdc"]
         assert r["drape_error_relative"] < 1.0
     assert (out / "model_ours.npz").is_file() and (out / "model_paper.npz").is_file()
+
+
+def test_quick_demo_reports_outfits_without_crossings(quick_demo):
+    out, summary = quick_demo
+    outfits = json.loads((out / "results.json").read_text())["outfits"]
+    target = summary["targets"][0]
+    assert [(r["outfit"], r["target"], r["garment"]) for r in outfits["rows"]] == [
+        (" under ".join(o), target, g) for o in OUTFITS for g in o]
+    for r in outfits["rows"]:
+        assert r["garment_edge_body_pairs"] == r["body_edge_garment_pairs"] == r["layer_crossings"] == 0, r
+        assert r["min_body_distance"] > 0 and (r["layer"] == 1 or r["min_layer_distance"] > 0)
+        assert r["self_intersections"] is not None and 0 < r["mdc"] < 0.2
+    # The garments were draped one by one, so the outer layer passed through the inner one as given.
+    assert all(r["layer_crossings_source"] > 0 for r in outfits["rows"] if r["layer"] == 2)
+    assert [(f["order"], f["refused"]) for f in outfits["refusals"]] == [(list(o[::-1]), True) for o in OUTFITS]
+    for f in outfits["refusals"]:
+        assert all(g in f["message"] for g in f["order"])
+    report = (out / "report.md").read_text()
+    assert "## Outfits of several layers" in report
+    assert f"Crossings left: 0 of {2 * len(OUTFITS)} layers in {len(OUTFITS)} outfit transfers." in report

@@ -36,3 +36,22 @@ def test_pack_keeps_shapes_to_the_step_and_leaves_out_unfinished_garments(tmp_pa
         np.testing.assert_allclose(shapes[b], want, atol=0.5 * SOURCE_STEP + 0.5 * OFFSET_STEP + 1e-12)
     with np.load(out, allow_pickle=False) as npz:
         assert npz["skirt/offsets"].dtype == np.int16 and npz["skirt/source"].dtype == np.int32
+
+
+def test_a_later_pack_keeps_the_garments_packed_before(tmp_path):
+    first, second = tmp_path / "first", tmp_path / "second"
+    for work, name, line in ((first, "skirt", 1), (second, "dress", 2)):
+        draped(work, name, np.array([0.0, 0.01 * line, 0.0]))
+        (work / "log.txt").write_text(
+            f"[ 1.0s] garment {line}/2 {name}: 20 vertices, 24 triangles, {line}.5s, vertices inside the body "
+            "before/after the fix [0, 0, 0]/[0, 0, 0]\n")
+    out = tmp_path / "packed.npz"
+    pack(first, out, source="banana", targets=BODIES[1:])
+    before = read_packed(out)[1]["skirt"]
+    meta = pack(second, out, source="banana", targets=BODIES[1:])
+    assert meta["garments"] == ["dress", "skirt"]
+    assert meta["drape_log"]["skirt"]["seconds"] == 1.5 and meta["drape_log"]["dress"]["seconds"] == 2.5
+    after = read_packed(out)[1]
+    np.testing.assert_array_equal(after["skirt"][0], before[0])
+    for b in BODIES:
+        np.testing.assert_array_equal(after["skirt"][1][b], before[1][b])

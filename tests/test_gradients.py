@@ -94,3 +94,57 @@ def test_poisson_anchor_weight_must_be_positive():
     V, F = icosphere(0)
     with pytest.raises(ValueError, match="anchor_weight"):
         PoissonSolver(V, F, anchor_weight=0.0)
+
+
+def _garment_pair():
+    """A garment on two bodies: MakeHuman's suit when the fixtures are there, else a waved sheet."""
+    from meshes import MAKEHUMAN
+
+    if (MAKEHUMAN / "garments").is_dir():
+        a = read_obj(MAKEHUMAN / "garments" / "female_casualsuit01" / "female_average.obj")
+        b = read_obj(MAKEHUMAN / "garments" / "female_casualsuit01" / "female_pear.obj")
+        return a.V, a.F, b.V
+    sheet = grid(120, 120, size=1.0, wave=0.02)
+    V = sheet.V
+    return V, sheet.F, V * [1.1, 0.9, 1.0] + 0.03 * np.sin(6 * V[:, [1, 2, 0]])
+
+
+def test_multigrid_solve_equals_the_factor():
+    # Anchors off the answer (a smooth pull and noise), per-vertex weights: the iteration has work to do.
+    V, F, Y = _garment_pair()
+    rng = np.random.default_rng(5)
+    Q, _ = deformation_gradients(V, Y, F)
+    anchors = Y + 0.02 * np.sin(3 * Y) + rng.normal(scale=1e-3, size=Y.shape)
+    weight = rng.uniform(1e-4, 1e-2, size=V.shape[0])
+    exact = PoissonSolver(V, F, weight).solve(Q, anchors)
+    multigrid = PoissonSolver(V, F, weight, method="multigrid")
+    assert multigrid.factor is None
+    out = multigrid.solve(Q, anchors)
+    assert multigrid.factor is None           # converged: no factor was made
+    size = np.ptp(Y, axis=0).max()
+    assert np.abs(out - anchors).max() > 1e-3 * size
+    assert np.abs(out - exact).max() < 1e-7 * size
+
+
+def test_multigrid_that_does_not_converge_falls_back_to_the_factor(caplog):
+    V, F, Y = _garment_pair()
+    Q, _ = deformation_gradients(V, Y, F)
+    anchors = Y + 0.02 * np.sin(3 * Y)
+    solver = PoissonSolver(V, F, 1e-3, method="multigrid")
+    solver.hierarchy.solve = lambda b, x0=None, **kw: x0          # never moves from the start
+    with caplog.at_level("WARNING", logger="garment_transfer.poisson"):
+        out = solver.solve(Q, anchors)
+    assert "did not converge" in caplog.text
+    np.testing.assert_allclose(out, PoissonSolver(V, F, 1e-3).solve(Q, anchors), rtol=0, atol=1e-12)
+
+
+def test_solver_method_by_size_and_reuse():
+    from garment_transfer import poisson
+
+    assert poisson.choose_method(5_000, reused=False) == "factor"
+    assert poisson.choose_method(poisson.MULTIGRID_MIN_VERTICES, reused=False) == "multigrid"
+    assert poisson.choose_method(poisson.FACTOR_MAX_VERTICES, reused=True) == "factor"
+    assert poisson.choose_method(poisson.FACTOR_MAX_VERTICES + 1, reused=True) == "multigrid"
+    V, F = icosphere(0)
+    with pytest.raises(ValueError, match="method"):
+        PoissonSolver(V, F, 1e-3, method="cholesky")

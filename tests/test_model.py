@@ -195,11 +195,21 @@ def test_cancel_writes_nothing(tiny, tmp_path):
 
 
 def test_model_for_another_source_body(saved, tiny):
-    model = load_model(saved)
+    from garment_transfer.model import SharedDeformationModel
     from garment_transfer.obj import read_obj
 
-    model.check_source_body(read_obj(tiny / "bodies" / "src.obj"))
+    # A model holds the body it was trained on: it serves other bodies through a registration
+    # (tests/test_field_mapping.py), and knows which bodies are its own mesh.
+    held = load_model(saved)
+    src = read_obj(tiny / "bodies" / "src.obj")
+    assert held.same_body(src) and held.source_body.n_triangles == src.n_triangles
+    np.testing.assert_array_equal(held.source_body.V, src.V)
     V, F = icosphere(3)
+    assert not held.same_body(mesh_from_triangles(V, F, name="other.obj"))
+    # A model file without its body serves its own body's mesh only.
+    model = SharedDeformationModel({k: v for k, v in held.arrays.items() if not k.startswith("source_")},
+                                   held.metadata, name=held.name)
+    model.check_source_body(src)
     with pytest.raises(ModelError, match=r"m\.npz: was trained on source body 'src' \(162 vertices.*has 642"):
         model.check_source_body(mesh_from_triangles(V, F, name="other.obj"))
     V, F = icosphere(2)

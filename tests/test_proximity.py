@@ -10,7 +10,7 @@ import pytest
 import garment_transfer.penetration as penetration
 from garment_transfer.obj import read_obj
 from garment_transfer.proximity import TriangleSurface
-from meshes import grid, icosphere, random_rotation, require_makehuman
+from meshes import MAKEHUMAN, grid, icosphere, random_rotation, require_makehuman
 
 REL = 1e-12
 
@@ -207,6 +207,29 @@ def test_signed_distance_sign_on_an_open_sphere():
     far = np.isinf(sdb)
     assert far.sum() > 500
     np.testing.assert_array_equal(sdb[far] < 0, inside[far])
+
+
+def test_side_of_a_few_far_points_equals_the_winding_number():
+    # The vote for far groups takes the pseudonormal at the exact closest point, and the winding
+    # number where the closest triangle touches an open rim: on a closed sphere, an open one (points
+    # near the hole included) and the MakeHuman body, it must agree with the
+    # winding number at every point off the surface.
+    rng = np.random.default_rng(3)
+    V, F = icosphere(3)
+    cases = [(V, F), (V, F[V[F].mean(axis=1)[:, 2] < 0.8])]
+    if (MAKEHUMAN / "bodies").is_dir():
+        body = read_obj(MAKEHUMAN / "bodies" / "female_average.obj")
+        cases.append((body.V, body.F))
+    for k, (V, F) in enumerate(cases):
+        scale = float(np.ptp(V, axis=0).max())
+        P = np.vstack([V.mean(axis=0) + rng.normal(scale=0.4 * scale, size=(600, 3)),
+                       V[rng.choice(V.shape[0], 400)] + rng.normal(scale=0.02 * scale, size=(400, 3))])
+        s = TriangleSurface(V, F)
+        P = P[np.abs(s.signed_distance(P)[0]) > 1e-6 * scale]
+        few = s._inside_few(P)
+        np.testing.assert_array_equal(few, s.inside(P))
+        assert 0 < few.sum() < few.size
+        assert s._rim.any() == (k == 1)     # the MakeHuman body is closed
 
 
 @pytest.mark.parametrize("bounded_min", [0, 10**9])

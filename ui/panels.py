@@ -72,6 +72,55 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 
+class GARMENT_TRANSFER_UL_outfit_layers(bpy.types.UIList):
+    """The outfit's layers, from the body out: the first row is worn next to the skin."""
+
+    def draw_item(self, _context, layout, _data, item, _icon, _active_data, _active_prop, index=0, _flt=0):
+        row = layout.row(align=True)
+        row.label(text=f"{index + 1}.")
+        row.prop(item, "garment", text="", emboss=False, icon='MOD_CLOTH')
+        if item.auto_offset:
+            row.label(text="auto offset")
+        else:
+            row.prop(item, "offset", text="")
+
+
+class VIEW3D_PT_garment_transfer_outfit(GarmentPanel, bpy.types.Panel):
+    bl_label = "Outfit"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.garment_transfer
+        layout.label(text="Layers from the body out (first: next to the skin)")
+        row = layout.row()
+        row.template_list("GARMENT_TRANSFER_UL_outfit_layers", "", settings, "outfit_layers", settings,
+                          "outfit_index", rows=3)
+        col = row.column(align=True)
+        col.operator("garment_transfer.outfit_add", text="", icon='ADD').source = 'SELECTED'
+        col.operator("garment_transfer.outfit_remove", text="", icon='REMOVE')
+        col.separator()
+        col.operator("garment_transfer.outfit_move", text="", icon='TRIA_UP').direction = 'UP'
+        col.operator("garment_transfer.outfit_move", text="", icon='TRIA_DOWN').direction = 'DOWN'
+        row = layout.row(align=True)
+        row.prop(settings, "outfit_collection", text="")
+        row.operator("garment_transfer.outfit_add", text="Add Collection",
+                     icon='OUTLINER_COLLECTION').source = 'COLLECTION'
+        if 0 <= settings.outfit_index < len(settings.outfit_layers):
+            layer = settings.outfit_layers[settings.outfit_index]
+            col = layout.column()
+            col.use_property_split = True
+            col.use_property_decorate = False
+            col.prop(layer, "auto_offset")
+            sub = col.row()
+            sub.enabled = not layer.auto_offset
+            sub.prop(layer, "offset")
+        layout.operator("garment_transfer.transfer_outfit", icon='MOD_CLOTH')
+        if settings.last_outfit:
+            layout.label(text=f"Last: {settings.last_outfit}", icon='CHECKMARK')
+
+
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):
     bl_label = "Evaluation"
     bl_parent_id = "VIEW3D_PT_garment_transfer"
@@ -140,7 +189,9 @@ class VIEW3D_PT_garment_transfer_drape(GarmentPanel, bpy.types.Panel):
 
 
 CLASSES = (
+    GARMENT_TRANSFER_UL_outfit_layers,
     VIEW3D_PT_garment_transfer,
+    VIEW3D_PT_garment_transfer_outfit,
     VIEW3D_PT_garment_transfer_evaluation,
     VIEW3D_PT_garment_transfer_training,
     VIEW3D_PT_garment_transfer_drape,

@@ -40,6 +40,22 @@ class GarmentTransferTarget(bpy.types.PropertyGroup):
     """A target body label of the loaded model (``name`` is the label)."""
 
 
+class GarmentTransferLayer(bpy.types.PropertyGroup):
+    """One layer of an outfit: a garment and the distance it keeps from what is under it."""
+
+    garment: PointerProperty(
+        name="Garment", type=bpy.types.Object, poll=is_mesh,
+        description="The garment of this layer as it sits on the source body")
+    auto_offset: BoolProperty(
+        name="Automatic Offset", default=True,
+        description="Keep the distance the single transfer keeps (chosen from the body's scale)")
+    offset: FloatProperty(
+        name="Offset", subtype='DISTANCE', unit='LENGTH', default=0.002, min=0.0, max=1.0, soft_max=0.05,
+        precision=4,
+        description="Distance this layer keeps from the body and the layers under it: the thickness "
+                    "of the cloth under it")
+
+
 class GarmentTransferSettings(bpy.types.PropertyGroup):
     source_body: PointerProperty(
         name="Source Body", type=bpy.types.Object, poll=is_mesh,
@@ -89,6 +105,16 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Fix Penetration", default=True,
         description="Push garment vertices out of the target body and spread the fix smoothly")
 
+    outfit_layers: CollectionProperty(
+        type=GarmentTransferLayer, name="Outfit Layers",
+        description="The garments of an outfit, from the body out: each is worn over the ones above "
+                    "it in the list")
+    outfit_index: IntProperty(name="Active Layer", default=0, min=0)
+    outfit_collection: PointerProperty(
+        name="Collection", type=bpy.types.Collection,
+        description="A collection of garments to add as layers (its mesh objects, by name)")
+    last_outfit: StringProperty(name="Last Outfit")
+
     result: PointerProperty(
         name="Result", type=bpy.types.Object, poll=is_mesh,
         description="A transferred garment to evaluate (set by Transfer)")
@@ -125,7 +151,7 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
                     "shoulders); without one a close-fitting garment can slide down")
 
 
-CLASSES = (GarmentTransferTarget, GarmentTransferSettings)
+CLASSES = (GarmentTransferTarget, GarmentTransferLayer, GarmentTransferSettings)
 
 
 def register_settings():

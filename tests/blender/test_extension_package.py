@@ -35,14 +35,14 @@ assert bpy.ops.extensions.package_install_files(
     filepath=zip_path, repo="user_default", enable_on_install=True) == {'FINISHED'}
 out = {"enabled": "bl_ext.user_default.garment_transfer" in bpy.context.preferences.addons}
 
-# Use the scipy and libigl the extension installed, not those of the Python running this test.
+# Use the scipy, libigl and pyamg the extension installed, not those of the Python running this test.
 bundled = os.path.join(os.environ["BLENDER_USER_RESOURCES"], "extensions", ".local", "lib",
                        "python%d.%d" % sys.version_info[:2], "site-packages")
 out["installed"] = sorted(n for n in os.listdir(bundled) if n.endswith(".dist-info"))
 out["libraries"] = sorted(n for _, _, files in os.walk(bundled) for n in files
                           if ".cpython-" in n or ".abi3." in n or n.endswith(".pyd"))
 sys.path.insert(0, bundled)
-for name in [m for m in sys.modules if m.split(".")[0] in ("scipy", "igl")]:
+for name in [m for m in sys.modules if m.split(".")[0] in ("scipy", "igl", "pyamg")]:
     del sys.modules[name]
 
 

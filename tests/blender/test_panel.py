@@ -17,13 +17,17 @@ class RecordingLayout:
     def __getattr__(self, name):
         if name in ("column", "row", "box", "split"):
             return lambda *a, **k: RecordingLayout(self.calls)
-        return lambda *a, **k: self.calls.append((name, a, k))
+
+        def record(*a, **k):
+            self.calls.append((name, a, k))
+            return SimpleNamespace()    # an operator button's properties can be set on what it returns
+        return record
 
     def __setattr__(self, name, value):
         object.__setattr__(self, name, value)
 
 
-PANELS = ("VIEW3D_PT_garment_transfer", "VIEW3D_PT_garment_transfer_evaluation",
+PANELS = ("VIEW3D_PT_garment_transfer", "VIEW3D_PT_garment_transfer_outfit", "VIEW3D_PT_garment_transfer_evaluation",
           "VIEW3D_PT_garment_transfer_training", "VIEW3D_PT_garment_transfer_drape")
 
 
@@ -60,7 +64,8 @@ def test_training_panel_says_when_torch_is_missing(extension, monkeypatch):
 
 
 def test_operators_have_tooltips_and_undo(extension):
-    for op in ("transfer", "evaluate", "train", "drape"):
+    for op in ("transfer", "evaluate", "train", "drape", "transfer_outfit", "outfit_add", "outfit_remove",
+               "outfit_move"):
         cls = getattr(bpy.types, f"GARMENT_TRANSFER_OT_{op}")
         assert {'REGISTER', 'UNDO'} <= set(cls.bl_options)
         assert cls.__doc__ and len(cls.__doc__.split()) > 8

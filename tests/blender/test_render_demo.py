@@ -236,3 +236,37 @@ def test_render_demo_names_what_is_wrong_with_the_results_folder(tmp_path, break
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("render_demo: error:") and named in last, last
     assert not (folder / "renders").exists() and not (folder / "demo.blend").exists()
+
+
+def test_render_columns_draws_each_column_in_its_colours_and_names_a_missing_file(tmp_path):
+    # A body in decimetres, Y up (MakeHuman's frame) beside one in metres, Z up: both stand on the floor
+    # of one figure, the garment of the first blue, of the second yellow.
+    body = capsule_body(0.16)
+    dress = tube_dress(body, 1200)
+    yup = np.stack([body.V[:, 0], body.V[:, 2], -body.V[:, 1]], axis=1) * 10.0
+    write_obj(tmp_path / "body_dm.obj", body, yup)
+    write_obj(tmp_path / "dress_dm.obj", dress,
+              np.stack([dress.V[:, 0], dress.V[:, 2], -dress.V[:, 1]], axis=1) * 10.0)
+    write_obj(tmp_path / "body_m.obj", body)
+    write_obj(tmp_path / "dress_m.obj", dress)
+    dm, m = {"scale": 0.1, "up": "Y"}, {"scale": 1.0, "up": "Z"}
+    spec = {"size": [240, 160], "columns": [
+        {"meshes": [dict(obj=str(tmp_path / "body_dm.obj"), kind="body", **dm),
+                    dict(obj=str(tmp_path / "dress_dm.obj"), kind="source", **dm)]},
+        {"meshes": [dict(obj=str(tmp_path / "body_m.obj"), kind="body", **m),
+                    dict(obj=str(tmp_path / "dress_m.obj"), kind="ours", **m)]}]}
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    out = tmp_path / "figure.png"
+    cmd = [sys.executable, "-m", "lab.blender.render_columns", "--spec", str(tmp_path / "spec.json"),
+           "--out", str(out), "--samples", "4"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert p.returncode == 0, p.stderr
+    px = read_png(out)[:, :, :3].astype(int)
+    half = px.shape[1] // 2
+    blue = (px[:, :, 2] > px[:, :, 0] + 60)
+    yellow = (px[:, :, 0] > px[:, :, 2] + 60) & (px[:, :, 1] > px[:, :, 2] + 30)
+    assert blue[:, :half].sum() > 100 and blue[:, half:].sum() == 0
+    assert yellow[:, half:].sum() > 100 and yellow[:, :half].sum() == 0
+    (tmp_path / "dress_m.obj").unlink()
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert p.returncode == 1 and "dress_m.obj" in p.stderr
