@@ -2,10 +2,11 @@
 
 Layers are given from the body out. Garments draped one by one on the source body usually pass
 through each other (each was simulated alone), so the outfit is first made wearable on the source:
-each layer is pushed out of the body and the layers under it (vertex push-out, then the exact
-crossing pass) with its own offset. Then every layer is transferred on its own (the method does
-not change), and the same separation runs again on the target, from the body out: each layer
-treats the body and the transferred layers under it as one obstacle.
+each layer is pushed out of the body and the layers under it with its own offset (``push_out``:
+an order-keeping warp of the space near what is under it, then the exact crossing pass), and the
+cloth is not allowed to cross itself more than it did before. Then every layer is transferred on
+its own (the method does not change), and the same separation runs again on the target, from the
+body out: each layer treats the body and the transferred layers under it as one obstacle.
 
 Two checks stop an outfit that cannot be worn, naming the garments, before anything is returned:
 
@@ -17,15 +18,17 @@ Two checks stop an outfit that cannot be worn, naming the garments, before anyth
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import clearance, penetration
 from .embedding import body_scale
 from .errors import MeshError
-from .intersections import crossings
+from .intersections import crossings, self_intersections
 from .mesh import Mesh, edge_lengths_mean
 from .proximity import TriangleSurface
 from .transfer import OFFSET_SHARE, transfer_garment
@@ -34,6 +37,19 @@ from .transfer import OFFSET_SHARE, transfer_garment
 #: (within ``ORDER_BAND`` of its mean edge length) are inside that layer on the source.
 ORDER_INSIDE_SHARE = 0.5
 ORDER_BAND = 3.0
+
+#: The push-out warps, tried in this order until one leaves no crossing and no more
+#: self-intersections than the layer had (``push_out``): (clearance the warp asks for, in offsets;
+#: depth of the band the push fades over and radius over which a deep vertex lifts the cloth
+#: around it, both as shares of the body's scale, ``embedding.body_scale``; None: the whole
+#: layer). The first asks for half an offset more than the crossing pass keeps, so that the
+#: under layer's own folds, which stand between the warped vertices, seldom poke through; the
+#: later ones move more cloth (higher MDC on the demo outfits, ``python -m lab.intersections``).
+WARPS = ((1.5, 0.044, 0.055), (1.0, 0.022, 0.055), (1.5, 0.022, 0.055), (2.0, 0.044, 0.055),
+         (1.0, 0.022, None), (2.0, 0.044, None))
+
+
+log = logging.getLogger(__name__)
 
 
 class OutfitError(MeshError):
@@ -119,6 +135,161 @@ def check_order(garments, Vs, body: TriangleSurface):
                     f"({garments[k].name} before {garments[i].name}?)")
 
 
+def rim_triangles(F):
+    """(m,) bool: triangles with a corner on an open rim (an edge of only one triangle).
+
+    Parameters
+    ----------
+    F : (m,3) int
+    """
+    F = np.asarray(F, dtype=np.int64)
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    key, count = np.unique(e[:, 0] * (int(F.max()) + 1) + e[:, 1], return_counts=True)
+    rim_vertex = np.zeros(int(F.max()) + 1, bool)
+    single = key[count == 1]
+    rim_vertex[single // (int(F.max()) + 1)] = True
+    rim_vertex[single % (int(F.max()) + 1)] = True
+    return rim_vertex[F].any(axis=1)
+
+
+def obstacle_distance(surface: TriangleSurface, V, rim=None):
+    """Signed distance of a layer's vertices to what is under it (the body and the lower layers).
+
+    The side comes from the pseudonormal at the closest point, which is wrong beyond the rim of an
+    open lower layer (past a T-shirt's hem the closest point is on the hem, and the cloth there is
+    not under it): where the closest triangle touches a rim, a vertex counted inside is asked
+    again by the winding number, and made outside, pushed away from the rim, when that says so.
+
+    Parameters
+    ----------
+    surface : TriangleSurface
+        The obstacle, its lower layers' triangles facing away from the body.
+    V : (n,3) float
+    rim : (q,) bool, optional
+        ``rim_triangles(surface.F)``, if known.
+
+    Returns
+    -------
+    sd : (n,) float64
+    normal : (n,3) float64
+        The direction out of the obstacle at each vertex.
+    """
+    sd, closest, normal, tri = surface.signed_distance(V)
+    rim = rim_triangles(surface.F) if rim is None else rim
+    ask = np.flatnonzero((sd < 0) & rim[tri])
+    if ask.size:
+        out = ask[~surface.inside(V[ask])]
+        sd[out] = -sd[out]
+        d = V[out] - closest[out]
+        normal[out] = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    return sd, normal
+
+
+def warp_out(V, sd, normal, clear, band, radius=None):
+    """Lift a layer off what is under it, keeping the order of its sheets along the normal.
+
+    A vertex at signed distance ``s`` below ``clear + band`` goes to ``clear + (s - s_lo) * band /
+    (clear + band - s_lo)`` along the obstacle's normal: the band ``[s_lo, clear + band]`` is
+    squeezed into ``[clear, clear + band]``, so the deepest vertex reaches ``clear`` and two sheets
+    of a fold, one over the other, stay in that order instead of landing on one surface (what
+    projecting every vertex to the offset surface does, and what makes the cloth cross itself).
+    ``s_lo`` is the depth of the deepest vertex around: each vertex closer than ``clear`` lowers
+    it within ``radius``, by less the farther away (continuous, so the warp stays one-to-one
+    where the normals are smooth); ``radius`` None takes the deepest of the whole layer.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    sd : (n,) float
+        Signed distances to the obstacle (``obstacle_distance``).
+    normal : (n,3) float
+    clear, band : float
+    radius : float, optional
+
+    Returns
+    -------
+    V : (n,3) float64
+        A new array.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    low = np.flatnonzero(sd < clear)
+    if low.size == 0:
+        return V.copy()
+    if radius is None:
+        s_lo = np.full(V.shape[0], sd[low].min())
+    else:
+        s_lo = np.full(V.shape[0], float(clear))
+        s_lo[low] = sd[low]
+        near = cKDTree(V).sparse_distance_matrix(cKDTree(V[low]), radius, output_type="ndarray")
+        j = low[near["j"]]
+        np.minimum.at(s_lo, near["i"], sd[j] + (clear - sd[j]) * near["v"] / radius)
+    lift = sd < clear + band
+    f = sd.copy()
+    f[lift] = clear + (sd[lift] - s_lo[lift]) * band / (clear + band - s_lo[lift])
+    return V + np.maximum(f - sd, 0.0)[:, None] * normal
+
+
+def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
+    """A layer moved out of what is under it: no crossing, and no more self-intersections than it had.
+
+    Each warp of ``WARPS`` (``warp_out``), then the exact crossing pass (``clearance.separate``),
+    is tried until one leaves no crossing and no more self-intersections than ``V`` has
+    (``intersections.self_intersections``); the vertex push-out (``penetration.fix_penetration``)
+    and the crossing pass come last. When none does, the one with the fewest crossings, then the
+    fewest self-intersections, is kept.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    F : (m,3) int
+    obstacle_V : (p,3) float
+    obstacle_F : (q,3) int
+        The body, or the body and the layers under this one (their triangles facing away from it).
+    offset : float
+        The layer's clearance.
+    scale : float
+        The body's scale (``embedding.body_scale``).
+    surface : TriangleSurface, optional
+        Of the obstacle, when already built.
+
+    Returns
+    -------
+    V : (n,3) float64
+    info : dict
+        ``warp`` (the index in ``WARPS`` used; ``len(WARPS)`` for the push-out), ``tried``,
+        ``pushed_vertices``, ``crossings_before``, ``crossings_after``, ``self_intersections_before``,
+        ``self_intersections_after``.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    surface = TriangleSurface(obstacle_V, obstacle_F) if surface is None else surface
+    sd, normal = obstacle_distance(surface, V)
+    before = self_intersections(V, F)[0]
+    info = {"pushed_vertices": int((sd < offset).sum()), "self_intersections_before": before}
+    best, tried = None, 0
+    for k in range(len(WARPS) + 1):
+        tried += 1
+        if k < len(WARPS):
+            times, band, radius = WARPS[k]
+            W = warp_out(V, sd, normal, times * offset, band * scale,
+                         None if radius is None else radius * scale)
+        else:
+            W = penetration.fix_penetration(V, F, surface, offset)[0]
+        W, sep = clearance.separate(W, F, surface.V, surface.F, offset, surface=surface)
+        key = (sep["crossings_after"], self_intersections(W, F)[0])
+        if best is None or key < best[0]:
+            best = (key, k, W, sep)
+        if key[0] == 0 and key[1] <= before:
+            break
+    (left, after), k, W, sep = best
+    c = crossings(V, F, surface.V, surface.F)
+    info.update(warp=k, tried=tried, crossings_before=c["a_edge_pairs"] + c["b_edge_pairs"],
+                crossings_after=left, self_intersections_after=after, separation=sep)
+    if after > before:
+        log.info("a layer crosses itself at %d edge-triangle pairs after its push-out (%d before)", after, before)
+    return W, info
+
+
 def separate_layers(body_V, body_F, garments, Vs, offsets):
     """Each layer pushed out of the body and of the layers under it, from the body out.
 
@@ -139,17 +310,16 @@ def separate_layers(body_V, body_F, garments, Vs, offsets):
     info : list of dict
     """
     body = TriangleSurface(body_V, body_F)
+    scale = body_scale(body_V)
     out, info = [], []
     under = [(np.asarray(body_V, dtype=np.float64), np.asarray(body_F, dtype=np.int64))]
     for k, (garment, V) in enumerate(zip(garments, Vs)):
         obstacle_V, obstacle_F = merge_meshes(under)
         surface = TriangleSurface(obstacle_V, obstacle_F) if k else body
-        V, fix = penetration.fix_penetration(V, garment.F, surface, offsets[k])
-        V, sep = clearance.separate(V, garment.F, obstacle_V, obstacle_F, offsets[k], surface=surface)
+        V, push = push_out(V, garment.F, obstacle_V, obstacle_F, offsets[k], scale, surface=surface)
         out.append(V)
-        info.append({"pushed_vertices": fix["pushed_vertices"], "crossings_before": sep["crossings_before"],
-                     "crossings_after": sep["crossings_after"],
-                     "self_intersections_added": sep["self_intersections_added"]})
+        info.append(dict(push, self_intersections_added=push["self_intersections_after"]
+                         - push["self_intersections_before"]))
         under.append((V, oriented_outward(V, garment.F, body)))
     return out, info
 
