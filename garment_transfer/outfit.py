@@ -53,6 +53,8 @@ ORDER_BAND = 3.0
 #: under layer's own folds, which stand between the warped vertices, seldom poke through; the
 #: later ones move more cloth (higher MDC on the demo outfits, ``python -m lab.intersections``).
 WARPS = ((1.5, 0.044, 0.055), (1.0, 0.022, 0.055), (2.0, 0.044, 0.055), (1.0, 0.022, None))
+#: Above this many vertices to lift, one per cell stands for the others in ``warp_out``.
+WARP_SEEDS = 4096
 #: Radius (share of the body's scale) of the cloth moved as one around a self-intersection the
 #: push-out made (``move_together``), grown by itself at every try, and the tries per warp.
 TOGETHER_RADIUS = 0.0055
@@ -231,8 +233,18 @@ def warp_out(V, sd, normal, clear, band, radius=None):
     else:
         s_lo = np.full(V.shape[0], float(clear))
         s_lo[low] = sd[low]
-        near = cKDTree(V).sparse_distance_matrix(cKDTree(V[low]), radius, output_type="ndarray")
-        j = low[near["j"]]
+        deep = low
+        if deep.size > WARP_SEEDS:
+            # On a fine mesh, the deepest vertex of every cell an eighth of the radius wide: the
+            # pairs within the radius stay as many as on a coarse one.
+            cell = np.floor(V[deep] / (radius / 8.0)).astype(np.int64)
+            order = np.lexsort((sd[deep], *cell.T))
+            key = cell[order]
+            first = np.ones(order.size, bool)
+            first[1:] = np.any(key[1:] != key[:-1], axis=1)
+            deep = deep[order[first]]
+        near = cKDTree(V).sparse_distance_matrix(cKDTree(V[deep]), radius, output_type="ndarray")
+        j = deep[near["j"]]
         np.minimum.at(s_lo, near["i"], sd[j] + (clear - sd[j]) * near["v"] / radius)
     lift = sd < clear + band
     f = sd.copy()
