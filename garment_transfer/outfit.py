@@ -86,7 +86,8 @@ class OutfitResult:
     seconds : dict
         ``separate_source``, ``transfer``, ``separate_target``, ``check``, ``total``.
     info : list of dict
-        Per layer: its transfer's info, and ``source_moved`` / ``target_crossings`` figures.
+        Per layer: its transfer's info, with ``source`` and ``target_separation``: what its
+        push-out did on either body (``push_out``'s info, and ``self_intersections_added``).
     """
 
     V: list
