@@ -162,8 +162,8 @@ def outfits_markdown(res, command="python -m lab.intersections --only outfits") 
         f"{', '.join(f'`{t}`' for t in res['targets'])}. Crossings are exact edge-triangle pairs: garment "
         "edges through the body / body edges through the garment; with the layers under it, both ways "
         "(as given on the source, each garment draped alone, and after). Self-intersections: pairs, as "
-        "given on the source and after. MDC against the garment as given, and against the layer after its "
-        "separation on the source (what was transferred).",
+        "given on the source and after. MDC against the garment as given, and against the layer as "
+        "separated on the source (the outfit made wearable there; each layer is transferred as given).",
         "",
         "| outfit | target | layer | garment | body crossings (garment / body edges) | crossings with layers "
         f"under (source / after) | self-intersections (source / after) | smallest distance to body ({unit}) | "
