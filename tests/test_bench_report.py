@@ -65,6 +65,10 @@ def test_quick_report(tmp_path):
         assert tr["body_triangles"] == 37744 and tr["garments"] == 15
         assert len(tr["curve"]) == tr["epochs"] == rep["settings"]["scale_epochs"]
     md = (out / "report.md").read_text()
+    if ran:
+        assert "Intersections, checked exactly" in md
+        ours = [r for res in ran for r in res["rows"] if r["method"] == "ours"]
+        assert ours and all(r["garment_edges_through_body"] == r["body_edges_through_garment"] == 0 for r in ours)
     for heading in ("## Quality", "## Outfits of several layers", "## Speed and scale", "### Peak memory",
                     "## Training"):
         assert heading in md
