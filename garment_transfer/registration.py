@@ -52,7 +52,7 @@ from .proximity import TriangleSurface, closest_on_triangles
 log = logging.getLogger(__name__)
 
 #: Bumped whenever the algorithm or its defaults change, so old cache entries are not reused.
-ALGORITHM_VERSION = 1
+ALGORITHM_VERSION = 2
 
 #: Known unit ratios: a scale ratio within UNIT_SNAP of one of these is taken to be a change of units.
 UNIT_RATIOS = tuple(sorted({f * 10.0 ** k for k in range(-4, 5)
@@ -436,20 +436,10 @@ def _pairs_to_target(X, N, surface: TriangleSurface, tn_cos, max_dist):
     return C, ok.astype(np.float64), d
 
 
-def _pairs_from_target(X, F, P, Np, tn_cos, max_dist, k=8):
+def _pairs_from_target(X, F, P, Np, tn_cos, max_dist):
     """Closest points on the fit for target points P: sparse barycentric rows and weights."""
-    corners = X[F]
-    tree = cKDTree(corners.mean(axis=1))
-    _, cand = tree.query(P, k=k)
+    _, d, tri, bary = TriangleSurface(X, F).closest(P)
     m = P.shape[0]
-    T = cand.reshape(-1)
-    Pr = np.repeat(P, k, axis=0)
-    c = corners[T]
-    Q, bary = closest_on_triangles(Pr, c[:, 0], c[:, 1], c[:, 2])
-    dd = np.linalg.norm(Pr - Q, axis=1).reshape(m, k)
-    j = np.argmin(dd, axis=1)
-    sel = np.arange(m) * k + j
-    tri, bary, d = T[sel], bary[sel], dd[np.arange(m), j]
     Nf, _ = triangle_normals(X, F[tri])
     ok = (np.einsum("ij,ij->i", Np, Nf) >= tn_cos) & (d <= max_dist)
     B = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(m), 3), F[tri].ravel())), shape=(m, X.shape[0]))
