@@ -47,7 +47,7 @@ from scipy.spatial import cKDTree
 
 from .errors import Cancelled, MeshError, RegistrationError
 from .mesh import Mesh, edge_lengths_mean, triangle_normals
-from .proximity import TriangleSurface, closest_on_triangles
+from .proximity import TriangleSurface
 
 log = logging.getLogger(__name__)
 
