@@ -597,7 +597,7 @@ def _landmark_targets(X, F, target_V, target_F, height):
 #: piece of the source within this share of the height around its end. Measured on MakeHuman bodies,
 #: a hand or a foot changes between body shapes by a similarity to within 0.3 mm (hands; a male hand
 #: is a female one scaled by 1.21) and 0.2 mm (feet of one family), while the ARAP fit, which keeps
-#: their size, lets their many small features slide against the target by 3 to 10 mm. The head is not
+#: their size, lets their many small features slide against the target by 1 to 10 mm. The head is not
 #: one of them: a male head differs from a female one by 3.4 mm beyond a similarity, more than the
 #: ARAP fit's 2.8 mm.
 PART_RADIUS = {"hand": 0.12, "foot": 0.10}
