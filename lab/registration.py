@@ -69,6 +69,58 @@ def stats_mm(d):
     return {"mean": float(d.mean()), "p95": float(np.quantile(d, 0.95)), "max": float(d.max())}
 
 
+def body_regions(V):
+    """(n,) region names of the MakeHuman body's vertices (Y up, X lateral, +Z forward; decimetres),
+    from the source body's own shape, for per-region error figures.
+    """
+    x, y, z = V[:, 0], V[:, 1], V[:, 2]
+    h = (y - y.min()) / np.ptp(y)
+    lat = np.abs(x)
+    r = np.full(V.shape[0], "torso", dtype=object)
+    r[h < 0.06] = "feet"
+    r[(h >= 0.06) & (h < 0.47)] = "legs"
+    r[(h >= 0.40) & (h < 0.52) & (lat < 0.9)] = "hips/crotch"
+    r[(h > 0.82) & (h <= 0.87)] = "neck"
+    r[h > 0.87] = "head"
+    r[(lat > 1.55) & (h > 0.5)] = "arms"
+    r[lat > 3.9] = "hands"
+    r[(lat > 1.2) & (lat <= 1.9) & (h > 0.72)] = "shoulders"
+    r[(h > 0.63) & (h < 0.78) & (lat < 1.2) & (z > 0.3)] = "chest"
+    return r
+
+
+REGIONS = ("head", "neck", "shoulders", "chest", "torso", "arms", "hands", "hips/crotch", "legs", "feet")
+
+
+def region_errors(fitted, truth, F):
+    """Per region: mean and p95 vertex error, and its mean tangential and normal parts (mm).
+
+    The normal part is along the true target's vertex normal: a fit that lies on the target's
+    surface but slides along it has a small normal and a large tangential part.
+    """
+    from garment_transfer.registration import _vertex_normals, vertex_areas
+
+    d = fitted - truth
+    N = _vertex_normals(truth, F)
+    dn = np.einsum("ij,ij->i", d, N)
+    dt = np.linalg.norm(d - dn[:, None] * N, axis=1)
+    e = np.linalg.norm(d, axis=1)
+    area = vertex_areas(truth, F)
+    out = {"all": {"mean": float(e.mean() * MM_PER_UNIT),
+                   "area_weighted_mean": float((e * area).sum() / area.sum() * MM_PER_UNIT),
+                   "tangential_mean": float(dt.mean() * MM_PER_UNIT),
+                   "normal_mean": float(np.abs(dn).mean() * MM_PER_UNIT)}}
+    regions = body_regions(read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj").V)
+    for name in REGIONS:
+        m = regions == name
+        out[name] = {"vertices": int(m.sum()), "mean": float(e[m].mean() * MM_PER_UNIT),
+                     "p95": float(np.quantile(e[m], 0.95) * MM_PER_UNIT),
+                     "tangential_mean": float(dt[m].mean() * MM_PER_UNIT),
+                     "normal_mean": float(np.abs(dn[m]).mean() * MM_PER_UNIT),
+                     "vertical_mean": float(d[m, 1].mean() * MM_PER_UNIT)}
+    return out
+
+
 def body_study(bodies, sizes, garments):
     source = read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj", name=SOURCE)
     rows = []
@@ -87,6 +139,7 @@ def body_study(bodies, sizes, garments):
                    "residual_mm": {k: v * MM_PER_UNIT for k, v in reg.quality.items()
                                    if k.endswith(("_mean", "_p95", "_max")) and "share" not in k},
                    "distorted": reg.quality["distorted"], "wall_s": wall, "cpu_s": cpu,
+                   "regions_mm": region_errors(reg.V, truth.V, np.asarray(truth.F)),
                    "garments": garment_study(source, truth, target, reg, garments)}
             rows.append(row)
             print(format_body_row(row), flush=True)
@@ -117,6 +170,14 @@ def format_body_row(r):
             f"{e['p95']:.2f}, max {e['max']:.1f} (untransferred mean {u['mean']:.2f}); residual to/from "
             f"target p95 {res['to_target_p95']:.2f}/{res['from_target_p95']:.2f} mm; "
             f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU")
+    a = r["regions_mm"]["all"]
+    line += (f"\n{'':>22}area-weighted mean {a['area_weighted_mean']:.2f} mm; tangential/normal mean "
+             f"{a['tangential_mean']:.2f}/{a['normal_mean']:.2f} mm; per region mean (p95) tangential "
+             f"normal vertical:")
+    for name in REGIONS:
+        g = r["regions_mm"][name]
+        line += (f"\n{'':>26}{name:>12} {g['vertices']:>5} v: {g['mean']:6.2f} ({g['p95']:6.2f}) "
+                 f"{g['tangential_mean']:6.2f} {g['normal_mean']:5.2f} {g['vertical_mean']:+7.2f}")
     for g in r["garments"]:
         d, gu = g["difference_mm"], g["untransferred_mm"]
         line += (f"\n{'':>22}{g['garment']:>20}: difference mean {d['mean']:.2f} mm, p95 {d['p95']:.2f}, "
