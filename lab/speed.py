@@ -138,11 +138,17 @@ def run_worker(args, package_root=None):
     env = dict(os.environ)
     paths = [str(package_root)] if package_root else []
     env["PYTHONPATH"] = os.pathsep.join(paths + [str(ROOT), env.get("PYTHONPATH", "")])
+    # ``-m`` puts the working folder first on sys.path: for a baseline it must be the package's copy,
+    # not the checkout (whose garment_transfer would win).
     proc = subprocess.run([sys.executable, "-m", "lab.speed", "--worker", *args], capture_output=True,
-                          text=True, env=env, cwd=ROOT)
+                          text=True, env=env, cwd=package_root or ROOT)
     if proc.returncode != 0:
         raise RuntimeError(f"worker {args} failed:\n{proc.stderr[-3000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    used = Path(out["package"]).resolve()
+    if package_root and Path(package_root).resolve() not in used.parents:
+        raise RuntimeError(f"the baseline worker imported {used}, not the package in {package_root}")
+    return out["result"]
 
 
 def package_at(rev, folder):
@@ -209,7 +215,9 @@ def main(argv=None):
         # Internal: one measurement in this process, JSON on the last line of stdout.
         what = args.worker[0]
         out = million() if what == "million" else measure(args.sizes, args.repeats, not args.no_check)
-        print(json.dumps(out))
+        import garment_transfer
+
+        print(json.dumps({"package": garment_transfer.__file__, "result": out}))
         return 0
 
     load0 = os.getloadavg() if hasattr(os, "getloadavg") else None
