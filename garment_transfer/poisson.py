@@ -39,9 +39,10 @@ logger = logging.getLogger(__name__)
 #: Vertices per block where the nested dissection stops (measured: 64 factors fastest, 0.5-0.8 s
 #: in all at 55K-78K vertices, order included).
 LEAF = 64
-#: Above this many vertices a garment is solved by multigrid even when reused: its factor would
-#: take tens of seconds and gigabytes.
-FACTOR_MAX_VERTICES = 150_000
+#: Above this many vertices a garment is solved by multigrid even when reused: its factor grows
+#: faster than the garment (150K vertices: 1.7 s to factor and 0.09 s per solve, against 0.44 s and
+#: 0.76 s by multigrid, so the factor pays from the second target; 500K vertices: 22 s and 2.2 GB).
+FACTOR_MAX_VERTICES = 200_000
 #: From this many vertices a one-target transfer is solved by multigrid: below, the factor is as fast
 #: (best of 6, factor and multigrid alternating, on the benchmark dress: 14K vertices 0.08 s against
 #: 0.10 s, 23K 0.16 against 0.17, 42K 0.34 against 0.30, 78K 0.79 against 0.57).
