@@ -443,9 +443,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         info["self_intersections_before"] = len(pairs)
     given_up = set()
     n_new = len(in_source.new(pairs)) if track else 0
-    if n_new:
-        curvature_source = discrete_curvature(source_V, F)
-        budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V, F)).sum()
+    # The MDC budget of the untangling is set by the pass's input (measured when first needed: pairs
+    # the source lacks may also appear in a later round).
+    curvature_source = budget = None
     lifts = Lifts()
     if keep_offset:
         close = near_pairs(V, F, E, body, body_E, near)
@@ -459,6 +459,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         rounds += 1
         crossing_lifts(V, F, body, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
         if n_new:
+            if budget is None:
+                curvature_source = discrete_curvature(source_V, F)
+                budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V_start, F)).sum()
             todo = np.array(sorted(in_source.new(pairs) - given_up), np.int64).reshape(-1, 2)
             D, dropped = _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, spread_rings,
                                                  curvature_source, budget)

@@ -145,6 +145,32 @@ def test_pressed_layers_are_untangled_to_their_source_side():
     assert np.array_equal(same, V)
 
 
+def test_self_intersections_the_source_lacks_that_appear_only_after_a_round(monkeypatch):
+    """The untangling's design budget is measured when such pairs first appear, also after a round of
+    pushes (the pass once assumed they were all there at the start)."""
+    from garment_transfer import clearance
+
+    BV, BF = icosphere(3)
+    S, F = two_sheets()
+    n = S.shape[0] // 2
+    V = S.copy()
+    V[n + (n - 1) // 2, 2] = 1.05                 # the upper sheet pressed through the lower one
+    V[(n - 1) // 2 + 1, 2] = 0.97                 # and the lower one into the body: a crossing
+    real = clearance._SourcePairs.new
+    calls = []
+
+    def later(self, pairs):
+        calls.append(1)
+        return set() if len(calls) == 1 else real(self, pairs)
+
+    monkeypatch.setattr(clearance._SourcePairs, "new", later)
+    out, info = separate(V, F, BV, BF, offset=0.01, source_V=S)
+    assert len(calls) > 1
+    c = crossings(out, F, BV, BF)
+    assert c["a_edge_pairs"] == c["b_edge_pairs"] == 0
+    assert info["self_intersections_after"] <= info["self_intersections_before"]
+
+
 def test_source_shape_must_match():
     BV, BF = icosphere(2)
     V, F = sheet(z=1.2)
