@@ -257,7 +257,6 @@ class TriangleSurface:
         self._normals = None
         self._orientation = None
         self._topology = None
-        self._rim = None
 
     @property
     def tree(self):
@@ -289,9 +288,6 @@ class TriangleSurface:
             vertex = _vertex_pseudonormals(self.V, self.F, face, top.corners)
             edge = _edge_pseudonormals(top, face)
             self._normals = face, vertex, top.tri_edges, edge
-            # Where the closest triangle touches an open rim, the side of a point is not decided by
-            # the pseudonormal at its closest point.
-            self._rim = top.rim
         return self._normals
 
     @property
@@ -442,7 +438,8 @@ class TriangleSurface:
         own on every call (50 ms on a 27K-triangle body); the search tree is kept."""
         closest, _, tri, bary = self.closest(P)
         inside = np.einsum("ij,ij->i", P - closest, self.normals_at(tri, bary)) < 0
-        rim = self._rim[tri]
+        # Where the closest triangle touches an open rim, the pseudonormal does not decide the side.
+        rim = self.topology.rim[tri]
         if rim.any():
             inside[rim] = self.inside(P[rim])
         return inside

@@ -229,7 +229,7 @@ def test_side_of_a_few_far_points_equals_the_winding_number():
         few = s._inside_few(P)
         np.testing.assert_array_equal(few, s.inside(P))
         assert 0 < few.sum() < few.size
-        assert s._rim.any() == (k == 1)     # the MakeHuman body is closed
+        assert s.topology.rim.any() == (k == 1)     # the MakeHuman body is closed
 
 
 @pytest.mark.parametrize("bounded_min", [0, 10**9])
