@@ -270,9 +270,6 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
         if target is None:
             raise ModelError(getattr(model, "name", "model"),
                              f"say which target to transfer to; the model knows {', '.join(model.targets)}")
-        if not hasattr(model, "same_body"):
-            model.check_source_body(source_body)
-            return model.body_field(target)
         from .field_mapping import model_field
 
         return model_field(model, target, source_body)

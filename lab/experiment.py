@@ -106,6 +106,11 @@ class _FixedField:
     def check_source_body(self, mesh):
         self._model.check_source_body(mesh)
 
+    def same_body(self, mesh):
+        # The given fields are on the model's own body: another body is refused, not carried across.
+        self._model.check_source_body(mesh)
+        return True
+
     def body_field(self, target):
         return self._field_of(target)
 

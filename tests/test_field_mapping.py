@@ -85,6 +85,9 @@ class _Fixed:
     def check_source_body(self, mesh):
         pass
 
+    def same_body(self, mesh):
+        return True
+
     def body_field(self, target):
         return self._field
 
