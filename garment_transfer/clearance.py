@@ -25,11 +25,12 @@ itself, and the result counts the pairs still too close.
 
 Given the source shape, the pass also undoes the self-intersections that the source does not have:
 layers of cloth closer than the offset (a waistband, a pocket, a fold) are pushed onto the same
-offset surface by the vertex push-out and pass through each other. For each such (edge, triangle)
-pair, the outer of the two (on the body's outer side in the source layout) is lifted back to its
-source side of the other, outward only. Design comes first: if the garment's MDC against its source
-would rise above ``UNTANGLE_BUDGET`` times the pass's input's, the pairs whose undoing creases the
-cloth most are left (counted in ``self_intersections_new``).
+offset surface by the vertex push-out and pass through each other, and the transfer itself can
+press them together. Around each such (edge, triangle) pair the cloth takes its source shape,
+mapped by the affine map that fits it best to where it is (an invertible affine map keeps which
+parts of the source meet and which do not), blended into the rest over a ring; the body is then
+cleared again where that moved, and a larger ring is tried if pairs are left. What is left is
+counted (``self_intersections_new``), never hidden.
 
 Between rounds only what moved is checked again (``crossings_again``, ``near_pairs_again``): the
 body does not move, so the pairs of unmoved garment parts stay as they were.
@@ -40,8 +41,10 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
-from .metrics import discrete_curvature
 from .intersections import (box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest, segment_distances,
                             segments_meet_triangles)
 from .penetration import spread_displacement, vertex_adjacency
@@ -61,13 +64,13 @@ SPREAD_RINGS = 2.0
 GAIN = 0.5
 #: Rounds in which a push that makes the cloth cross itself is held back; later the body comes first.
 PROTECT_ROUNDS = 3
-#: Self-intersections the source does not have are undone to this share of the offset apart ...
-UNTANGLE_GAP = 0.1
-#: ... as long as the garment's MDC against its source stays under this share of the pass's input's
-#: (the design comes first: a tangle whose undoing would crease the cloth is left).
-UNTANGLE_BUDGET = 1.08
-UNTANGLE_TRIES = 4
-
+#: Around a self-intersection the source does not have, the cloth within this many offsets (times
+#: the try, up to ``RESTORE_TRIES``) takes its source shape (``restore_source_shape``).
+RESTORE_RADIUS = 2.2
+RESTORE_TRIES = 8
+#: A local affine fit whose smallest singular value is under this share of its largest would
+#: flatten the cloth: a similarity is fitted instead.
+FIT_CONDITION = 0.2
 
 class Lifts:
     """Lower bounds on the garment's displacement D, one per contact: ``sum_j w_j n . D[v_j] >= h``
@@ -335,11 +338,8 @@ def local_self_pairs(V, F, E, moved):
     return out
 
 
-def untangle_lifts(V, F, E, source_V, pairs, body: TriangleSurface, gap, lifts):
-    """Bounds that undo self-intersections the source garment does not have: the side of the
-    triangle its edge was on in the source is restored, ``gap`` past the triangle's plane. Only the
-    outer of the two moves (the one the body's outward normal points to in that layout), outward,
-    so untangling never pushes cloth toward the body.
+def new_self_pairs(V, F, E, source_V, known=None, tangled=None, source_count=0):
+    """The garment's self-intersections, and those of them that its source shape does not have.
 
     Parameters
     ----------
@@ -348,34 +348,124 @@ def untangle_lifts(V, F, E, source_V, pairs, body: TriangleSurface, gap, lifts):
     E : (e,2) int64
         ``mesh_edges(F)``.
     source_V : (n,3) float64
-        The garment's source shape (same vertex order).
+        The same garment in its source shape.
+    known : tuple, optional
+        ``(V_known, pairs_known)``: the self-intersections of an earlier shape; only the edges and
+        triangles that moved since are checked again.
+    tangled : (n,) bool, optional
+        The vertices of the source's own self-intersections: a pair that touches one is where the
+        source already crosses itself (that crossing can slide by an edge). Such pairs are left out
+        of ``new`` as long as the garment has no more pairs than ``source_count``.
+    source_count : int, optional
+
+    Returns
+    -------
     pairs : (k,2) int64
-        (edge index, triangle index) pairs that meet in V and not in source_V.
-    body : TriangleSurface
-    gap : float
-    lifts : Lifts
-        Added to.
+        (edge index, triangle index) pairs that meet in V (exact test).
+    new : (j,2) int64
+        Those that do not meet in source_V (exact test, pair by pair), nor (while the count allows)
+        touch ``tangled``.
     """
-    if pairs.shape[0] == 0:
-        return
+    if known is None:
+        pairs, _ = edge_triangle_pairs(V, E, V, F, same_mesh=True)
+    else:
+        V_known, pairs_known = known
+        moved = np.any(V != V_known, axis=1)
+        kept = pairs_known[~(moved[E[pairs_known[:, 0]]].any(axis=1) | moved[F[pairs_known[:, 1]]].any(axis=1))]
+        again = np.array(sorted(local_self_pairs(V, F, E, moved)), np.int64).reshape(-1, 2)
+        pairs = np.concatenate([kept, again])
+        pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
     e, t = E[pairs[:, 0]], F[pairs[:, 1]]
-    S, T = source_V[t], V[t]
-    ns = np.cross(S[:, 1] - S[:, 0], S[:, 2] - S[:, 0])
-    side = np.sign(np.einsum("ij,ij->i", source_V[e].mean(axis=1) - S[:, 0], ns))
-    nc = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-    length = np.linalg.norm(nc, axis=1)
-    ok = (length > 0) & (side != 0)
-    e, t, T, side = e[ok], t[ok], T[ok], side[ok]
-    u = side[:, None] * nc[ok] / length[ok, None]
-    outward = body.signed_distance(V[e].mean(axis=1))[2]
-    edge_outer = np.einsum("ij,ij->i", u, outward) > 0
-    k = edge_outer
-    for end in (0, 1):
-        x = V[e[:, end]]
-        need = gap - np.einsum("ij,ij->i", x - T[:, 0], u)
-        lifts.add(e[k, end][:, None], np.ones((int(k.sum()), 1)), u[k], need[k])
-        p, bary = closest_on_triangles(x[~k], T[~k, 0], T[~k, 1], T[~k, 2])
-        lifts.add(t[~k], bary, -u[~k], gap + np.einsum("ij,ij->i", p - x[~k], u[~k]))
+    S = source_V
+    meet, _ = segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])
+    if tangled is not None and pairs.shape[0] <= source_count:
+        meet |= tangled[e].any(axis=1) | tangled[t].any(axis=1)
+    return pairs, pairs[~meet]
+
+
+def local_fit(X, Y, weight):
+    """The affine map ``x -> x @ M + b`` that takes points X nearest to Y (weighted least squares),
+    or, where that map would fold or flatten the cloth (singular values under ``FIT_CONDITION`` of
+    the largest, or a reflection), the best similarity (rotation and one scale, Umeyama).
+
+    Parameters
+    ----------
+    X, Y : (k,3) float64
+    weight : (k,) float64
+        Positive.
+
+    Returns
+    -------
+    (k,3) float64
+        The map applied to X.
+    """
+    w = weight / weight.sum()
+    cx, cy = w @ X, w @ Y
+    A, B = X - cx, Y - cy
+    sw = np.sqrt(w)[:, None]
+    M = np.linalg.lstsq(A * sw, B * sw, rcond=None)[0]
+    sv = np.linalg.svd(M, compute_uv=False)
+    if np.linalg.det(M) > 0 and sv[-1] >= FIT_CONDITION * sv[0]:
+        return A @ M + cy
+    U, s, Vt = np.linalg.svd((A * w[:, None]).T @ B)
+    d = np.ones(3)
+    d[2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = (U * d) @ Vt
+    scale = (s * d).sum() / max((w * (A ** 2).sum(axis=1)).sum(), 1e-300)
+    return scale * A @ R + cy
+
+
+def restore_source_shape(V, F, E, source_V, pairs, radius, body=None, clear=0.0):
+    """Around every listed self-intersection, the cloth takes the shape it has on the source.
+
+    The vertices of the pairs, and the cloth within ``radius`` of them (in space, so every sheet
+    of a fold that is there), take the affine image of their source shape nearest to where they are
+    now (``local_fit``); from ``radius`` to ``2 * radius`` it blends into where they are. An
+    invertible affine map keeps which edges and triangles of the source meet and which do not, so
+    the pairs the source lacks are gone there; the blend can make new ones further out (a larger
+    radius is the next try).
+
+    Parameters
+    ----------
+    V : (n,3) float64
+    F : (m,3) int64
+    E : (e,2) int64
+        ``mesh_edges(F)``.
+    source_V : (n,3) float64
+    pairs : (k,2) int64
+        (edge index, triangle index) self-intersections of V.
+    radius : float
+
+    Returns
+    -------
+    (n,3) float64
+        A new array.
+    """
+    seeds = np.unique(np.concatenate([E[pairs[:, 0]].ravel(), F[pairs[:, 1]].ravel()]))
+    # Seeds close together are one piece of cloth, fitted as one.
+    close = cKDTree(V[seeds]).query_pairs(2 * radius, output_type="ndarray")
+    count, label = connected_components(sp.coo_matrix((np.ones(close.shape[0]), (close[:, 0], close[:, 1])),
+                                                      shape=(seeds.size, seeds.size)), directed=False)
+    tree = cKDTree(V)
+    weight, restored = np.zeros(V.shape[0]), V.copy()
+    for c in range(count):
+        piece = seeds[label == c]
+        region = np.unique(np.concatenate(tree.query_ball_point(V[piece], 2 * radius)))
+        w = np.clip(2.0 - cKDTree(V[piece]).query(V[region])[0] / radius, 0.0, 1.0)
+        fit = local_fit(source_V[region], V[region], np.maximum(w, 1e-3))
+        if body is not None:
+            # The piece keeps its distance from the body as a whole: moved out along its mean
+            # normal as far as its closest vertex needs (a translation keeps the source shape).
+            sd, _, normal, _ = body.signed_distance(fit)
+            direction = (w[:, None] * normal).sum(axis=0)
+            direction /= max(np.linalg.norm(direction), 1e-300)
+            along = np.maximum(normal @ direction, 0.5)
+            need = np.max((clear - sd) / along, initial=0.0)
+            fit = fit + need * direction
+        larger = w > weight[region]
+        weight[region[larger]] = w[larger]
+        restored[region[larger]] = fit[larger]
+    return V + weight[:, None] * (restored - V)
 
 
 def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
@@ -404,9 +494,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         Also push out garment parts closer to the body than ``CLEARANCE_SHARE * offset`` (vertex
         to triangle both ways, edge to edge): the smallest distance kept.
     source_V : (n,3) float, optional
-        The garment's source shape. With it, the self-intersections of V that the source does not
-        have (the transfer pressed close layers of cloth through each other) are undone too
-        (``untangle_lifts``), and the counts are reported.
+        The garment's source shape. With it, the self-intersections of the result that the source
+        does not have (the transfer pressed close layers of cloth through each other) are undone
+        too: the cloth around them takes its source shape (``restore_source_shape``), and the body
+        is cleared again where that moved it, with a larger radius at each of ``RESTORE_TRIES``.
 
     Returns
     -------
@@ -418,137 +509,130 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         ``clearance`` (that distance),
         ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
         them), ``undone`` (pushes taken back because they made the cloth cross itself). With
-        ``source_V``: ``self_intersections_before``,
-        ``self_intersections_after`` (edge-triangle pairs) and ``self_intersections_new`` (pairs
-        left that the source does not have).
+        ``source_V``: ``self_intersections_before``, ``self_intersections_after`` (edge-triangle
+        pairs), ``self_intersections_new`` (pairs left that the source does not have) and
+        ``restored_vertices``.
     """
     V = np.array(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     body = surface if surface is not None else TriangleSurface(body_V, body_F)
-    A = vertex_adjacency(V.shape[0], F)
-    E = mesh_edges(F)
-    moved = np.zeros(V.shape[0], bool)
-    body_E = mesh_edges(body.F)
-    near = CLEARANCE_SHARE * offset if keep_offset else 0.0
-    c = crossings(V, F, body.V, body.F)
-    info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
-    track = source_V is not None
-    if track:
+    if source_V is not None:
         source_V = np.asarray(source_V, dtype=np.float64)
         if source_V.shape != V.shape:
             raise ValueError(f"source_V must have the garment's shape {V.shape}, got {source_V.shape}")
-        # Only the pairs that meet in V are asked about on the source (exactly, pair by pair).
-        in_source = _SourcePairs(source_V, F, E)
-        pairs = _pair_set(edge_triangle_pairs(V, E, V, F, same_mesh=True)[0])
-        info["self_intersections_before"] = len(pairs)
-    given_up = set()
-    n_new = len(in_source.new(pairs)) if track else 0
-    # The MDC budget of the untangling is set by the pass's input (measured when first needed: pairs
-    # the source lacks may also appear in a later round).
-    curvature_source = budget = None
+    A = vertex_adjacency(V.shape[0], F)
+    E = mesh_edges(F)
+    body_E = mesh_edges(body.F)
+    V_start = V.copy()
+    V, info, state = _clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
+    if source_V is None:
+        return V, info
+    info["self_intersections_before"] = int(edge_triangle_pairs(V_start, E, V_start, F, same_mesh=True)[0].shape[0])
+    V_cleared = V
+    own, _ = edge_triangle_pairs(source_V, E, source_V, F, same_mesh=True)
+    tangled = np.zeros(V.shape[0], bool)
+    tangled[E[own[:, 0]]] = True
+    tangled[F[own[:, 1]]] = True
+    info["self_intersections_source"] = int(own.shape[0])
+    pairs, new = new_self_pairs(V, F, E, source_V, tangled=tangled, source_count=own.shape[0])
+    # Tries start from the latest shape that still has pairs to undo (``base``); the best result
+    # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
+    near_given = info["near_after"]
+    base = best = (V, pairs, new, state, info["crossings_after"], info["near_after"], 0, 0)
+    for attempt in range(RESTORE_TRIES):
+        if best[2].shape[0] == 0 and best[5] <= near_given:
+            break
+        V_b, pairs_b, new_b, state_b = base[:4]
+        # Each radius is tried with the cloth left where it is, then moved out as one piece.
+        radius = (attempt // 2 + 1) * RESTORE_RADIUS * offset
+        W = restore_source_shape(V_b, F, E, source_V, new_b, radius, body if attempt % 2 else None, offset)
+        W, again, state_w = _clear_body(W, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset,
+                                        known=(V_b, state_b))
+        pairs_w, new_w = new_self_pairs(W, F, E, source_V, known=(V_b, pairs_b), tangled=tangled,
+                                        source_count=own.shape[0])
+        log.debug("restore %d: %d self-intersections the source lacks (%d before), %d crossings, %d near",
+                  attempt + 1, new_w.shape[0], new_b.shape[0], again["crossings_after"], again["near_after"])
+        tried = (W, pairs_w, new_w, state_w, again["crossings_after"], again["near_after"],
+                 base[6] + again["rounds"], base[7] + again["undone"])
+        if (tried[4], tried[2].shape[0], tried[5]) < (best[4], best[2].shape[0], best[5]):
+            best = tried
+        if tried[4] <= base[4] and 0 < new_w.shape[0] < new_b.shape[0]:
+            base = tried
+    V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best
+    info["rounds"] += rounds
+    info["undone"] += undone
+    info["moved_vertices"] = int(np.any(V != V_start, axis=1).sum())
+    info["restored_vertices"] = int(np.any(V != V_cleared, axis=1).sum())
+    info["self_intersections_after"] = int(pairs.shape[0])
+    info["self_intersections_new"] = int(new.shape[0])
+    info["self_intersections_added"] = info["self_intersections_after"] - info["self_intersections_before"]
+    if new.shape[0]:
+        log.warning("%d self-intersections the source garment does not have are left", new.shape[0])
+    return V, info
+
+
+def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, max_rounds, keep_offset,
+                known=None):
+    """``separate`` without the source: the rounds that clear the body and keep the clearance.
+
+    ``known`` is ``(V_known, state)`` of an earlier call on this garment: only what moved since is
+    checked again. Returns V, info and the state (crossings and near pairs of the V returned)."""
+    moved = np.zeros(V.shape[0], bool)
+    near = CLEARANCE_SHARE * offset if keep_offset else 0.0
+    if known is None:
+        c = crossings(V, F, body.V, body.F)
+        close = near_pairs(V, F, E, body, body_E, near) if keep_offset else None
+    else:
+        V_known, (c_known, close_known) = known
+        changed = np.any(V != V_known, axis=1)
+        c = crossings_again(V, F, E, body, body_E, c_known, changed)
+        close = near_pairs_again(V, F, E, body, body_E, near, close_known, changed) if keep_offset else None
+    info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
     lifts = Lifts()
     if keep_offset:
-        close = near_pairs(V, F, E, body, body_E, near)
         near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
     n_near = near_count(close) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
     V_start = V.copy()
     rounds = 0
-    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near or n_new) and rounds < max_rounds:
+    while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
         crossing_lifts(V, F, body, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
-        if n_new:
-            if budget is None:
-                curvature_source = discrete_curvature(source_V, F)
-                budget = UNTANGLE_BUDGET * np.abs(curvature_source - discrete_curvature(V_start, F)).sum()
-            todo = np.array(sorted(in_source.new(pairs) - given_up), np.int64).reshape(-1, 2)
-            D, dropped = _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, spread_rings,
-                                                 curvature_source, budget)
-            given_up |= dropped
-        else:
-            D = lift_displacement(A, lifts, spread_rings)
+        D = lift_displacement(A, lifts, spread_rings)
         step = np.any(D != 0, axis=1)
         V_new = V.copy()
         V_new[step] += D[step]
         crossing = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
-        before = _touching(pairs, E, F, step) if track else local_self_pairs(V, F, E, step)
         if rounds <= PROTECT_ROUNDS or not crossing:
             # A crossing of the body comes first: after these rounds, it is removed even where
             # the cloth then crosses itself (counted in self_intersections_added). The clearance
             # alone never makes the cloth cross itself.
-            V_new, undone, after = _keep_self_intersections(V, V_new, F, E, step, A, before)
+            V_new, undone, _ = _keep_self_intersections(V, V_new, F, E, step, A, local_self_pairs(V, F, E, step))
             info["undone"] += undone
-        elif track:
-            after = local_self_pairs(V_new, F, E, step)
-        if track:
-            pairs = (pairs - before) | after
         changed = np.any(V_new != V, axis=1)
         moved |= changed
         V = V_new
         c = crossings_again(V, F, E, body, body_E, c, changed)
         lifts = Lifts()
-        last_near, last_new = n_near, n_new
+        last_near = n_near
         if keep_offset:
             close = near_pairs_again(V, F, E, body, body_E, near, close, changed)
             near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
             n_near = near_count(close)
-        n_new = len(in_source.new(pairs) - given_up) if track else 0
-        log.debug("round %d: %d crossings, %d near, %d new self-intersections, %d vertices moved",
-                  rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, n_new, int(step.sum()))
-        if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last_near and n_new >= last_new:
-            break   # only the clearance and self-intersections are left, and they no longer improve
+        log.debug("round %d: %d crossings, %d near, %d vertices moved",
+                  rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, int(step.sum()))
+        if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last_near:
+            break   # only the clearance is left, and it no longer improves
     info["rounds"] = rounds
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
     info["near_after"] = n_near
     info["moved_vertices"] = int(moved.sum())
-    if track:
-        info["self_intersections_after"] = len(pairs)
-        info["self_intersections_new"] = len(in_source.new(pairs))
-        info["self_intersections_added"] = len(pairs) - info["self_intersections_before"]
-    else:
-        info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
-                                            - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
+    info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
+                                        - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
     if info["crossings_after"]:
         log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
-    return V, info
-
-
-def _untangle_within_budget(V, F, E, A, source_V, todo, body, offset, lifts, rings, curvature_source, budget):
-    """The round's displacement with the untangling of ``todo`` pairs added, as far as the MDC budget
-    allows: if the garment would leave it, the pairs whose undoing changes the curvature most are
-    given up (until the excess is paid for) and the displacement solved again, a few times; if still
-    over, no pair is untangled this round (all are given up).
-
-    Returns
-    -------
-    D : (n,3) float64
-    given_up : set of (int, int)
-    """
-    def solve(chosen):
-        both = Lifts()
-        both.extend(lifts)
-        untangle_lifts(V, F, E, source_V, chosen, body, UNTANGLE_GAP * offset, both)
-        D = lift_displacement(A, both, rings)
-        dev = np.abs(curvature_source - discrete_curvature(V + D, F))
-        return D, dev
-
-    D, dev = solve(todo)
-    base = np.abs(curvature_source - discrete_curvature(V, F))
-    keep = np.arange(todo.shape[0])
-    for _ in range(UNTANGLE_TRIES):
-        if dev.sum() <= budget:
-            return D, _pair_set(np.delete(todo, keep, axis=0))
-        cost = np.maximum(dev - base, 0.0)
-        chosen = todo[keep]
-        per_pair = np.maximum(cost[E[chosen[:, 0]]].max(axis=1), cost[F[chosen[:, 1]]].max(axis=1))
-        order = np.argsort(-per_pair)
-        cut = int(np.searchsorted(np.cumsum(per_pair[order]), dev.sum() - budget)) + 1
-        keep = np.sort(keep[order[cut:]])
-        if keep.size == 0:
-            break
-        D, dev = solve(todo[keep])
-    return lift_displacement(A, lifts, rings), _pair_set(todo)
+    return V, info, (c, close)
 
 
 def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
@@ -568,35 +652,6 @@ def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
     out["a_edge_pairs"] = int(out["a_triangles"].shape[0])
     out["b_edge_pairs"] = int(out["b_triangles"].shape[0])
     return out
-
-
-class _SourcePairs:
-    """Which (edge, triangle) pairs of the garment meet on its source shape, asked pair by pair
-    (exact test) and remembered."""
-
-    def __init__(self, source_V, F, E):
-        self.S, self.F, self.E = source_V, F, E
-        self.known = {}
-
-    def new(self, pairs):
-        """The pairs of a set that do not meet on the source."""
-        ask = np.array([p for p in pairs if p not in self.known], np.int64).reshape(-1, 2)
-        if ask.shape[0]:
-            e, t = self.E[ask[:, 0]], self.F[ask[:, 1]]
-            meet, _ = segments_meet_triangles(self.S[e[:, 0]], self.S[e[:, 1]], self.S[t[:, 0]], self.S[t[:, 1]],
-                                              self.S[t[:, 2]])
-            self.known.update(zip(map(tuple, ask.tolist()), meet.tolist()))
-        return {p for p in pairs if not self.known[p]}
-
-
-def _pair_set(pairs):
-    """(k,2) int (edge, triangle) pairs as a set of tuples."""
-    return set(zip(pairs[:, 0].tolist(), pairs[:, 1].tolist()))
-
-
-def _touching(pairs, E, F, moved):
-    """The (edge, triangle) pairs of a set that involve a moved vertex ((n,) bool)."""
-    return {(a, b) for a, b in pairs if moved[E[a]].any() or moved[F[b]].any()}
 
 
 def _keep_self_intersections(V_old, V_new, F, E, step, A, before):

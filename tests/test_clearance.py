@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from lab.paths import DEMO_DATA
-from garment_transfer.clearance import (crossings_again, largest_per_vertex, near_pairs, near_pairs_again,
-                                        separate)
+from garment_transfer.clearance import (crossings_again, largest_per_vertex, local_fit, near_pairs, near_pairs_again,
+                                        restore_source_shape, separate)
 from garment_transfer.intersections import crossings, mesh_edges, self_intersections
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.metrics import evaluate, mdc
@@ -145,30 +145,63 @@ def test_pressed_layers_are_untangled_to_their_source_side():
     assert np.array_equal(same, V)
 
 
-def test_self_intersections_the_source_lacks_that_appear_only_after_a_round(monkeypatch):
-    """The untangling's design budget is measured when such pairs first appear, also after a round of
-    pushes (the pass once assumed they were all there at the start)."""
-    from garment_transfer import clearance
-
+def test_pressed_layers_and_a_body_crossing_together():
+    """The upper sheet pressed through the lower one and the lower one into the body: the body is
+    cleared and the tangle undone, each without bringing the other back."""
     BV, BF = icosphere(3)
     S, F = two_sheets()
     n = S.shape[0] // 2
     V = S.copy()
     V[n + (n - 1) // 2, 2] = 1.05                 # the upper sheet pressed through the lower one
     V[(n - 1) // 2 + 1, 2] = 0.97                 # and the lower one into the body: a crossing
-    real = clearance._SourcePairs.new
-    calls = []
-
-    def later(self, pairs):
-        calls.append(1)
-        return set() if len(calls) == 1 else real(self, pairs)
-
-    monkeypatch.setattr(clearance._SourcePairs, "new", later)
+    c = crossings(V, F, BV, BF)
+    assert c["a_edge_pairs"] + c["b_edge_pairs"] > 0 and self_intersections(V, F)[0] > 0
     out, info = separate(V, F, BV, BF, offset=0.01, source_V=S)
-    assert len(calls) > 1
     c = crossings(out, F, BV, BF)
     assert c["a_edge_pairs"] == c["b_edge_pairs"] == 0
-    assert info["self_intersections_after"] <= info["self_intersections_before"]
+    assert self_intersections(out, F)[0] == info["self_intersections_after"] == 0
+    assert info["self_intersections_new"] == 0 and info["restored_vertices"] > 0
+
+
+def test_local_fit_is_exact_for_an_affine_map_and_a_similarity():
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(40, 3))
+    w = rng.random(40) + 0.1
+    M = np.array([[1.2, 0.1, 0.0], [-0.2, 0.9, 0.3], [0.05, 0.0, 1.1]])
+    b = np.array([0.3, -2.0, 0.5])
+    np.testing.assert_allclose(local_fit(X, X @ M + b, w), X @ M + b, rtol=0, atol=1e-12)
+    # A map that flattens the cloth (one direction squeezed 20x) is not taken: the best similarity is.
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    Q *= np.sign(np.linalg.det(Q))
+    flat = (X * [1.0, 1.0, 0.05]) @ Q.T
+    Y = local_fit(X, flat, w)
+    d = np.linalg.norm(Y[:, None] - Y[None], axis=2) / np.maximum(np.linalg.norm(X[:, None] - X[None], axis=2), 1e-300)
+    off_diagonal = ~np.eye(40, dtype=bool)
+    np.testing.assert_allclose(d[off_diagonal], d[off_diagonal][0], rtol=1e-10)   # one scale: a similarity
+    # A reflection is never taken either.
+    R = np.diag([1.0, 1.0, -1.0])
+    Y = local_fit(X, X @ R, w)
+    E = Y - Y.mean(axis=0)
+    Z = X - X.mean(axis=0)
+    assert np.linalg.det(np.linalg.lstsq(Z, E, rcond=None)[0]) > 0
+
+
+def test_restore_source_shape_moves_nothing_an_affine_map_explains():
+    """Cloth that is its source shape under one affine map is restored to exactly itself; the restored
+    cloth beyond twice the radius does not move."""
+    S, F = two_sheets()
+    E = mesh_edges(F)
+    M = np.array([[1.1, 0.05, 0.0], [0.0, 0.95, 0.1], [0.0, 0.0, 1.2]])
+    V = S @ M + [0.2, 0.0, -0.1]
+    pairs = np.array([[0, 5]])
+    np.testing.assert_allclose(restore_source_shape(V, F, E, S, pairs, 0.08), V, rtol=0, atol=1e-12)
+    W = V.copy()
+    W[3] += [0.0, 0.0, 0.2]
+    out = restore_source_shape(W, F, E, S, pairs, 0.08)
+    seeds = np.unique(np.concatenate([E[0], F[5]]))
+    far = np.linalg.norm(W[:, None] - W[seeds][None], axis=2).min(axis=1) > 0.16
+    assert far.any()
+    np.testing.assert_array_equal(out[far], W[far])
 
 
 def test_source_shape_must_match():
