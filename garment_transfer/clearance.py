@@ -338,7 +338,7 @@ def local_self_pairs(V, F, E, moved):
     return out
 
 
-def new_self_pairs(V, F, E, source_V, known=None, tangled=None, source_count=0):
+def new_self_pairs(V, F, E, source_V, known=None):
     """The garment's self-intersections, and those of them that its source shape does not have.
 
     Parameters
@@ -352,19 +352,13 @@ def new_self_pairs(V, F, E, source_V, known=None, tangled=None, source_count=0):
     known : tuple, optional
         ``(V_known, pairs_known)``: the self-intersections of an earlier shape; only the edges and
         triangles that moved since are checked again.
-    tangled : (n,) bool, optional
-        The vertices of the source's own self-intersections: a pair that touches one is where the
-        source already crosses itself (that crossing can slide by an edge). Such pairs are left out
-        of ``new`` as long as the garment has no more pairs than ``source_count``.
-    source_count : int, optional
 
     Returns
     -------
     pairs : (k,2) int64
         (edge index, triangle index) pairs that meet in V (exact test).
     new : (j,2) int64
-        Those that do not meet in source_V (exact test, pair by pair), nor (while the count allows)
-        touch ``tangled``.
+        Those that do not meet in source_V (exact test, pair by pair).
     """
     if known is None:
         pairs, _ = edge_triangle_pairs(V, E, V, F, same_mesh=True)
@@ -378,9 +372,35 @@ def new_self_pairs(V, F, E, source_V, known=None, tangled=None, source_count=0):
     e, t = E[pairs[:, 0]], F[pairs[:, 1]]
     S = source_V
     meet, _ = segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])
-    if tangled is not None and pairs.shape[0] <= source_count:
-        meet |= tangled[e].any(axis=1) | tangled[t].any(axis=1)
     return pairs, pairs[~meet]
+
+
+class _SourceTangles:
+    """Where the source garment crosses itself (measured only when first asked).
+
+    A pair of the result that does not meet on the source but touches a vertex of the source's own
+    self-intersections is that crossing sliding by an edge; it is left (not undone) as long as the
+    result has no more self-intersecting pairs than the source."""
+
+    def __init__(self, source_V, F, E):
+        self.S, self.F, self.E = source_V, F, E
+        self.tangled = None
+
+    def left_out(self, pairs, new):
+        """``new`` ((k,2) pairs the source lacks) without those at the source's own tangles, while
+        ``pairs`` (all the result's) are no more than the source's."""
+        if new.shape[0] == 0:
+            return new
+        if self.tangled is None:
+            own, _ = edge_triangle_pairs(self.S, self.E, self.S, self.F, same_mesh=True)
+            self.count = own.shape[0]
+            self.tangled = np.zeros(self.S.shape[0], bool)
+            self.tangled[self.E[own[:, 0]]] = True
+            self.tangled[self.F[own[:, 1]]] = True
+        if pairs.shape[0] > self.count:
+            return new
+        at = self.tangled[self.E[new[:, 0]]].any(axis=1) | self.tangled[self.F[new[:, 1]]].any(axis=1)
+        return new[~at]
 
 
 def local_fit(X, Y, weight):
@@ -527,14 +547,12 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     V, info, state = _clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
     if source_V is None:
         return V, info
-    info["self_intersections_before"] = int(edge_triangle_pairs(V_start, E, V_start, F, same_mesh=True)[0].shape[0])
     V_cleared = V
-    own, _ = edge_triangle_pairs(source_V, E, source_V, F, same_mesh=True)
-    tangled = np.zeros(V.shape[0], bool)
-    tangled[E[own[:, 0]]] = True
-    tangled[F[own[:, 1]]] = True
-    info["self_intersections_source"] = int(own.shape[0])
-    pairs, new = new_self_pairs(V, F, E, source_V, tangled=tangled, source_count=own.shape[0])
+    tangles = _SourceTangles(source_V, F, E)
+    pairs, new = new_self_pairs(V, F, E, source_V)
+    new = tangles.left_out(pairs, new)
+    # The input's count, from the result's where the body rounds moved nothing.
+    info["self_intersections_before"] = int(new_self_pairs(V_start, F, E, source_V, known=(V, pairs))[0].shape[0])
     # Tries start from the latest shape that still has pairs to undo (``base``); the best result
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     near_given = info["near_after"]
@@ -548,8 +566,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         W = restore_source_shape(V_b, F, E, source_V, new_b, radius, body if attempt % 2 else None, offset)
         W, again, state_w = _clear_body(W, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset,
                                         known=(V_b, state_b))
-        pairs_w, new_w = new_self_pairs(W, F, E, source_V, known=(V_b, pairs_b), tangled=tangled,
-                                        source_count=own.shape[0])
+        pairs_w, new_w = new_self_pairs(W, F, E, source_V, known=(V_b, pairs_b))
+        new_w = tangles.left_out(pairs_w, new_w)
         log.debug("restore %d: %d self-intersections the source lacks (%d before), %d crossings, %d near",
                   attempt + 1, new_w.shape[0], new_b.shape[0], again["crossings_after"], again["near_after"])
         tried = (W, pairs_w, new_w, state_w, again["crossings_after"], again["near_after"],

@@ -28,8 +28,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from . import clearance, penetration
@@ -53,17 +51,13 @@ ORDER_BAND = 3.0
 #: layer); None is the vertex push-out (``penetration.fix_penetration``). The first warp asks for
 #: half an offset more than the crossing pass keeps, so that the under layer's own folds, which
 #: stand between the warped vertices, seldom poke through. Measured on the outer layers of the
-#: demo outfits on banana, pear and heavy (each way followed by ``move_together``): every way ends
+#: demo outfits on banana, pear and heavy (each way followed by the crossing pass): every way ends
 #: with no crossing and no self-intersection added; the first warp's MDC is within 10% of the
 #: lowest and below the push-out's in all 6, but it leaves a pair too close in 2 of 6, the
 #: push-out in none.
 WARPS = ((1.5, 0.044, 0.055), None, (1.0, 0.022, 0.055), (2.0, 0.044, 0.055), (1.0, 0.022, None))
 #: Above this many vertices to lift, one per cell stands for the others in ``warp_out``.
 WARP_SEEDS = 4096
-#: Radius (share of the body's scale) of the cloth moved as one around a self-intersection the
-#: push-out made (``move_together``), grown by itself at every try, and the tries per warp.
-TOGETHER_RADIUS = 0.0055
-TOGETHER_TRIES = 6
 
 
 log = logging.getLogger(__name__)
@@ -259,74 +253,14 @@ def warp_out(V, sd, normal, clear, band, radius=None):
     return V + push[:, None] * normal
 
 
-def self_pairs(V, F):
-    """A mesh's self-intersections as a set of (edge (i, j) with i < j, triangle)."""
-    _, edges, tris = self_intersections(V, F)
-    return set(zip(map(tuple, np.sort(edges, axis=1).tolist()), tris.tolist()))
-
-
-def move_together(X, W, F, normal, radius, old_pairs):
-    """Around every self-intersection of W that X has not, the cloth moved as one piece.
-
-    The vertices of each new pair and the cloth within ``radius`` of them (in space, so both
-    sheets of a fold) take one displacement, the largest of theirs along their mean push
-    direction; from ``radius`` to ``2 * radius`` it blends into their own. Cloth moved as one
-    keeps its own shape, so it cannot cross itself there; the blend can, further out (the caller
-    tries again with a larger radius).
-
-    Parameters
-    ----------
-    X : (n,3) float
-        The layer before it was moved.
-    W : (n,3) float
-        After.
-    F : (m,3) int
-    normal : (n,3) float
-        The push direction at every vertex (``obstacle_distance``).
-    radius : float
-    old_pairs : set
-        ``self_pairs(X, F)``.
-
-    Returns
-    -------
-    V : (n,3) float64
-        A new array (W itself when no pair is new).
-    new : int
-        Pairs of W not in X.
-    """
-    new = [p for p in self_pairs(W, F) if p not in old_pairs]
-    if not new:
-        return W, 0
-    seeds = np.unique(np.concatenate([np.array([e for e, _ in new]).ravel(), F[[t for _, t in new]].ravel()]))
-    D = W - X
-    # Seeds close together are one piece of cloth.
-    close = cKDTree(X[seeds]).query_pairs(2 * radius, output_type="ndarray")
-    count, label = connected_components(sp.coo_matrix((np.ones(close.shape[0]), (close[:, 0], close[:, 1])),
-                                                      shape=(seeds.size, seeds.size)), directed=False)
-    tree = cKDTree(X)
-    weight, common = np.zeros(X.shape[0]), np.zeros_like(X)
-    for c in range(count):
-        piece = seeds[label == c]
-        region = np.unique(np.concatenate(tree.query_ball_point(X[piece], 2 * radius)))
-        w = np.clip(2.0 - cKDTree(X[piece]).query(X[region])[0] / radius, 0.0, 1.0)
-        core = region[w >= 1.0]
-        direction = normal[core].mean(axis=0)
-        direction /= max(np.linalg.norm(direction), 1e-300)
-        larger = w > weight[region]
-        weight[region[larger]] = w[larger]
-        common[region[larger]] = (D[core] @ direction).max() * direction
-    m = weight > 0
-    D[m] = (1.0 - weight[m, None]) * D[m] + weight[m, None] * common[m]
-    return X + D, len(new)
-
-
 def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
     """A layer moved out of what is under it: no crossing, and no more self-intersections than it had.
 
     Each way of ``WARPS`` (a warp, ``warp_out``, or the vertex push-out), then the exact crossing
-    pass (``clearance.separate``) and ``move_together`` around the self-intersections it made, is
-    tried until one leaves no crossing, no more self-intersections than ``V`` has
-    (``intersections.self_intersections``) and no pair closer than the crossing pass's clearance.
+    pass (``clearance.separate`` with V as the source shape: around a self-intersection the push
+    made, the cloth gets back its shape from before the push), is tried until one leaves no
+    crossing, no more self-intersections than ``V`` has and no pair closer than the crossing pass's
+    clearance.
     When none does, the one with the fewest crossings, then the fewest self-intersections added,
     then the fewest pairs too close, is kept.
 
@@ -358,7 +292,7 @@ def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
     sd, normal = obstacle_distance(surface, V)
     before = self_intersections(V, F)[0]
     info = {"pushed_vertices": int((sd < offset).sum()), "self_intersections_before": before}
-    best, tried, old_pairs = None, 0, None
+    best, tried = None, 0
     for k, warp in enumerate(WARPS):
         tried += 1
         if warp is None:
@@ -367,16 +301,10 @@ def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
             times, band, radius = warp
             W = warp_out(V, sd, normal, times * offset, band * scale,
                          None if radius is None else radius * scale)
-        W, sep = clearance.separate(W, F, surface.V, surface.F, offset, surface=surface)
-        after = self_intersections(W, F)[0]
-        for t in range(TOGETHER_TRIES):
-            if after <= before:
-                break
-            if old_pairs is None:
-                old_pairs = self_pairs(V, F)
-            W, new = move_together(V, W, F, normal, (t + 1) * TOGETHER_RADIUS * scale, old_pairs)
-            W, sep = clearance.separate(W, F, surface.V, surface.F, offset, surface=surface)
-            after = self_intersections(W, F)[0]
+        # With the layer as it came as the source shape, the crossing pass also gives the cloth
+        # around any self-intersection the push made its shape from before the push.
+        W, sep = clearance.separate(W, F, surface.V, surface.F, offset, surface=surface, source_V=V)
+        after = sep["self_intersections_after"]
         key = (sep["crossings_after"], max(after - before, 0), sep["near_after"], after)
         if best is None or key < best[0]:
             best = (key, k, W, sep)
