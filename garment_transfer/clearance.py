@@ -455,6 +455,10 @@ def restore_source_shape(V, F, E, source_V, pairs, radius, body=None, clear=0.0)
     pairs : (k,2) int64
         (edge index, triangle index) self-intersections of V.
     radius : float
+    body : TriangleSurface, optional
+        With it, each restored piece is moved out along its mean normal, as one (a translation keeps
+        the source shape), until its closest vertex is ``clear`` from the body.
+    clear : float
 
     Returns
     -------
