@@ -256,3 +256,31 @@ def test_makehuman_suit_pressed_on_the_pear_keeps_its_design_and_gains_no_self_i
     assert self_intersections(result.V, garment.F)[0] <= source_self
     assert result.info["self_intersections_after"] == self_intersections(result.V, garment.F)[0]
     assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
+
+
+def test_a_tangle_the_source_has_may_slide_but_not_grow():
+    """The source's upper sheet pokes through the lower one at one vertex. A result where the next
+    vertex pokes instead has pairs the source lacks, but at the source's own tangle and no more of
+    them: left as it is. A result where both poke through has more pairs than the source: undone
+    down to the source's count."""
+    BV, BF = icosphere(3)
+    S, F = two_sheets()
+    n = S.shape[0] // 2
+    a, b = n + 24, n + 25                         # two neighbouring vertices in the upper sheet's middle
+    S = S.copy()
+    S[a, 2] = 1.05
+    source_count = self_intersections(S, F)[0]
+    assert source_count > 0
+    slid = two_sheets()[0]
+    slid[b, 2] = 1.05
+    out, info = separate(slid, F, BV, BF, offset=0.01, source_V=S)
+    assert info["self_intersections_new"] == 0 and info["restored_vertices"] == 0
+    np.testing.assert_array_equal(out, slid)
+    grown = S.copy()
+    grown[b, 2] = 1.05
+    assert self_intersections(grown, F)[0] > source_count
+    out, info = separate(grown, F, BV, BF, offset=0.01, source_V=S)
+    assert info["restored_vertices"] > 0
+    assert self_intersections(out, F)[0] <= source_count
+    c = crossings(out, F, BV, BF)
+    assert c["a_edge_pairs"] == c["b_edge_pairs"] == 0
