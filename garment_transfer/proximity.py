@@ -137,7 +137,11 @@ def orientation(V, F) -> int:
     """+1 if the faces F over V point outward (or enclose no volume), -1 if they point inward."""
     vol = signed_volume(V, F)
     area = float(triangle_normals(np.asarray(V, dtype=np.float64), F)[1].sum())
-    return -1 if vol < -ENCLOSING_VOLUME_SHARE * area ** 1.5 else 1
+    return _orientation(vol, area)
+
+
+def _orientation(volume, area) -> int:
+    return -1 if volume < -ENCLOSING_VOLUME_SHARE * area ** 1.5 else 1
 
 
 def _closest_on_segments(P, A, B, C):
@@ -271,8 +275,23 @@ class TriangleSurface:
     def orientation(self) -> int:
         """+1 when the faces point outward (or enclose no volume), -1 when they point inward."""
         if self._orientation is None:
-            self._orientation = orientation(self.V, self.F)
+            self._face_parts()
         return self._orientation
+
+    def _face_parts(self):
+        """The edge vectors ``x1-x0, x2-x1, x0-x2`` (3,m,3), the cross products ``(x1-x0) x (x2-x0)``
+        (m,3) and their norms (m,), twice the areas; sets the orientation, which needs the same
+        products (not kept: ``_pseudonormals`` uses them once)."""
+        x0, x1, x2 = (self.V[self.F[:, k]] for k in range(3))
+        edges = np.stack([x1 - x0, x2 - x1, x0 - x2])
+        # As ``triangle_normals`` computes it (negation is exact).
+        cross = np.cross(edges[0], -edges[2])
+        dbl = np.linalg.norm(cross, axis=1)
+        if self._orientation is None:
+            # ``signed_volume`` (about the centroid), from the same cross products.
+            volume = float(np.einsum("ij,ij->", x0 - self.V.mean(axis=0), cross)) / 6.0
+            self._orientation = _orientation(volume, 0.5 * float(dbl.sum()))
+        return edges, cross, dbl
 
     @property
     def topology(self) -> Topology:
@@ -283,9 +302,10 @@ class TriangleSurface:
     def _pseudonormals(self):
         if self._normals is None:
             top = self.topology
-            face, _ = triangle_normals(self.V, self.F)
-            face = face * self.orientation
-            vertex = _vertex_pseudonormals(self.V, self.F, face, top.corners)
+            edges, cross, dbl = self._face_parts()
+            face = np.divide(cross, dbl[:, None], out=np.zeros_like(cross), where=dbl[:, None] > 0)
+            face *= self._orientation
+            vertex = _vertex_pseudonormals(edges, dbl, face, top.corners)
             edge = _edge_pseudonormals(top, face)
             self._normals = face, vertex, top.tri_edges, edge
         return self._normals
@@ -517,16 +537,17 @@ class TriangleSurface:
         return (share > 0.5)[label]
 
 
-def _vertex_pseudonormals(V, F, face_normals, corners):
-    """Angle-weighted vertex normals; ``corners``: ``Topology.corners``."""
-    P = V[F]
-    W = np.empty((F.shape[0], 3, 3))
-    for k in range(3):
-        a = P[:, (k + 1) % 3] - P[:, k]
-        b = P[:, (k + 2) % 3] - P[:, k]
-        # The angle at corner k, from its sine and cosine (arctan2 is exact at 0 and pi).
-        angle = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
-        W[:, k] = angle[:, None] * face_normals
+def _vertex_pseudonormals(edges, dbl, face_normals, corners):
+    """Angle-weighted vertex normals.
+
+    ``edges``: the edge vectors ``x1-x0, x2-x1, x0-x2`` (3,m,3); ``dbl``: twice the triangle areas
+    (m,), the norm of the cross product of the two edges at any corner; ``corners``: ``Topology.corners``.
+    """
+    # The angle at corner k, between edge k and the reversed edge k-1, from its sine and cosine
+    # (arctan2 is exact at 0 and pi).
+    cosine = -np.einsum("kij,kij->ik", edges, edges[[2, 0, 1]])
+    angle = np.arctan2(dbl[:, None], cosine)
+    W = angle[:, :, None] * face_normals[:, None, :]
     return _normalize(corners @ W.reshape(-1, 3))
 
 
