@@ -293,3 +293,46 @@ def test_large_queries_split_over_threads_give_the_one_piece_answer(monkeypatch)
     for a, b in zip(one, pieces):
         assert a.shape[0] == P.shape[0]
         assert np.array_equal(a, b)
+
+
+def test_fix_penetration_measures_again_only_what_may_have_come_too_close(monkeypatch):
+    # A vertex that moved less than its clearance beyond the offset is not measured again; measuring
+    # every moved vertex gives exactly the same garment.
+    body_V, body_F = icosphere(3)
+    sheet = grid(40, 40, size=1.6, wave=0.03)
+    V = sheet.V - [0.8, 0.64, 0.0] + [0, 0, 0.9]
+    surface = TriangleSurface(body_V, body_F)
+    measured = []
+    near = penetration.signed_distance_near
+
+    def counting(s, P, band, graph=None):
+        measured.append(P.shape[0])
+        return near(s, P, band, graph)
+
+    monkeypatch.setattr(penetration, "signed_distance_near", counting)
+    out, info = penetration.fix_penetration(V, sheet.F, surface, offset=0.01)
+    fewer = list(measured)
+    measured.clear()
+    monkeypatch.setattr(penetration, "_still_clear", lambda low, offset, band: np.zeros(low.shape, bool))
+    out_all, info_all = penetration.fix_penetration(V, sheet.F, surface, offset=0.01)
+    np.testing.assert_array_equal(out, out_all)
+    assert info == info_all and info["pushed_vertices"] > 20
+    assert sum(fewer[1:]) < sum(measured[1:])
+
+
+def test_fix_penetration_stops_spreading_pushes_of_rounding_size(monkeypatch):
+    # Once every push left is within SETTLED of the offset, the final projection comes at once:
+    # the garment differs from the one of all rounds by less than that share of the offset.
+    body_V, body_F = icosphere(3)
+    sheet = grid(40, 40, size=1.6, wave=0.03)
+    V = sheet.V - [0.8, 0.64, 0.0] + [0, 0, 0.9]
+    surface = TriangleSurface(body_V, body_F)
+    offset = 0.01
+    out, info = penetration.fix_penetration(V, sheet.F, surface, offset=offset, rounds=8)
+    settled = penetration.SETTLED
+    monkeypatch.setattr(penetration, "SETTLED", 0.0)
+    out_all, info_all = penetration.fix_penetration(V, sheet.F, surface, offset=offset, rounds=8)
+    assert info["rounds"] < info_all["rounds"]
+    np.testing.assert_allclose(out, out_all, rtol=0, atol=8 * settled * offset)
+    assert info["inside_after"] == info_all["inside_after"] == 0
+    assert surface.signed_distance(out)[0].min() > offset * (1 - 1e-6)
