@@ -164,6 +164,84 @@ def _closest_on_segments(P, A, B, C):
     return bary
 
 
+#: The grid of ``near_boxes`` has at most this many cells along its longest side.
+NEAR_GRID_CELLS = 128
+
+
+def near_boxes(P, V, F, within):
+    """Which triangles and which points can be closer than ``within`` to each other.
+
+    A triangle closer than ``within`` to a point has its bounding box, grown by ``within``, around the
+    point. On a grid of cells at least ``within`` wide over the points: a triangle is kept when its
+    grown box covers a cell holding a point, and a point when its cell is covered by a kept triangle's
+    grown box. Both tests only ever keep too much (the boxes are grown a little more for rounding), so
+    every triangle-point pair closer than ``within`` is among the kept ones.
+
+    Parameters
+    ----------
+    P : (p,3) float64
+    V : (n,3) float64
+    F : (m,3) int64
+    within : float
+
+    Returns
+    -------
+    faces : (k,) int64
+        Increasing triangle indices.
+    points : (q,) int64
+        Increasing point indices.
+    """
+    pad = within * (1.0 + 1e-6)
+    # Column by column: numpy's reductions along the first axis of an (n,3) array are several times
+    # slower.
+    lo = np.array([P[:, c].min() for c in range(3)]) - pad
+    extent = max(float(P[:, c].max() + pad - lo[c]) for c in range(3))
+    if not np.isfinite(extent):
+        # NaN points are near nothing; measuring the rest is the caller's concern.
+        ok = np.flatnonzero(np.isfinite(P).all(axis=1))
+        faces, points = near_boxes(P[ok], V, F, within) if ok.size else (np.zeros(0, np.int64),) * 2
+        return faces, ok[points]
+    cell = max(pad, extent / NEAR_GRID_CELLS)
+    # P - lo >= pad > 0: truncation is the floor.
+    k = ((P - lo) / cell).astype(np.int64)
+    dims = np.array([k[:, c].max() for c in range(3)]) + 1
+    # Cells holding a point, summed from the corner (one cell of zeros before each axis).
+    S = np.zeros(tuple(dims + 1), np.int32)
+    shape = np.array(S.shape)
+    S.reshape(-1)[((k[:, 0] + 1) * shape[1] + k[:, 1] + 1) * shape[2] + k[:, 2] + 1] = 1
+    S = S.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)
+    x0, x1, x2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    # Truncated, not floored: below the grid both give cells clipped to its first one (b takes one
+    # cell more there, which only keeps more).
+    a = ((np.minimum(np.minimum(x0, x1), x2) - pad - lo) / cell).astype(np.int64)
+    b = ((np.maximum(np.maximum(x0, x1), x2) + pad - lo) / cell).astype(np.int64) + 1
+    np.maximum(a, 0, out=a)
+    np.minimum(a, dims, out=a)
+    np.maximum(b, 0, out=b)
+    np.minimum(b, dims, out=b)
+    faces = np.flatnonzero(_box_sums(S, a, b) > 0)
+    if faces.size == 0:
+        return faces, np.zeros(0, np.int64)
+    # Cells covered by a kept triangle's box: +1 and -1 at the corners of each box, summed up.
+    a, b = a[faces], b[faces]
+    D = np.zeros(tuple(dims + 1), np.int32)
+    for corner in range(8):
+        pick = [(b if corner >> axis & 1 else a)[:, axis] for axis in range(3)]
+        sign = -1 if bin(corner).count("1") % 2 else 1
+        np.add.at(D, tuple(pick), sign)
+    covered = D.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2).reshape(-1) > 0
+    points = np.flatnonzero(covered[(k[:, 0] * shape[1] + k[:, 1]) * shape[2] + k[:, 2]])
+    return faces, points
+
+
+def _box_sums(S, a, b):
+    """Sums over the cells ``a <= cell < b`` (per row) from the corner sums S."""
+    x0, y0, z0 = a.T
+    x1, y1, z1 = b.T
+    return (S[x1, y1, z1] - S[x0, y1, z1] - S[x1, y0, z1] - S[x1, y1, z0]
+            + S[x0, y0, z1] + S[x0, y1, z0] + S[x1, y0, z0] - S[x0, y0, z0])
+
+
 def _check_points(P):
     P = np.ascontiguousarray(P, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3:
@@ -357,17 +435,22 @@ class TriangleSurface:
             return self._on_triangles(P, tri)
         if not within > 0:
             raise ValueError(f"within must be > 0, got {within}")
-        # libigl's bounded search answers NaN beyond the bound (it builds its own tree: on a body
-        # that is a few milliseconds, against the tenths of a second the bound saves).
-        d, tri, _, _ = igl.signed_distance(P, self.V, self.F, igl.SIGNED_DISTANCE_TYPE_UNSIGNED,
-                                           0.0, float(within))
-        near = np.isfinite(d) & (tri >= 0) & (tri < self.F.shape[0])
         closest = np.full((p, 3), np.nan)
         dist = np.full(p, np.inf)
         triangle = np.full(p, -1, np.int64)
         bary = np.full((p, 3), np.nan)
-        if near.any():
-            closest[near], dist[near], triangle[near], bary[near] = self._on_triangles(P[near], tri[near])
+        faces, points = near_boxes(P, self.V, self.F, float(within))
+        if faces.size == 0 or points.size == 0:
+            return closest, dist, triangle, bary
+        # libigl's bounded search answers NaN beyond the bound. It builds a tree of its own, here over
+        # the triangles that can be that near (a garment is near a small part of the body), for the
+        # points that can be that near.
+        d, tri, _, _ = igl.signed_distance(P[points], self.V, self.F[faces], igl.SIGNED_DISTANCE_TYPE_UNSIGNED,
+                                           0.0, float(within))
+        found = np.isfinite(d) & (tri >= 0) & (tri < faces.size)
+        near = points[found]
+        if near.size:
+            closest[near], dist[near], triangle[near], bary[near] = self._on_triangles(P[near], faces[tri[found]])
         return closest, dist, triangle, bary
 
     def _on_triangles(self, P, tri):
