@@ -337,6 +337,7 @@ class TriangleSurface:
             raise ValueError(f"F refers to vertices outside 0..{self.V.shape[0] - 1}")
         self._tree = None
         self._normals = None
+        self._vertex_normals = None
         self._orientation = None
         self._topology = None
 
@@ -378,14 +379,15 @@ class TriangleSurface:
         return self._topology
 
     def _pseudonormals(self):
+        """Face normals (m,3), twice the areas (m,), ``tri_edges`` and edge normals (e,3); the vertex
+        normals are computed apart (``vertex_normals``, or ``_vertex_normals_of`` for a few)."""
         if self._normals is None:
             top = self.topology
-            edges, cross, dbl = self._face_parts()
+            _, cross, dbl = self._face_parts()
             face = np.divide(cross, dbl[:, None], out=np.zeros_like(cross), where=dbl[:, None] > 0)
             face *= self._orientation
-            vertex = _vertex_pseudonormals(edges, dbl, face, top.corners)
             edge = _edge_pseudonormals(top, face)
-            self._normals = face, vertex, top.tri_edges, edge
+            self._normals = face, dbl, top.tri_edges, edge
         return self._normals
 
     @property
@@ -396,7 +398,33 @@ class TriangleSurface:
     @property
     def vertex_normals(self):
         """(n,3) float64 angle-weighted vertex pseudonormals."""
-        return self._pseudonormals()[1]
+        if self._vertex_normals is None:
+            face = self._pseudonormals()[0]
+            edges, _, dbl = self._face_parts()
+            self._vertex_normals = _vertex_pseudonormals(edges, dbl, face, self.topology.corners)
+        return self._vertex_normals
+
+    def _vertex_normals_of(self, v):
+        """``vertex_normals[v]`` for the vertices v (k,) int, from their own triangles only: a query
+        needs the normals of the few vertices its closest points lie on."""
+        if self._vertex_normals is not None:
+            return self._vertex_normals[v]
+        face, dbl, _, _ = self._pseudonormals()
+        top = self.topology
+        ptr, fan = top.fan_start, top.fan
+        deg = ptr[v + 1] - ptr[v]
+        k = np.arange(int(deg.max()) if v.size else 0)
+        ok = k < deg[:, None]
+        t = fan[np.minimum(ptr[v][:, None] + k, ptr[v + 1][:, None] - 1)]
+        corners = self.F[t]
+        # The corner of v in each triangle, and the edges x1-x0, x2-x1, x0-x2 (as ``_face_parts``).
+        c = np.argmax(corners == v[:, None, None], axis=2)
+        x = self.V[corners]
+        e = x[:, :, [1, 2, 0]] - x
+        idx = np.indices(c.shape)
+        cosine = -np.einsum("abj,abj->ab", e[idx[0], idx[1], c], e[idx[0], idx[1], (c + 2) % 3])
+        angle = np.where(ok, np.arctan2(dbl[t], cosine), 0.0)
+        return _normalize(np.einsum("ab,abj->aj", angle, face[t]))
 
     @property
     def tri_edges(self):
@@ -512,7 +540,7 @@ class TriangleSurface:
         -------
         N : (p,3) float64
         """
-        face, vertex, tri_edges, edge = self._pseudonormals()
+        face, _, tri_edges, edge = self._pseudonormals()
         zero = bary <= 0.0
         nzero = zero.sum(axis=1)
         N = face[tri]
@@ -523,7 +551,9 @@ class TriangleSurface:
         on_corner = nzero == 2
         if on_corner.any():
             j = np.argmax(~zero[on_corner], axis=1)
-            N[on_corner] = vertex[self.F[tri[on_corner], j]]
+            v = self.F[tri[on_corner], j]
+            unique, back = np.unique(v, return_inverse=True)
+            N[on_corner] = self._vertex_normals_of(unique)[back]
         return N
 
     def inside(self, P):

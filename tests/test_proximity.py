@@ -389,3 +389,25 @@ def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force():
         scale = float(np.ptp(V, axis=0).max())
         np.testing.assert_array_less(np.abs(bounded[1][near] - ref[near]), REL * ref[near] + REL * scale)
         assert np.isinf(bounded[1][far]).all() and (bounded[2][far] == -1).all()
+
+
+def test_normals_of_a_few_vertices_equal_those_of_all():
+    # A query computes the pseudonormals of only the vertices its closest points lie on; they equal
+    # the ones computed for every vertex (open rims, a flat triangle and a real body included).
+    V, F = icosphere(3)
+    open_F = F[V[F].mean(axis=1)[:, 2] < 0.8]
+    flat_V = np.vstack([V, V[F[0, 0]] + 1e-9 * (V[F[0, 1]] - V[F[0, 0]])])
+    flat_F = np.vstack([F, [[F[0, 0], F[0, 1], V.shape[0]]]])
+    cases = [(V, F), (V, open_F), (flat_V, flat_F)]
+    if (MAKEHUMAN / "bodies").is_dir():
+        body = read_obj(MAKEHUMAN / "bodies" / "female_average.obj")
+        cases.append((body.V, body.F))
+    for V_, F_ in cases:
+        every = TriangleSurface(V_, F_).vertex_normals
+        some = np.random.default_rng(1).choice(V_.shape[0], 200, replace=False)
+        few = TriangleSurface(V_, F_)._vertex_normals_of(some)
+        np.testing.assert_allclose(few, every[some], rtol=0, atol=1e-15)
+        used = np.isin(some, F_)
+        assert used.sum() > 50
+        np.testing.assert_allclose(np.linalg.norm(few[used], axis=1), 1.0)
+        assert not few[~used].any()
