@@ -8,8 +8,8 @@ stay. A few rounds settle vertices that the spreading itself moved; the last rou
 vertex still too close, so no vertex is left inside.
 
 The work is where the garment is near the body: vertices farther outside than a band of a few
-edge lengths are rejected by a bounded search that stops at the band, and only the vertices that
-moved are measured again.
+edge lengths are rejected by a bounded search that stops at the band, and of the vertices that
+moved only those that may have come closer than the offset are measured again.
 """
 
 from __future__ import annotations

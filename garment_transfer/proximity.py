@@ -26,7 +26,9 @@ one corner region all get one triangle.
 
 Queries limited to a band around the surface (``within=``) stop searching as soon as no box is
 nearer than the band, which makes them several times cheaper for points far from the mesh: the
-penetration fix only needs the garment vertices near the body.
+penetration fix only needs the garment vertices near the body. Their tree is built over only the
+triangles that can be that near a query point, for only the points that can be that near a triangle
+(``near_boxes``): a garment is near a small part of the body.
 """
 
 from __future__ import annotations
