@@ -9,9 +9,10 @@ Blender's Surface Deform does; here it places the transferred garment on the tar
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from .gradients import inverse_3x3, triangle_frames
 from .proximity import TriangleSurface
@@ -35,6 +36,28 @@ class Binding:
     bary: np.ndarray
     local: np.ndarray
     distance: np.ndarray
+    _linear: tuple | None = field(default=None, repr=False, compare=False)
+
+    def linear_part(self, body_F, n_vertices):
+        """The part of ``carry`` that is linear in the body's vertices, as a sparse (p, n) matrix.
+
+        A bound point is ``sum_k bary_k x_k + l1 (x2 - x1) + l2 (x3 - x1) + l3 n`` over the corners
+        x1, x2, x3 of its triangle: every term but the normal's is a fixed combination of three body
+        vertices, so it is built once per binding (kept for the last body triangles it was asked for)
+        and every shape of the body is then one sparse product.
+        """
+        if self._linear is not None and self._linear[0] is body_F and self._linear[1] == n_vertices:
+            return self._linear[2]
+        tri, off = self.triangle, self.local
+        w = self.bary.copy()
+        w[:, 0] -= off[:, 0] + off[:, 1]
+        w[:, 1] += off[:, 0]
+        w[:, 2] += off[:, 1]
+        p = tri.shape[0]
+        M = sp.csr_matrix((w.reshape(-1), body_F[tri].reshape(-1), np.arange(0, 3 * p + 1, 3)),
+                          shape=(p, n_vertices))
+        self._linear = (body_F, n_vertices, M)
+        return M
 
 
 def bind(points, body_V, body_F, surface=None) -> Binding:
@@ -74,10 +97,18 @@ def carry(binding: Binding, body_V, body_F):
     P : (p,3) float64
     """
     body_V = np.asarray(body_V, dtype=np.float64)
-    tris = body_F[binding.triangle]
-    surface_point = np.einsum("pk,pkj->pj", binding.bary, body_V[tris])
-    Y, _ = triangle_frames(body_V, tris)
-    return surface_point + np.einsum("pij,pj->pi", Y, binding.local)
+    tri = binding.triangle
+    P = binding.linear_part(body_F, body_V.shape[0]) @ body_V
+    # The scaled normals (``triangle_frames``), once per body triangle when there are more points
+    # than triangles.
+    many = tri.shape[0] > body_F.shape[0]
+    F = body_F if many else body_F[tri]
+    x1 = body_V[F[:, 0]]
+    c = np.cross(body_V[F[:, 1]] - x1, body_V[F[:, 2]] - x1)
+    dbl = np.linalg.norm(c, axis=1)
+    n = np.divide(c, np.sqrt(dbl)[:, None], out=np.zeros_like(c), where=dbl[:, None] > 0)
+    P += binding.local[:, 2:] * (n[tri] if many else n)
+    return P
 
 
 def follow_nearest_vertex(points, body_V, body_V_new):

@@ -2,9 +2,21 @@
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
+
 import numpy as np
 
 from .mesh import DEGENERATE_AREA
+
+#: The rest shapes' inverted frames, by digest of the rest shape: a source body goes to many targets
+#: (and its garments to every target), and its frames are the same every time. Kept for meshes of up
+#: to REST_KEPT_TRIANGLES triangles (bodies; a huge garment's frames would cost memory for little).
+_RESTS: OrderedDict = OrderedDict()
+_RESTS_KEPT = 4
+REST_KEPT_TRIANGLES = 200_000
+_RESTS_LOCK = threading.Lock()
 
 
 def triangle_frames(V, F):
@@ -87,16 +99,40 @@ def deformation_gradients(X, Y, F):
     degenerate : (m,) bool
         Triangles of (near) zero area in X, flagged; their Q is the identity.
     """
-    F = np.asarray(F, dtype=np.int64)
-    Xf, dbl_x = triangle_frames(X, F)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    Xinv, degenerate = _rest(X, F)
     Yf, _ = triangle_frames(Y, F)
+    Q = Yf @ Xinv
+    Q[degenerate] = np.eye(3)
+    bad = ~np.all(np.isfinite(Q), axis=(1, 2))
+    # A copy: the kept one is shared.
+    degenerate = degenerate | bad
+    Q[bad] = np.eye(3)
+    return Q, degenerate
+
+
+def _rest(X, F):
+    """The inverted frames (m,3,3) of the rest shape X and its degenerate triangles (m,) bool."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    key = None
+    if F.shape[0] <= REST_KEPT_TRIANGLES:
+        digest = hashlib.blake2b(X.tobytes(), digest_size=20)
+        digest.update(F.tobytes())
+        key = (X.shape, F.shape, digest.digest())
+        with _RESTS_LOCK:
+            if key in _RESTS:
+                _RESTS.move_to_end(key)
+                return _RESTS[key]
+    Xf, dbl_x = triangle_frames(X, F)
     Xinv, _ = inverse_3x3(Xf)
     h2 = np.mean(np.sum((Xf[:, :, 0]) ** 2, axis=1)) if F.shape[0] else 1.0
     degenerate = ~(dbl_x > DEGENERATE_AREA * h2)
-    Q = np.einsum("mij,mjk->mik", Yf, Xinv)
-    Q[degenerate] = np.eye(3)
-    bad = ~np.all(np.isfinite(Q), axis=(1, 2))
-    if bad.any():
-        Q[bad] = np.eye(3)
-        degenerate |= bad
-    return Q, degenerate
+    if key is not None:
+        # Shared between calls: read-only, so no caller can change what the next one gets.
+        Xinv.flags.writeable = False
+        degenerate.flags.writeable = False
+        with _RESTS_LOCK:
+            _RESTS[key] = (Xinv, degenerate)
+            while len(_RESTS) > _RESTS_KEPT:
+                _RESTS.popitem(last=False)
+    return Xinv, degenerate

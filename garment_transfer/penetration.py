@@ -8,8 +8,8 @@ stay. A few rounds settle vertices that the spreading itself moved; the last rou
 vertex still too close, so no vertex is left inside.
 
 The work is where the garment is near the body: vertices farther outside than a band of a few
-edge lengths are rejected by a bounded search that stops at the band, and only the vertices that
-moved are measured again.
+edge lengths are rejected by a bounded search that stops at the band, and of the vertices that
+moved only those that may have come closer than the offset are measured again.
 """
 
 from __future__ import annotations
@@ -55,6 +55,19 @@ def penetration(V, surface: TriangleSurface):
     return float(inside.mean()), depth, inside
 
 
+def neighbours(A, idx):
+    """The column indices of rows ``idx`` of the csr matrix A, concatenated (with repeats).
+
+    Gathered from ``indptr`` and ``indices`` directly: a row selection ``A[idx]`` builds a new matrix
+    (about 0.2 ms each time, 30 times per spread).
+    """
+    starts = A.indptr[idx]
+    counts = A.indptr[idx + 1] - starts
+    total = int(counts.sum())
+    first = np.cumsum(counts) - counts
+    return A.indices[np.repeat(starts - first, counts) + np.arange(total)]
+
+
 def _rings(A, start, rings):
     """(n,) bool: ``start`` grown by ``rings`` rings of neighbours in the graph A (csr)."""
     band = start.copy()
@@ -62,7 +75,7 @@ def _rings(A, start, rings):
     for _ in range(rings):
         if frontier.size == 0:
             break
-        nb = A[frontier].indices
+        nb = neighbours(A, frontier)
         nb = np.unique(nb[~band[nb]])
         band[nb] = True
         frontier = nb
@@ -107,6 +120,12 @@ def spread_displacement(A, fixed, displacement, decay_rings):
     return D
 
 
+#: When every vertex still too close is within this share of the offset from where it must go, the
+#: pushes are settled: a push leaves a vertex at the offset up to rounding, and another spreading round
+#: would move the garment by no more than that (the spread displacement is at most the largest push),
+#: so the final projection comes at once.
+SETTLED = 1e-9
+
 #: Below this many points a query searches the whole tree; above, a bounded search (which builds
 #: its own tree) is cheaper.
 BOUNDED_MIN = 4096
@@ -141,6 +160,14 @@ def signed_distance_near(surface: TriangleSurface, V, band, graph=None):
     if deep.any():
         sd[deep], closest[deep], normal[deep], _ = surface.signed_distance(V[deep])
     return sd, closest, normal
+
+
+def _still_clear(low, offset, band):
+    """(n,) bool: vertices certainly farther outside than ``offset``, given ``low`` (n,), a lower bound of
+    how far outside each one is: its distance when it was measured, less the length of every move
+    since (a vertex that moved by less than ``low - offset`` is still outside and that far: the surface
+    would have to pass within ``offset`` of the segment it moved along). The margin covers rounding."""
+    return low > offset + 1e-9 * band
 
 
 def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, rounds=4,
@@ -182,23 +209,33 @@ def fix_penetration(V, F, surface: TriangleSurface, offset, spread_length=None, 
     A = adjacency() if callable(adjacency) else adjacency
     sd, closest, normal = signed_distance_near(surface, V, band, A)
     info = {"inside_before": int((sd < 0).sum()), "pushed_vertices": int((sd < offset).sum())}
+    # How far outside each vertex is at least: its distance where measured, the band where the
+    # bounded search stopped, 0 inside.
+    low = np.clip(sd, 0.0, band)
     done = 0
     for done in range(1, rounds + 1):
         bad = sd < offset
         if not bad.any():
             break
         target = closest[bad] + offset * normal[bad]
-        if done < rounds:
+        settled = np.linalg.norm(target - V[bad], axis=1).max() <= SETTLED * offset
+        if done < rounds and not settled:
             if A is None:
                 A = vertex_adjacency(V.shape[0], F)
             D = spread_displacement(A, bad, target - V[bad], decay)
             moved = np.any(D != 0, axis=1)
             V[moved] += D[moved]
+            low[moved] -= np.linalg.norm(D[moved], axis=1)
         else:
             moved = bad
             V[bad] = target
-        # Only what moved needs measuring again.
-        sd[moved], closest[moved], normal[moved] = signed_distance_near(surface, V[moved], band)
+            low[bad] = 0.0
+        # Only what moved needs measuring again, and of that only what may now be too close.
+        again = moved & ~_still_clear(low, offset, band)
+        sd[again], closest[again], normal[again] = signed_distance_near(surface, V[again], band)
+        low[again] = np.clip(sd[again], 0.0, band)
+        if settled:
+            break
     # Whatever the last projection could not settle (the closest point moved) is projected again.
     bad = sd < 0
     if bad.any():

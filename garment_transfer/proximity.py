@@ -26,7 +26,9 @@ one corner region all get one triangle.
 
 Queries limited to a band around the surface (``within=``) stop searching as soon as no box is
 nearer than the band, which makes them several times cheaper for points far from the mesh: the
-penetration fix only needs the garment vertices near the body.
+penetration fix only needs the garment vertices near the body. Their tree is built over only the
+triangles that can be that near a query point, for only the points that can be that near a triangle
+(``near_boxes``): a garment is near a small part of the body.
 """
 
 from __future__ import annotations
@@ -137,7 +139,11 @@ def orientation(V, F) -> int:
     """+1 if the faces F over V point outward (or enclose no volume), -1 if they point inward."""
     vol = signed_volume(V, F)
     area = float(triangle_normals(np.asarray(V, dtype=np.float64), F)[1].sum())
-    return -1 if vol < -ENCLOSING_VOLUME_SHARE * area ** 1.5 else 1
+    return _orientation(vol, area)
+
+
+def _orientation(volume, area) -> int:
+    return -1 if volume < -ENCLOSING_VOLUME_SHARE * area ** 1.5 else 1
 
 
 def _closest_on_segments(P, A, B, C):
@@ -158,6 +164,84 @@ def _closest_on_segments(P, A, B, C):
         bary[better, i] = 1.0 - t[better]
         bary[better, j] = t[better]
     return bary
+
+
+#: The grid of ``near_boxes`` has at most this many cells along its longest side.
+NEAR_GRID_CELLS = 128
+
+
+def near_boxes(P, V, F, within):
+    """Which triangles and which points can be closer than ``within`` to each other.
+
+    A triangle closer than ``within`` to a point has its bounding box, grown by ``within``, around the
+    point. On a grid of cells at least ``within`` wide over the points: a triangle is kept when its
+    grown box covers a cell holding a point, and a point when its cell is covered by a kept triangle's
+    grown box. Both tests only ever keep too much (the boxes are grown a little more for rounding), so
+    every triangle-point pair closer than ``within`` is among the kept ones.
+
+    Parameters
+    ----------
+    P : (p,3) float64
+    V : (n,3) float64
+    F : (m,3) int64
+    within : float
+
+    Returns
+    -------
+    faces : (k,) int64
+        Increasing triangle indices.
+    points : (q,) int64
+        Increasing point indices.
+    """
+    pad = within * (1.0 + 1e-6)
+    # Column by column: numpy's reductions along the first axis of an (n,3) array are several times
+    # slower.
+    lo = np.array([P[:, c].min() for c in range(3)]) - pad
+    extent = max(float(P[:, c].max() + pad - lo[c]) for c in range(3))
+    if not np.isfinite(extent):
+        # NaN points are near nothing; measuring the rest is the caller's concern.
+        ok = np.flatnonzero(np.isfinite(P).all(axis=1))
+        faces, points = near_boxes(P[ok], V, F, within) if ok.size else (np.zeros(0, np.int64),) * 2
+        return faces, ok[points]
+    cell = max(pad, extent / NEAR_GRID_CELLS)
+    # P - lo >= pad > 0: truncation is the floor.
+    k = ((P - lo) / cell).astype(np.int64)
+    dims = np.array([k[:, c].max() for c in range(3)]) + 1
+    # Cells holding a point, summed from the corner (one cell of zeros before each axis).
+    S = np.zeros(tuple(dims + 1), np.int32)
+    shape = np.array(S.shape)
+    S.reshape(-1)[((k[:, 0] + 1) * shape[1] + k[:, 1] + 1) * shape[2] + k[:, 2] + 1] = 1
+    S = S.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)
+    x0, x1, x2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    # Truncated, not floored: below the grid both give cells clipped to its first one (b takes one
+    # cell more there, which only keeps more).
+    a = ((np.minimum(np.minimum(x0, x1), x2) - pad - lo) / cell).astype(np.int64)
+    b = ((np.maximum(np.maximum(x0, x1), x2) + pad - lo) / cell).astype(np.int64) + 1
+    np.maximum(a, 0, out=a)
+    np.minimum(a, dims, out=a)
+    np.maximum(b, 0, out=b)
+    np.minimum(b, dims, out=b)
+    faces = np.flatnonzero(_box_sums(S, a, b) > 0)
+    if faces.size == 0:
+        return faces, np.zeros(0, np.int64)
+    # Cells covered by a kept triangle's box: +1 and -1 at the corners of each box, summed up.
+    a, b = a[faces], b[faces]
+    D = np.zeros(tuple(dims + 1), np.int32)
+    for corner in range(8):
+        pick = [(b if corner >> axis & 1 else a)[:, axis] for axis in range(3)]
+        sign = -1 if bin(corner).count("1") % 2 else 1
+        np.add.at(D, tuple(pick), sign)
+    covered = D.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2).reshape(-1) > 0
+    points = np.flatnonzero(covered[(k[:, 0] * shape[1] + k[:, 1]) * shape[2] + k[:, 2]])
+    return faces, points
+
+
+def _box_sums(S, a, b):
+    """Sums over the cells ``a <= cell < b`` (per row) from the corner sums S."""
+    x0, y0, z0 = a.T
+    x1, y1, z1 = b.T
+    return (S[x1, y1, z1] - S[x0, y1, z1] - S[x1, y0, z1] - S[x1, y1, z0]
+            + S[x0, y0, z1] + S[x0, y1, z0] + S[x1, y0, z0] - S[x0, y0, z0])
 
 
 def _check_points(P):
@@ -255,6 +339,7 @@ class TriangleSurface:
             raise ValueError(f"F refers to vertices outside 0..{self.V.shape[0] - 1}")
         self._tree = None
         self._normals = None
+        self._vertex_normals = None
         self._orientation = None
         self._topology = None
 
@@ -271,8 +356,23 @@ class TriangleSurface:
     def orientation(self) -> int:
         """+1 when the faces point outward (or enclose no volume), -1 when they point inward."""
         if self._orientation is None:
-            self._orientation = orientation(self.V, self.F)
+            self._face_parts()
         return self._orientation
+
+    def _face_parts(self):
+        """The edge vectors ``x1-x0, x2-x1, x0-x2`` (3,m,3), the cross products ``(x1-x0) x (x2-x0)``
+        (m,3) and their norms (m,), twice the areas; sets the orientation, which needs the same
+        products (not kept: ``_pseudonormals`` uses them once)."""
+        x0, x1, x2 = (self.V[self.F[:, k]] for k in range(3))
+        edges = np.stack([x1 - x0, x2 - x1, x0 - x2])
+        # As ``triangle_normals`` computes it (negation is exact).
+        cross = np.cross(edges[0], -edges[2])
+        dbl = np.linalg.norm(cross, axis=1)
+        if self._orientation is None:
+            # ``signed_volume`` (about the centroid), from the same cross products.
+            volume = float(np.einsum("ij,ij->", x0 - self.V.mean(axis=0), cross)) / 6.0
+            self._orientation = _orientation(volume, 0.5 * float(dbl.sum()))
+        return edges, cross, dbl
 
     @property
     def topology(self) -> Topology:
@@ -281,13 +381,15 @@ class TriangleSurface:
         return self._topology
 
     def _pseudonormals(self):
+        """Face normals (m,3), twice the areas (m,), ``tri_edges`` and edge normals (e,3); the vertex
+        normals are computed apart (``vertex_normals``, or ``_vertex_normals_of`` for a few)."""
         if self._normals is None:
             top = self.topology
-            face, _ = triangle_normals(self.V, self.F)
-            face = face * self.orientation
-            vertex = _vertex_pseudonormals(self.V, self.F, face, top.corners)
+            _, cross, dbl = self._face_parts()
+            face = np.divide(cross, dbl[:, None], out=np.zeros_like(cross), where=dbl[:, None] > 0)
+            face *= self._orientation
             edge = _edge_pseudonormals(top, face)
-            self._normals = face, vertex, top.tri_edges, edge
+            self._normals = face, dbl, top.tri_edges, edge
         return self._normals
 
     @property
@@ -298,7 +400,33 @@ class TriangleSurface:
     @property
     def vertex_normals(self):
         """(n,3) float64 angle-weighted vertex pseudonormals."""
-        return self._pseudonormals()[1]
+        if self._vertex_normals is None:
+            face = self._pseudonormals()[0]
+            edges, _, dbl = self._face_parts()
+            self._vertex_normals = _vertex_pseudonormals(edges, dbl, face, self.topology.corners)
+        return self._vertex_normals
+
+    def _vertex_normals_of(self, v):
+        """``vertex_normals[v]`` for the vertices v (k,) int, from their own triangles only: a query
+        needs the normals of the few vertices its closest points lie on."""
+        if self._vertex_normals is not None:
+            return self._vertex_normals[v]
+        face, dbl, _, _ = self._pseudonormals()
+        top = self.topology
+        ptr, fan = top.fan_start, top.fan
+        deg = ptr[v + 1] - ptr[v]
+        k = np.arange(int(deg.max()) if v.size else 0)
+        ok = k < deg[:, None]
+        t = fan[np.minimum(ptr[v][:, None] + k, ptr[v + 1][:, None] - 1)]
+        corners = self.F[t]
+        # The corner of v in each triangle, and the edges x1-x0, x2-x1, x0-x2 (as ``_face_parts``).
+        c = np.argmax(corners == v[:, None, None], axis=2)
+        x = self.V[corners]
+        e = x[:, :, [1, 2, 0]] - x
+        idx = np.indices(c.shape)
+        cosine = -np.einsum("abj,abj->ab", e[idx[0], idx[1], c], e[idx[0], idx[1], (c + 2) % 3])
+        angle = np.where(ok, np.arctan2(dbl[t], cosine), 0.0)
+        return _normalize(np.einsum("ab,abj->aj", angle, face[t]))
 
     @property
     def tri_edges(self):
@@ -337,17 +465,22 @@ class TriangleSurface:
             return self._on_triangles(P, tri)
         if not within > 0:
             raise ValueError(f"within must be > 0, got {within}")
-        # libigl's bounded search answers NaN beyond the bound (it builds its own tree: on a body
-        # that is a few milliseconds, against the tenths of a second the bound saves).
-        d, tri, _, _ = igl.signed_distance(P, self.V, self.F, igl.SIGNED_DISTANCE_TYPE_UNSIGNED,
-                                           0.0, float(within))
-        near = np.isfinite(d) & (tri >= 0) & (tri < self.F.shape[0])
         closest = np.full((p, 3), np.nan)
         dist = np.full(p, np.inf)
         triangle = np.full(p, -1, np.int64)
         bary = np.full((p, 3), np.nan)
-        if near.any():
-            closest[near], dist[near], triangle[near], bary[near] = self._on_triangles(P[near], tri[near])
+        faces, points = near_boxes(P, self.V, self.F, float(within))
+        if faces.size == 0 or points.size == 0:
+            return closest, dist, triangle, bary
+        # libigl's bounded search answers NaN beyond the bound. It builds a tree of its own, here over
+        # the triangles that can be that near (a garment is near a small part of the body), for the
+        # points that can be that near.
+        d, tri, _, _ = igl.signed_distance(P[points], self.V, self.F[faces], igl.SIGNED_DISTANCE_TYPE_UNSIGNED,
+                                           0.0, float(within))
+        found = np.isfinite(d) & (tri >= 0) & (tri < faces.size)
+        near = points[found]
+        if near.size:
+            closest[near], dist[near], triangle[near], bary[near] = self._on_triangles(P[near], faces[tri[found]])
         return closest, dist, triangle, bary
 
     def _on_triangles(self, P, tri):
@@ -409,7 +542,7 @@ class TriangleSurface:
         -------
         N : (p,3) float64
         """
-        face, vertex, tri_edges, edge = self._pseudonormals()
+        face, _, tri_edges, edge = self._pseudonormals()
         zero = bary <= 0.0
         nzero = zero.sum(axis=1)
         N = face[tri]
@@ -420,7 +553,9 @@ class TriangleSurface:
         on_corner = nzero == 2
         if on_corner.any():
             j = np.argmax(~zero[on_corner], axis=1)
-            N[on_corner] = vertex[self.F[tri[on_corner], j]]
+            v = self.F[tri[on_corner], j]
+            unique, back = np.unique(v, return_inverse=True)
+            N[on_corner] = self._vertex_normals_of(unique)[back]
         return N
 
     def inside(self, P):
@@ -517,16 +652,17 @@ class TriangleSurface:
         return (share > 0.5)[label]
 
 
-def _vertex_pseudonormals(V, F, face_normals, corners):
-    """Angle-weighted vertex normals; ``corners``: ``Topology.corners``."""
-    P = V[F]
-    W = np.empty((F.shape[0], 3, 3))
-    for k in range(3):
-        a = P[:, (k + 1) % 3] - P[:, k]
-        b = P[:, (k + 2) % 3] - P[:, k]
-        # The angle at corner k, from its sine and cosine (arctan2 is exact at 0 and pi).
-        angle = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
-        W[:, k] = angle[:, None] * face_normals
+def _vertex_pseudonormals(edges, dbl, face_normals, corners):
+    """Angle-weighted vertex normals.
+
+    ``edges``: the edge vectors ``x1-x0, x2-x1, x0-x2`` (3,m,3); ``dbl``: twice the triangle areas
+    (m,), the norm of the cross product of the two edges at any corner; ``corners``: ``Topology.corners``.
+    """
+    # The angle at corner k, between edge k and the reversed edge k-1, from its sine and cosine
+    # (arctan2 is exact at 0 and pi).
+    cosine = -np.einsum("kij,kij->ik", edges, edges[[2, 0, 1]])
+    angle = np.arctan2(dbl[:, None], cosine)
+    W = angle[:, :, None] * face_normals[:, None, :]
     return _normalize(corners @ W.reshape(-1, 3))
 
 

@@ -131,6 +131,25 @@ def test_binding_carries_points_exactly_under_a_similarity():
     np.testing.assert_allclose(carry(b, 2.0 * V + 1.0, F), 2.0 * P + 1.0, atol=1e-12)
 
 
+def test_carry_is_the_offset_in_the_frame_of_the_triangle_on_any_shape():
+    # The carried point is, by definition, the surface point plus the offset in the triangle's frame
+    # [e1 e2 n] with n = e1 x e2 / sqrt|e1 x e2|; on a shape that is not affine, for more points than
+    # triangles and for fewer, and again with the binding's kept matrix.
+    from garment_transfer.gradients import triangle_frames
+
+    V, F = icosphere(2)
+    rng = np.random.default_rng(5)
+    W = V * [1.0, 0.7, 1.3] + 0.2 * np.sin(3.0 * V[:, [1, 2, 0]])
+    for count in (F.shape[0] * 3, 40):
+        P = rng.normal(size=(count, 3)) * 0.8
+        b = bind(P, V, F)
+        tris = F[b.triangle]
+        Y, _ = triangle_frames(W, tris)
+        ref = np.einsum("pk,pkj->pj", b.bary, W[tris]) + np.einsum("pij,pj->pi", Y, b.local)
+        for _ in range(2):
+            np.testing.assert_allclose(carry(b, W, F), ref, rtol=0, atol=1e-13)
+
+
 def test_closest_on_threads_equals_one_piece(monkeypatch):
     import garment_transfer.proximity as proximity
 

@@ -44,6 +44,29 @@ def test_affine_map_is_exact_on_every_triangle_plane():
     np.testing.assert_allclose(Qs[:, 2, 2], np.sqrt(np.linalg.det(B[:2, :2])), atol=1e-12)
 
 
+def test_kept_rest_frames_answer_as_fresh_ones(monkeypatch):
+    # The rest shape's frames are kept between calls: the answers equal those computed afresh, a rest
+    # shape moved in place (same array, new numbers) is not mistaken for the kept one, and what a
+    # caller gets back it may change without changing the next answer.
+    import garment_transfer.gradients as gradients
+
+    rng = np.random.default_rng(7)
+    V, F = icosphere(2)
+    X = V + 0.01 * rng.normal(size=V.shape)
+    Y = V * [1.2, 0.9, 1.1]
+    first, deg = deformation_gradients(X, Y, F)
+    deg[:] = True
+    kept, deg_kept = deformation_gradients(X, Y, F)
+    np.testing.assert_array_equal(first, kept)
+    assert not deg_kept.any()
+    X[:] = V
+    moved, _ = deformation_gradients(X, Y, F)
+    monkeypatch.setattr(gradients, "REST_KEPT_TRIANGLES", -1)
+    fresh, _ = deformation_gradients(X, Y, F)
+    np.testing.assert_array_equal(moved, fresh)
+    assert np.abs(moved - kept).max() > 1e-3
+
+
 def test_degenerate_triangle_is_flagged_and_finite():
     V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], float)
     F = np.array([[0, 1, 2], [0, 1, 3]])

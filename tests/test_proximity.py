@@ -293,3 +293,121 @@ def test_large_queries_split_over_threads_give_the_one_piece_answer(monkeypatch)
     for a, b in zip(one, pieces):
         assert a.shape[0] == P.shape[0]
         assert np.array_equal(a, b)
+
+
+def test_fix_penetration_measures_again_only_what_may_have_come_too_close(monkeypatch):
+    # A vertex that moved less than its clearance beyond the offset is not measured again; measuring
+    # every moved vertex gives exactly the same garment.
+    body_V, body_F = icosphere(3)
+    sheet = grid(40, 40, size=1.6, wave=0.03)
+    V = sheet.V - [0.8, 0.64, 0.0] + [0, 0, 0.9]
+    surface = TriangleSurface(body_V, body_F)
+    measured = []
+    near = penetration.signed_distance_near
+
+    def counting(s, P, band, graph=None):
+        measured.append(P.shape[0])
+        return near(s, P, band, graph)
+
+    monkeypatch.setattr(penetration, "signed_distance_near", counting)
+    out, info = penetration.fix_penetration(V, sheet.F, surface, offset=0.01)
+    fewer = list(measured)
+    measured.clear()
+    monkeypatch.setattr(penetration, "_still_clear", lambda low, offset, band: np.zeros(low.shape, bool))
+    out_all, info_all = penetration.fix_penetration(V, sheet.F, surface, offset=0.01)
+    np.testing.assert_array_equal(out, out_all)
+    assert info == info_all and info["pushed_vertices"] > 20
+    assert sum(fewer[1:]) < sum(measured[1:])
+
+
+def test_fix_penetration_stops_spreading_pushes_of_rounding_size(monkeypatch):
+    # Once every push left is within SETTLED of the offset, the final projection comes at once:
+    # the garment differs from the one of all rounds by less than that share of the offset.
+    body_V, body_F = icosphere(3)
+    sheet = grid(40, 40, size=1.6, wave=0.03)
+    V = sheet.V - [0.8, 0.64, 0.0] + [0, 0, 0.9]
+    surface = TriangleSurface(body_V, body_F)
+    offset = 0.01
+    out, info = penetration.fix_penetration(V, sheet.F, surface, offset=offset, rounds=8)
+    settled = penetration.SETTLED
+    monkeypatch.setattr(penetration, "SETTLED", 0.0)
+    out_all, info_all = penetration.fix_penetration(V, sheet.F, surface, offset=offset, rounds=8)
+    assert info["rounds"] < info_all["rounds"]
+    np.testing.assert_allclose(out, out_all, rtol=0, atol=8 * settled * offset)
+    assert info["inside_after"] == info_all["inside_after"] == 0
+    assert surface.signed_distance(out)[0].min() > offset * (1 - 1e-6)
+
+
+def _near_pairs_cases():
+    rng = np.random.default_rng(11)
+    V, F = icosphere(3)
+    # Points on vertices, on edges, just inside and outside, far away, in a cloud around.
+    edges = 0.5 * (V[F[:, 0]] + V[F[:, 1]])
+    P = np.vstack([V, edges, V * 0.97, V * 1.03, rng.normal(size=(300, 3)) * 3.0,
+                   rng.normal(size=(300, 3)) * 0.6])
+    cases = [(P, V, F, 0.05)]
+    # A thin part: two close parallel sheets, points between and beside them.
+    sheet = grid(12, 12, size=1.0)
+    Vt = np.vstack([sheet.V, sheet.V + [0, 0, 0.002]])
+    Ft = np.vstack([sheet.F, sheet.F + sheet.V.shape[0]])
+    Pt = np.vstack([sheet.V + [0, 0, 0.001], rng.uniform(-0.2, 1.2, size=(400, 3)) * [1, 1, 0.05]])
+    cases.append((Pt, Vt, Ft, 0.01))
+    if (MAKEHUMAN / "bodies").is_dir():
+        body = read_obj(MAKEHUMAN / "bodies" / "female_average.obj")
+        pick = rng.choice(body.V.shape[0], 600, replace=False)
+        Pm = np.vstack([body.V[pick] + rng.normal(scale=0.3, size=(600, 3)),
+                        body.V.mean(axis=0) + rng.normal(scale=4.0, size=(300, 3))])
+        cases.append((Pm, body.V, body.F, 0.2))
+    return cases
+
+
+def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band():
+    from garment_transfer.proximity import near_boxes
+
+    for P, V, F, within in _near_pairs_cases():
+        faces, points = near_boxes(P, V, F, within)
+        D = np.vstack([reference_distances(P[i:i + 64], V, F) for i in range(0, P.shape[0], 64)])
+        close = D < within
+        assert close.any() and not close.all()
+        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close.any(axis=0)), faces), [])
+        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close.any(axis=1)), points), [])
+        # It rules out most of the rest: far points are not kept.
+        assert points.size < P.shape[0]
+
+
+def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force():
+    for P, V, F, within in _near_pairs_cases():
+        s = TriangleSurface(V, F)
+        bounded = s.closest(P, within=within)
+        full = s.closest(P)
+        ref = brute_force(P, V, F)
+        near = ref < within * (1 - 1e-9)
+        far = ref > within * (1 + 1e-9)
+        assert near.sum() > 10 and far.sum() > 10
+        for a, b in zip(bounded, full):
+            np.testing.assert_array_equal(a[near], b[near])
+        scale = float(np.ptp(V, axis=0).max())
+        np.testing.assert_array_less(np.abs(bounded[1][near] - ref[near]), REL * ref[near] + REL * scale)
+        assert np.isinf(bounded[1][far]).all() and (bounded[2][far] == -1).all()
+
+
+def test_normals_of_a_few_vertices_equal_those_of_all():
+    # A query computes the pseudonormals of only the vertices its closest points lie on; they equal
+    # the ones computed for every vertex (open rims, a flat triangle and a real body included).
+    V, F = icosphere(3)
+    open_F = F[V[F].mean(axis=1)[:, 2] < 0.8]
+    flat_V = np.vstack([V, V[F[0, 0]] + 1e-9 * (V[F[0, 1]] - V[F[0, 0]])])
+    flat_F = np.vstack([F, [[F[0, 0], F[0, 1], V.shape[0]]]])
+    cases = [(V, F), (V, open_F), (flat_V, flat_F)]
+    if (MAKEHUMAN / "bodies").is_dir():
+        body = read_obj(MAKEHUMAN / "bodies" / "female_average.obj")
+        cases.append((body.V, body.F))
+    for V_, F_ in cases:
+        every = TriangleSurface(V_, F_).vertex_normals
+        some = np.random.default_rng(1).choice(V_.shape[0], 200, replace=False)
+        few = TriangleSurface(V_, F_)._vertex_normals_of(some)
+        np.testing.assert_allclose(few, every[some], rtol=0, atol=1e-15)
+        used = np.isin(some, F_)
+        assert used.sum() > 50
+        np.testing.assert_allclose(np.linalg.norm(few[used], axis=1), 1.0)
+        assert not few[~used].any()
