@@ -307,8 +307,8 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         ``progress(fraction, stage)``; returning True cancels (raises Cancelled).
     resolve_crossings : bool
         After the penetration fix, remove every edge-triangle crossing between garment and body
-        and undo the self-intersections the source garment does not have, within an MDC budget
-        (``clearance.separate``; only with ``fix_penetration``).
+        and undo the self-intersections the source garment does not have by giving the cloth
+        there its source shape (``clearance.separate``; only with ``fix_penetration``).
 
     Returns
     -------
