@@ -550,6 +550,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     V_start = V.copy()
     V, info, state = _clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
     if source_V is None:
+        moved = np.any(V != V_start, axis=1)
+        info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
+                                            - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
         return V, info
     V_cleared = V
     tangles = _SourceTangles(source_V, F, E)
@@ -616,7 +619,6 @@ def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings,
     n_near = near_count(close) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
-    V_start = V.copy()
     rounds = 0
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
@@ -630,7 +632,7 @@ def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings,
             # A crossing of the body comes first: after these rounds, it is removed even where
             # the cloth then crosses itself (counted in self_intersections_added). The clearance
             # alone never makes the cloth cross itself.
-            V_new, undone, _ = _keep_self_intersections(V, V_new, F, E, step, A, local_self_pairs(V, F, E, step))
+            V_new, undone = _keep_self_intersections(V, V_new, F, E, step, A)
             info["undone"] += undone
         changed = np.any(V_new != V, axis=1)
         moved |= changed
@@ -650,8 +652,6 @@ def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings,
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
     info["near_after"] = n_near
     info["moved_vertices"] = int(moved.sum())
-    info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
-                                        - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
     if info["crossings_after"]:
         log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
     return V, info, (c, close)
@@ -676,7 +676,7 @@ def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
     return out
 
 
-def _keep_self_intersections(V_old, V_new, F, E, step, A, before):
+def _keep_self_intersections(V_old, V_new, F, E, step, A):
     """Take back moves that made the garment cross itself: halve them around the new
     self-intersections until none is new (at most a few times, then the old positions there).
 
@@ -688,17 +688,14 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A, before):
     step : (n,) bool
         The vertices that moved.
     A : (n,n) sparse adjacency
-    before : set of (int, int)
-        ``local_self_pairs(V_old, F, E, step)``.
 
     Returns
     -------
     V : (n,3) float64
     undone : int
         Vertices whose move was reduced.
-    after : set of (int, int)
-        ``local_self_pairs(V, F, E, step)`` of the V returned.
     """
+    before = local_self_pairs(V_old, F, E, step)
     undone = 0
     for attempt in range(4):
         after = local_self_pairs(V_new, F, E, step)
@@ -706,7 +703,7 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A, before):
         # Pairs are named by edge and triangle; a move that trades one for another nearby does
         # not add a self-intersection, so the count decides.
         if len(after) <= len(before):
-            return V_new, undone, after
+            return V_new, undone
         edges = E[[a for a, _ in added]].ravel()
         verts = np.unique(np.concatenate([edges, F[[b for _, b in added]].ravel()]))
         region = np.zeros(V_new.shape[0], bool)
@@ -717,4 +714,4 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A, before):
         keep = 0.5 if attempt < 3 else 0.0
         V_new = V_new.copy()
         V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
-    return V_new, undone, local_self_pairs(V_new, F, E, step)
+    return V_new, undone
