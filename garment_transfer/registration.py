@@ -1084,7 +1084,10 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     size = np.sqrt(np.mean(np.sum((X0 - X0.mean(axis=0)) ** 2, axis=1)))
     active = np.sqrt(np.mean(np.sum(D ** 2, axis=2), axis=1)) > 1e-12 * size
     if not active.any():
-        return weights, X0.copy(), {"iterations": 0, "scale": 1.0, "rms": float("nan")}
+        # Only zero deltas: nothing to fit, the source itself.
+        return weights, X0.copy(), {"iterations": 0, "scale": 1.0, "rms": float("nan"), "energy": float("nan"),
+                                    "energy_start": float("nan"), "fitted_weights": weights.tolist(),
+                                    "explained": 0.0, "used": False}
     Da = D[active]
     lo, hi = lo[active], hi[active]
     w = np.zeros(int(active.sum()))
