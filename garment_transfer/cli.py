@@ -100,8 +100,10 @@ def cmd_transfer(args):
     garment = read_obj(args.garment)
     model = _model_for(args)
     load = time.perf_counter() - t
+    shape_basis = _shape_basis_for(args, source_body)
     result, registration = transfer_to_any_body(
-        source_body, target_body, garment, cache=not args.no_cache, method=args.method, model=model,
+        source_body, target_body, garment, cache=not args.no_cache, shape_basis=shape_basis,
+        method=args.method, model=model,
         target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
         interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
@@ -130,19 +132,30 @@ def _registration_line(source, target, reg):
             f"(target units)")
 
 
+def _shape_basis_for(args, source_body):
+    """The --shape-basis bodies as deltas of the source body, or None."""
+    if not getattr(args, "shape_basis", None):
+        return None
+    from .obj import read_obj
+    from .registration import shape_basis_from_bodies
+
+    return shape_basis_from_bodies(source_body, [read_obj(path, name=path) for path in args.shape_basis])
+
+
 def cmd_register(args):
     from .obj import read_obj, write_obj
     from .registration import register
 
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
-    reg = register(source_body, target_body, cache=not args.no_cache,
+    shape_basis = _shape_basis_for(args, source_body)
+    reg = register(source_body, target_body, cache=not args.no_cache, shape_basis=shape_basis,
                    progress=stderr_progress("register") if args.verbose else None)
     write_obj(args.out, source_body, reg.V,
               header=f"Garment Transfer: {os.path.basename(args.source_body)} registered onto "
                      f"{os.path.basename(args.target_body)}")
     out = {"out": args.out, "source_body": args.source_body, "target_body": args.target_body,
-           "vertices": source_body.n_vertices, **reg.summary()}
+           "vertices": source_body.n_vertices, "shape_basis": args.shape_basis or [], **reg.summary()}
     _emit(args, out, [f"wrote {args.out}", _registration_line(args.source_body, args.target_body, reg)])
 
 
@@ -203,6 +216,9 @@ def cmd_transfer_outfit(args):
     from .outfit import transfer_outfit
 
     paths = outfit_out_paths(args.garment, args.out)
+    if args.shape_basis:
+        raise GarmentTransferError("--shape-basis is for one garment: an outfit needs a target body of the "
+                                   "source's mesh")
     if args.no_fix or args.no_crossing_pass:
         raise GarmentTransferError("an outfit of several layers is always separated: "
                                    "--no-fix and --no-crossing-pass apply to one garment only")
@@ -303,6 +319,10 @@ def build_parser():
                    help="nearest body triangle only when carrying the field (the paper)")
     t.add_argument("--no-cache", action="store_true",
                    help="do not read or write the registration cache (see docs/registration.md)")
+    t.add_argument("--shape-basis", nargs="+", metavar="BODY.obj",
+                   help="OBJ files of the source body's mesh in other shapes (its shape keys, other bodies of "
+                        "its mesh), same units and axes: when the target is another mesh, the source is first "
+                        "fitted as a blend of them (docs/registration.md)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 
@@ -330,6 +350,10 @@ def build_parser():
     g.add_argument("--target-body", required=True, help="OBJ: any body mesh of a person in a similar pose")
     g.add_argument("--out", required=True, help="OBJ to write: the source body in the target's shape")
     g.add_argument("--no-cache", action="store_true", help="do not read or write the registration cache")
+    g.add_argument("--shape-basis", nargs="+", metavar="BODY.obj",
+                   help="OBJ files of the source body's mesh in other shapes (its shape keys, other bodies of "
+                        "its mesh), same units and axes: when the target is another mesh, the source is first "
+                        "fitted as a blend of them (docs/registration.md)")
     g.add_argument("--json", action="store_true", help="print one JSON object")
     g.set_defaults(func=cmd_register)
 

@@ -1449,7 +1449,8 @@ def same_mesh(a: Mesh, b: Mesh) -> bool:
 
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
-                         limits=None, registration: Registration | None = None, progress=None, **options):
+                         limits=None, registration: Registration | None = None, progress=None,
+                         shape_basis=None, **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
     The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
@@ -1467,6 +1468,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         A registration of these two bodies made earlier (skips ``register``).
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels.
+    shape_basis : (k,n,3) float, optional
+        See ``register`` (used only when the target is another mesh).
     **options
         Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
 
@@ -1490,7 +1493,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         return lambda f, *stage: progress(lo + (hi - lo) * f, *(stage or ("register",)))
 
     reg = registration or register(source_body, target_body, cache=cache, limits=limits,
-                                   progress=sub(0.0, 0.6))
+                                   progress=sub(0.0, 0.6), shape_basis=shape_basis)
     options = dict(options)
     if options.get("offset") is not None:
         options["offset"] = options["offset"] * reg.alignment.scale

@@ -14,6 +14,10 @@ Run ``python -m lab.registration [--quick] [--out DIR]``. It prints its figures 
    garment onto a MakeHuman body: residuals and penetration.
 4. **Speed** (``--speed``): registration of the 13K-vertex source onto the 50K-triangle re-mesh,
    wall and CPU time, three runs.
+5. **Shape prior, leave-one-out** (``--prior both``, the default; ``off``, ``on``): each target is also
+   registered with a shape basis of the source's mesh: the other MakeHuman bodies less the source
+   (``female_average``), never the target body itself (nor its re-mesh). The figures are given
+   without and with it.
 
 Units: the MakeHuman files are in decimetres, so 1 unit = 100 mm.
 """
@@ -31,7 +35,7 @@ import numpy as np
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.obj import read_obj
 from garment_transfer.proximity import TriangleSurface
-from garment_transfer.registration import register, transfer_to_any_body
+from garment_transfer.registration import register, shape_basis_from_bodies, transfer_to_any_body
 from garment_transfer.transfer import transfer_garment
 
 from .paths import DEMO_DATA as DEMO
@@ -121,37 +125,97 @@ def region_errors(fitted, truth, F):
     return out
 
 
-def body_study(bodies, sizes, garments):
+def leave_one_out_basis(source, target_name, bodies):
+    """The shape basis for a target: the other bodies less the source, never the target itself.
+
+    Returns
+    -------
+    names : list of str
+    basis : (k,n,3) float64 or None
+    """
+    names = [b for b in bodies if b not in (target_name, SOURCE)]
+    if not names:
+        return names, None
+    return names, shape_basis_from_bodies(source, [read_obj(MAKEHUMAN / "bodies" / f"{b}.obj", name=b)
+                                                   for b in names])
+
+
+def body_study(bodies, sizes, garments, prior="both", all_bodies=None):
     source = read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj", name=SOURCE)
+    variants = {"off": [False], "on": [True], "both": [False, True]}[prior]
     rows = []
     for name in bodies:
         truth = read_obj(MAKEHUMAN / "bodies" / f"{name}.obj", name=name)
+        basis_names, basis = leave_one_out_basis(source, name, all_bodies or bodies)
+        # The garments through the true target are the same for every variant.
+        truths = {g: transfer_garment(source, truth, read_obj(MAKEHUMAN / "garments" / g / f"{SOURCE}.obj",
+                                                              name=g), method="direct").V for g in garments}
         for size in sizes:
             U, G = remesh(truth.V, truth.F, size)
             target = mesh_from_triangles(U, G, name=f"{name}_{size}")
-            t, c = time.perf_counter(), time.process_time()
-            reg = register(source, target, cache=False)
-            wall, cpu = time.perf_counter() - t, time.process_time() - c
-            err = np.linalg.norm(reg.V - truth.V, axis=1)
-            row = {"target": name, "triangles": int(G.shape[0]), "vertices": int(U.shape[0]),
-                   "vertex_error_mm": stats_mm(err),
-                   "untransferred_mm": stats_mm(np.linalg.norm(source.V - truth.V, axis=1)),
-                   "residual_mm": {k: v * MM_PER_UNIT for k, v in reg.quality.items()
-                                   if k.endswith(("_mean", "_p95", "_max")) and "share" not in k},
-                   "distorted": reg.quality["distorted"], "wall_s": wall, "cpu_s": cpu,
-                   "regions_mm": region_errors(reg.V, truth.V, np.asarray(truth.F)),
-                   "garments": garment_study(source, truth, target, reg, garments)}
-            rows.append(row)
-            print(format_body_row(row), flush=True)
+            for use_prior in variants:
+                if use_prior and basis is None:
+                    continue
+                t, c = time.perf_counter(), time.process_time()
+                reg = register(source, target, cache=False, shape_basis=basis if use_prior else None)
+                wall, cpu = time.perf_counter() - t, time.process_time() - c
+                err = np.linalg.norm(reg.V - truth.V, axis=1)
+                row = {"target": name, "triangles": int(G.shape[0]), "vertices": int(U.shape[0]),
+                       "prior": use_prior, "vertex_error_mm": stats_mm(err),
+                       "untransferred_mm": stats_mm(np.linalg.norm(source.V - truth.V, axis=1)),
+                       "residual_mm": {k: v * MM_PER_UNIT for k, v in reg.quality.items()
+                                       if k.endswith(("_mean", "_p95", "_max")) and "share" not in k},
+                       "distorted": reg.quality["distorted"], "wall_s": wall, "cpu_s": cpu,
+                       "seconds": reg.seconds,
+                       "regions_mm": region_errors(reg.V, truth.V, np.asarray(truth.F)),
+                       "garments": garment_study(source, truths, target, reg, garments)}
+                if use_prior:
+                    row["basis"] = basis_names
+                    row["shape_weights"] = [float(v) for v in reg.shape_weights]
+                    row["shape_explained"] = reg.quality["shape_explained"]
+                    row["shape_used"] = bool(reg.quality["shape_used"])
+                rows.append(row)
+                print(format_body_row(row), flush=True)
     return rows
 
 
-def garment_study(source, truth, target, reg, garments):
+def format_summary(rows):
+    """One line per target and size: without and with the prior side by side."""
+    lines = ["summary (mm; garment difference mean over the garments and its share of the untransferred "
+             "error; inside = garment vertices inside the re-meshed target, all garments):",
+             f"{'target':>20} {'tris':>6} | {'no prior: body mean/p95':>24} {'garment':>8} {'share':>6} "
+             f"{'inside':>6} {'s':>5} | {'prior: body mean/p95':>21} {'garment':>8} {'share':>6} {'inside':>6} "
+             f"{'s':>5} weights (explained, used)"]
+    keyed = {}
+    for r in rows:
+        keyed.setdefault((r["target"], r["triangles"]), {})[r["prior"]] = r
+
+    def cells(r):
+        if r is None:
+            return "", f"{'-':>24} {'':>8} {'':>6} {'':>6} {'':>5}"
+        e, gs = r["vertex_error_mm"], r["garments"]
+        g = np.mean([x["difference_mm"]["mean"] for x in gs]) if gs else float("nan")
+        share = np.mean([x["share_of_untransferred"] for x in gs]) if gs else float("nan")
+        inside = sum(x["inside_remeshed_target"] for x in gs)
+        return r, f"{e['mean']:>12.2f}/{e['p95']:<11.2f} {g:>8.2f} {share:>6.0%} {inside:>6} {r['wall_s']:>5.1f}"
+
+    for (name, tris), pair in keyed.items():
+        _, off = cells(pair.get(False))
+        r, on = cells(pair.get(True))
+        extra = ""
+        if r:
+            w = ", ".join(f"{b} {v:.2f}" for b, v in zip(r["basis"], r["shape_weights"]))
+            extra = f" {w} ({r['shape_explained']:.0%}, {'used' if r['shape_used'] else 'not used'})"
+        lines.append(f"{name:>20} {tris:>6} | {off} | {on[3:] if len(on) > 3 else on}{extra}")
+    return "\n".join(lines)
+
+
+def garment_study(source, truths, target, reg, garments):
     out = []
     surface = TriangleSurface(target.V, target.F)
     for g in garments:
         garment = read_obj(MAKEHUMAN / "garments" / g / f"{SOURCE}.obj", name=g)
-        through_truth = transfer_garment(source, truth, garment, method="direct").V
+        through_truth = truths[g]
         through_reg, _ = transfer_to_any_body(source, target, garment, registration=reg, method="direct")
         diff = np.linalg.norm(through_reg.V - through_truth, axis=1)
         untransferred = np.linalg.norm(garment.V - through_truth, axis=1)
@@ -166,10 +230,16 @@ def garment_study(source, truth, target, reg, garments):
 def format_body_row(r):
     e, u = r["vertex_error_mm"], r["untransferred_mm"]
     res = r["residual_mm"]
-    line = (f"{r['target']:>20} {r['triangles']:>6} tris: vertex error mean {e['mean']:.2f} mm, p95 "
+    prior = ", prior" if r.get("prior") else ""
+    line = (f"{r['target']:>20} {r['triangles']:>6} tris{prior}: vertex error mean {e['mean']:.2f} mm, p95 "
             f"{e['p95']:.2f}, max {e['max']:.1f} (untransferred mean {u['mean']:.2f}); residual to/from "
             f"target p95 {res['to_target_p95']:.2f}/{res['from_target_p95']:.2f} mm; "
             f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU")
+    if r.get("prior"):
+        line += (f"\n{'':>22}shape basis (leave-one-out) " + ", ".join(
+            f"{b} {v:.3f}" for b, v in zip(r["basis"], r["shape_weights"])) +
+            f"; {r['shape_explained']:.0%} of the misfit explained, {'used' if r['shape_used'] else 'not used'}; "
+            + ", ".join(f"{k} {v:.2f} s" for k, v in r["seconds"].items()))
     a = r["regions_mm"]["all"]
     line += (f"\n{'':>22}area-weighted mean {a['area_weighted_mean']:.2f} mm; tangential/normal mean "
              f"{a['tangential_mean']:.2f}/{a['normal_mean']:.2f} mm; per region mean (p95) tangential "
@@ -226,21 +296,26 @@ def family_study(garments, demo_garment):
     return rows
 
 
-def speed_study(repeats=3):
-    """Registration of the 13K-vertex source onto the 50K-triangle re-mesh of female_pear, timed."""
+def speed_study(repeats=3, prior="off", target_name="female_pear"):
+    """Registration of the 13K-vertex source onto the 50K-triangle re-mesh of a body, timed (with the
+    leave-one-out shape basis too when ``prior`` is ``on`` or ``both``)."""
     source = read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj", name=SOURCE)
-    truth = read_obj(MAKEHUMAN / "bodies" / "female_pear.obj")
+    truth = read_obj(MAKEHUMAN / "bodies" / f"{target_name}.obj")
     U, G = remesh(truth.V, truth.F, 50000)
-    target = mesh_from_triangles(U, G, name="female_pear_50k")
+    target = mesh_from_triangles(U, G, name=f"{target_name}_50k")
+    manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
+    names, basis = leave_one_out_basis(source, target_name, manifest["bodies"])
     rows = []
     for i in range(repeats):
-        t, c = time.perf_counter(), time.process_time()
-        reg = register(source, target, cache=False)
-        rows.append({"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
-                     "stages": reg.seconds})
-        print(f"speed run {i}: {source.n_vertices} vertices onto {target.n_triangles} triangles: "
-              f"{rows[-1]['wall_s']:.1f} s wall, {rows[-1]['cpu_s']:.1f} s CPU (goal 10 s on 2 cores); "
-              + ", ".join(f"{k} {v:.2f}" for k, v in reg.seconds.items()), flush=True)
+        for use_prior in {"off": [False], "on": [True], "both": [False, True]}[prior]:
+            t, c = time.perf_counter(), time.process_time()
+            reg = register(source, target, cache=False, shape_basis=basis if use_prior else None)
+            rows.append({"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
+                         "stages": reg.seconds, "prior": use_prior})
+            print(f"speed run {i}{' (prior: ' + ', '.join(names) + ')' if use_prior else ''}: "
+                  f"{source.n_vertices} vertices onto {target.n_triangles} triangles: "
+                  f"{rows[-1]['wall_s']:.1f} s wall, {rows[-1]['cpu_s']:.1f} s CPU (goal 10 s on 2 cores); "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in reg.seconds.items()), flush=True)
     return rows
 
 
@@ -249,19 +324,33 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true", help="two bodies, one size, two garments")
     p.add_argument("--out", help="folder for registration.json")
     p.add_argument("--speed", action="store_true", help="only the timing of the 50K-triangle registration")
+    p.add_argument("--speed-target", default="female_pear", help="the body timed by --speed")
+    p.add_argument("--prior", choices=["off", "on", "both"], default="both",
+                   help="the leave-one-out shape basis (the other MakeHuman bodies): without it, with it, or both")
+    p.add_argument("--bodies", nargs="+", help="target bodies (default: all of the manifest)")
+    p.add_argument("--sizes", nargs="+", type=int, help="re-mesh sizes in triangles (default 5000 50000)")
+    p.add_argument("--garments", type=int, help="only the first N garments of the manifest")
+    p.add_argument("--no-family", action="store_true", help="skip the other-family study")
     args = p.parse_args(argv)
     if not MAKEHUMAN.is_dir():
         raise SystemExit(f"MakeHuman data not found at {MAKEHUMAN}")
     if args.speed:
-        speed_study()
+        speed_study(prior=args.prior, target_name=args.speed_target)
         return 0
     manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
     bodies, garments, sizes = manifest["bodies"], manifest["garments"], [5000, 50000]
     if args.quick:
         bodies, garments, sizes = ["female_average", "female_pear"], garments[:2], [5000]
-    print(f"source {SOURCE}; re-meshed targets {sizes} triangles; {os.cpu_count()} cores", flush=True)
-    out = {"bodies": body_study(bodies, sizes, garments),
-           "family": family_study(garments[:3] if not args.quick else garments[:1], "tshirt")}
+    bodies = args.bodies or bodies
+    sizes = args.sizes or sizes
+    garments = garments[:args.garments] if args.garments else garments
+    print(f"source {SOURCE}; re-meshed targets {sizes} triangles; prior {args.prior}; {os.cpu_count()} cores",
+          flush=True)
+    rows = body_study(bodies, sizes, garments, prior=args.prior, all_bodies=manifest["bodies"])
+    print(format_summary(rows), flush=True)
+    out = {"bodies": rows,
+           "family": [] if args.no_family else family_study(garments[:3] if not args.quick else garments[:1],
+                                                            "tshirt")}
     if args.out:
         os.makedirs(args.out, exist_ok=True)
         Path(args.out, "registration.json").write_text(json.dumps(out, indent=1))

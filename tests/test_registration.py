@@ -441,3 +441,32 @@ def test_leave_one_out_prior_that_does_not_hold_the_target_is_not_used(source):
     assert info["fitted_weights"][names.index("male_slim")] > 0.2
     assert info["explained"] < registration.SHAPE_MIN_EXPLAINED
     assert not info["used"] and np.array_equal(w, np.zeros(3)) and np.array_equal(X, source.V)
+
+
+def test_cli_register_with_a_shape_basis(blend_case, tmp_path):
+    source, basis, weights, V, target = blend_case
+    bodies = ROOT / "data" / "demo" / "bodies"
+    tgt = tmp_path / "blend.obj"
+    write_obj(tgt, target)
+    out = tmp_path / "fit.obj"
+    p = run("register", "--source-body", bodies / "banana.obj", "--target-body", tgt, "--out", out,
+            "--shape-basis", bodies / "pear.obj", bodies / "heavy.obj", bodies / "slim.obj", "--no-cache", "--json")
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert np.abs(np.array(data["shape_weights"]) - weights).max() < 2e-3
+    assert data["quality"]["shape_used"] == 1.0 and len(data["shape_basis"]) == 3
+    assert read_obj(out).n_vertices == source.n_vertices
+
+
+def test_cli_refuses_a_shape_basis_of_another_mesh_writing_nothing(tmp_path):
+    bodies = ROOT / "data" / "demo" / "bodies"
+    other = tmp_path / "other.obj"
+    V, F = icosphere(2)
+    write_obj(other, mesh_from_triangles(V, F))
+    garment = ROOT / "data" / "demo" / "garments" / "tshirt" / "banana.obj"
+    out = tmp_path / "r.obj"
+    p = run("transfer", "--source-body", bodies / "banana.obj", "--target-body", bodies / "pear.obj",
+            "--garment", garment, "--out", out, "--shape-basis", bodies / "slim.obj", other, "--no-cache")
+    assert p.returncode == 1
+    assert "other.obj" in p.stderr and "shape basis body must be the source body's mesh" in p.stderr
+    assert not out.exists()
