@@ -59,7 +59,7 @@ from .proximity import TriangleSurface
 log = logging.getLogger(__name__)
 
 #: Bumped whenever the algorithm or its defaults change, so old cache entries are not reused.
-ALGORITHM_VERSION = 6
+ALGORITHM_VERSION = 7
 
 #: Known unit ratios: a scale ratio within UNIT_SNAP of one of these is taken to be a change of units.
 UNIT_RATIOS = tuple(sorted({f * 10.0 ** k for k in range(-4, 5)
@@ -335,6 +335,11 @@ def align(source: Mesh, target: Mesh, samples=2000):
     Pt = surface_samples(target.V, target.F, samples, seed=1)[0]
     src_tree = cKDTree(Ps)
     P = (Pt - ct) * scale
+    # Eigenvectors come with either handedness: both frames right-handed, or a candidate would be a
+    # mirror (measured: female_average onto a Z-up male_average re-mesh was fitted as its mirror image,
+    # left hand onto right hand, within 5 mm of the surface).
+    Es = Es * np.sign(np.linalg.det(Es))
+    Et = Et * np.sign(np.linalg.det(Et))
     candidates = [Es @ np.diag(s) @ Et.T for s in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1))]
     candidates += AXIS_ROTATIONS
     best = None
@@ -1450,7 +1455,7 @@ def same_mesh(a: Mesh, b: Mesh) -> bool:
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
                          limits=None, registration: Registration | None = None, progress=None,
-                         shape_basis=None, **options):
+                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
     The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
@@ -1470,6 +1475,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         ``progress(fraction, stage)``; returning True cancels.
     shape_basis : (k,n,3) float, optional
         See ``register`` (used only when the target is another mesh).
+    shape_bounds : (2,) or (k,2) float
+        See ``register``.
     **options
         Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
 
@@ -1493,7 +1500,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         return lambda f, *stage: progress(lo + (hi - lo) * f, *(stage or ("register",)))
 
     reg = registration or register(source_body, target_body, cache=cache, limits=limits,
-                                   progress=sub(0.0, 0.6), shape_basis=shape_basis)
+                                   progress=sub(0.0, 0.6), shape_basis=shape_basis,
+                                   shape_bounds=shape_bounds)
     options = dict(options)
     if options.get("offset") is not None:
         options["offset"] = options["offset"] * reg.alignment.scale

@@ -56,15 +56,50 @@ def registered_name(source_body, target_body):
     return f"{source_body.name}_fitted_to_{target_body.name}"
 
 
+def shape_key_basis(body, evaluated=True):
+    """A body's relative shape keys as a shape basis: world-space deltas from its basis key.
+
+    Keys relative to another key, muted keys and keys limited to a vertex group are left out (their
+    change is not a plain delta of the basis).
+
+    Returns
+    -------
+    deltas : (k,n,3) float64 or None
+        None when the body has no such key.
+    bounds : (k,2) float64 or None
+        Each weight's range from the key's slider (Min, Max), less its value when the body is read
+        evaluated (the keys are then already applied at their values).
+    names : list of str
+    """
+    from .shape_keys import key_coordinates
+
+    key = body.data.shape_keys
+    if key is None or not key.use_relative:
+        return None, None, []
+    reference = key.reference_key
+    blocks = [kb for kb in key.key_blocks if kb != reference and kb.relative_key == reference
+              and not kb.mute and not kb.vertex_group]
+    if not blocks:
+        return None, None, []
+    M = convert.matrix_array(body.matrix_world)[:3, :3]
+    base = key_coordinates(reference)
+    deltas = np.stack([(key_coordinates(kb) - base) @ M.T for kb in blocks])
+    values = np.array([kb.value if evaluated else 0.0 for kb in blocks])
+    bounds = np.array([[kb.slider_min, kb.slider_max] for kb in blocks]) - values[:, None]
+    return deltas, bounds, [kb.name for kb in blocks]
+
+
 def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
                      target_label="", offset=None, fix_penetration=True, evaluated=True,
-                     progress=None, keep_registered=False):
+                     progress=None, keep_registered=False, use_shape_keys=False):
     """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
 
     Reads the three objects (world space; see convert for which state), runs the core, and only
     then creates ``<garment>_on_<target>``: a failure leaves the scene as it was. A target body of
     another mesh is registered first (the core's registration); with ``keep_registered`` the
-    fitted body is kept as ``<source>_fitted_to_<target>`` (``outcome.registered_body``).
+    fitted body is kept as ``<source>_fitted_to_<target>`` (``outcome.registered_body``). With
+    ``use_shape_keys`` the source body's shape keys are the registration's shape basis
+    (``shape_key_basis``; their names in ``outcome.shape_keys``).
 
     Returns
     -------
@@ -77,7 +112,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     """
     from ..garment_transfer.errors import MeshError
     from ..garment_transfer.metrics import evaluate
-    from ..garment_transfer.registration import transfer_to_any_body
+    from ..garment_transfer.registration import SHAPE_BOUNDS, transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -95,9 +130,17 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)
 
+    deltas, bounds, key_names = shape_key_basis(source_body, evaluated) if use_shape_keys else (None, None, [])
+    if deltas is not None and deltas.shape[1] != source.n_vertices:
+        raise MeshError(source_body.name, f"its shape keys have {deltas.shape[1]} vertices but the mesh read "
+                                          f"has {source.n_vertices} (a modifier changes the vertex count): "
+                                          "turn off Fit With Shape Keys or Use Evaluated")
     outcome, registration = transfer_to_any_body(
         framed(source), framed(target), framed(cloth), method=method.lower(), model=model,
-        target=target_label or None, offset=offset, fix_penetration=fix_penetration, progress=progress)
+        target=target_label or None, offset=offset, fix_penetration=fix_penetration, progress=progress,
+        shape_basis=None if deltas is None else deltas @ frame.T,
+        shape_bounds=SHAPE_BOUNDS if bounds is None else bounds)
+    outcome.shape_keys = key_names
     outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
@@ -117,9 +160,16 @@ def registration_text(context, outcome):
     if not reg:
         return "Same mesh as the source body: no registration"
     q = reg["quality"]
-    return (f"Registered{' (cached)' if reg.get('cached') else ''}: 95% of the distance within "
+    text = (f"Registered{' (cached)' if reg.get('cached') else ''}: 95% of the distance within "
             f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
             f"from the target")
+    names = getattr(outcome, "shape_keys", [])
+    if names and "shape_weights" in reg:
+        if q.get("shape_used"):
+            text += "; shape keys " + ", ".join(f"{n} {w:.2f}" for n, w in zip(names, reg["shape_weights"]) if w)
+        else:
+            text += f"; shape keys not used (they explain {max(q.get('shape_explained', 0.0), 0.0):.0%})"
+    return text
 
 
 class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
@@ -152,7 +202,8 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     target_label=settings.target_label,
                     offset=None if settings.auto_offset else settings.offset,
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
-                    progress=progress, keep_registered=settings.keep_registered_body)
+                    progress=progress, keep_registered=settings.keep_registered_body,
+                    use_shape_keys=settings.use_shape_keys)
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start

@@ -66,6 +66,7 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         row.enabled = not settings.auto_offset
         row.prop(settings, "offset")
         col.prop(settings, "keep_registered_body")
+        col.prop(settings, "use_shape_keys")
         layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
         if settings.last_registration:
             layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')

@@ -100,6 +100,12 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Keep Fitted Body", default=False,
         description="When the target body is another mesh, keep the source body fitted onto it as a "
                     "new object <source>_fitted_to_<target>, for inspection")
+    use_shape_keys: BoolProperty(
+        name="Fit With Shape Keys", default=True,
+        description="When the target body is another mesh and the source body has shape keys (sliders), "
+                    "first fit the source as a blend of them within their slider ranges, then fit the "
+                    "surface: the keys carry where each vertex belongs (a blend that explains less than half "
+                    "of the difference is not used)")
     last_registration: StringProperty(name="Last Registration")
     fix_penetration: BoolProperty(
         name="Fix Penetration", default=True,

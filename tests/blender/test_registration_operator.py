@@ -5,7 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
-from conftest import world_vertices
+from conftest import import_obj, world_vertices
 
 
 def remeshed_object(source_obj, name, triangles=5000):
@@ -68,3 +68,34 @@ def test_refused_target_leaves_the_scene_alone(dressed, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError, match="Sphere.*aspect ratio"):
         bpy.ops.garment_transfer.transfer()
     assert sorted(o.name for o in bpy.data.objects) == before
+
+
+def test_source_shape_keys_are_the_registration_basis(dressed, tmp_path, monkeypatch):
+    # The source body gets shape keys of the other MakeHuman bodies (never the target's own shape):
+    # the male target, re-meshed, is reached through male_slim's key. Without the keys this fit
+    # measured 15.8 mm mean vertex error (its legs slide along the target), with them 3.6 mm.
+    monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
+    source = dressed.source
+    source.shape_key_add(name="Basis")
+    for body in ("female_slim_banana", "female_pear", "male_slim"):
+        other = import_obj(dressed.makehuman / "bodies" / f"{body}.obj", body)
+        co = np.empty(3 * len(other.data.vertices), dtype=np.float32)
+        other.data.vertices.foreach_get("co", co)
+        key = source.shape_key_add(name=body, from_mix=False)
+        key.data.foreach_set("co", co)
+        key.value = 0.0
+        bpy.data.objects.remove(other)
+    male = import_obj(dressed.makehuman / "bodies" / "male_average.obj", "male")
+    dressed.settings.target_body = remeshed_object(male, "male_scan")
+    dressed.settings.keep_registered_body = True
+    assert dressed.settings.use_shape_keys
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    text = dressed.settings.last_registration
+    assert "; shape keys " in text and "male_slim" in text
+    err = np.linalg.norm(world_vertices(bpy.data.objects["average_fitted_to_male_scan"]) - world_vertices(male),
+                         axis=1)
+    assert err.mean() < 0.005       # metres
+    # The inputs keep their keys and values.
+    assert [k.name for k in source.data.shape_keys.key_blocks][1:] == ["female_slim_banana", "female_pear",
+                                                                       "male_slim"]
+    assert all(k.value == 0.0 for k in source.data.shape_keys.key_blocks[1:])
