@@ -18,6 +18,10 @@ Stages:
    thinner body and move a wider one), the rotation and the rest from closest points both ways.
    Then **landmarks** from the shapes (the ends of the limbs and the head) where they are far from
    their match: a limb held at another angle.
+   With a **shape basis** (``shape_basis``: deltas of the source body, such as its shape keys), the
+   source is first fitted as a blend of them with a similarity (``fit_shape``: closest points both
+   ways, bounded ridge least squares of the weights) and the stages below start from the blend, when
+   it explains at least half of the misfit.
 3. **Non-rigid ICP** with an as-rigid-as-possible regulariser (Sorkine & Alexa 2007) on the source
    graph, its weight annealed from stiff to soft. Data terms both ways: every source vertex towards
    its closest target point, and target points towards their closest point on the current fit (this
