@@ -389,6 +389,64 @@ def _vertex_normals(V, F):
     return np.divide(out, n, out=np.zeros_like(out), where=n > 0)
 
 
+def _svd_rotations(S):
+    """(k,3,3) rotations R maximising trace(R S) (``R = V U^T`` for ``S = U diag(s) V^T``, its last
+    column of V negated where that is a reflection)."""
+    U, _, Vt = np.linalg.svd(S)
+    R = np.einsum("nab,nca->nbc", Vt, U)
+    flip = np.linalg.det(R) < 0
+    if flip.any():
+        Vt[flip, 2, :] *= -1
+        R[flip] = np.einsum("nab,nca->nbc", Vt[flip], U[flip])
+    return R
+
+
+def _best_rotations(S, iterations=20):
+    """``_svd_rotations(S)`` for (n,3,3) S, by the polar decomposition where it is a rotation.
+
+    Where det S > 0 the rotation is the orthogonal polar factor of S^T, found by Newton's iteration
+    with Higham's scaling (X <- (g X + X^-T / g) / 2) on the nine entries as arrays over all vertices
+    at once (no per-matrix LAPACK call); where det S <= 0 (the polar factor is then a reflection) or the
+    iteration has not settled to an orthogonal matrix (a nearly singular S), the SVD decides. Measured
+    on a 13K-vertex body: several times faster than the SVD of all, the same rotations to 1e-14
+    (conditions up to 4e5).
+    """
+    n = S.shape[0]
+    # x[3a+b] = X[a,b] with X = S^T.
+    x = np.ascontiguousarray(S.transpose(0, 2, 1).reshape(n, 9).T)
+
+    def cofactors(x):
+        a, b, c, d, e, f, g, h, i = x
+        C = np.array([e * i - f * h, f * g - d * i, d * h - e * g,
+                      c * h - b * i, a * i - c * g, b * g - a * h,
+                      b * f - c * e, c * d - a * f, a * e - b * d])
+        return C, a * C[0] + b * C[1] + c * C[2]
+
+    C, det = cofactors(x)
+    size = np.abs(x).max(axis=0)
+    good = det > 1e-12 * size ** 3
+    x, C, det = x[:, good], C[:, good], det[good]
+    for _ in range(iterations if x.shape[1] else 0):
+        inv_t = C / det
+        g = np.sqrt(np.sqrt(np.einsum("kn,kn->n", inv_t, inv_t) / np.einsum("kn,kn->n", x, x)))
+        x_new = 0.5 * (g * x + inv_t / g)
+        change = np.abs(x_new - x).max()
+        x = x_new
+        if change < 1e-14:
+            break
+        C, det = cofactors(x)
+    X = x.T.reshape(-1, 3, 3)
+    R = np.empty_like(S)
+    R[good] = X
+    # Not settled to a rotation: the SVD.
+    off = np.abs(np.einsum("nki,nkj->nij", X, X) - np.eye(3)).max(axis=(1, 2)) > 1e-12
+    rest = ~good
+    rest[np.flatnonzero(good)[off]] = True
+    if rest.any():
+        R[rest] = _svd_rotations(S[rest])
+    return R
+
+
 class ArapFit:
     """Non-rigid ICP of one source mesh with an as-rigid-as-possible regulariser.
 
@@ -428,13 +486,7 @@ class ArapFit:
         e = X[self.i] - X[self.j]
         outer = (self.w[:, None, None] * np.einsum("ka,kb->kab", self.e0, e)).reshape(-1, 9)
         S = np.asarray(self.both @ outer).reshape(self.n, 3, 3)
-        U, _, Vt = np.linalg.svd(S)
-        R = np.einsum("nab,nca->nbc", Vt, U)
-        flip = np.linalg.det(R) < 0
-        if flip.any():
-            Vt[flip, 2, :] *= -1
-            R[flip] = np.einsum("nab,nca->nbc", Vt[flip], U[flip])
-        return R
+        return _best_rotations(S)
 
     def arap_rhs(self, R):
         Rm = 0.5 * (R[self.i] + R[self.j])
