@@ -482,3 +482,49 @@ def test_cli_refuses_a_shape_basis_of_another_mesh_writing_nothing(tmp_path):
     assert p.returncode == 1
     assert "other.obj" in p.stderr and "shape basis body must be the source body's mesh" in p.stderr
     assert not out.exists()
+
+
+def test_polar_rotations_are_the_svd_rotations():
+    """The ARAP rotations by Newton's polar iteration equal the SVD's (det > 0), and the SVD decides
+    reflections (det < 0), singular and zero matrices."""
+    rng = np.random.default_rng(5)
+    U = np.linalg.qr(rng.normal(size=(400, 3, 3)))[0]
+    V = np.linalg.qr(rng.normal(size=(400, 3, 3)))[0]
+    V[::2, :, 0] *= -1
+    # Conditions up to about 1e5, either sign of the determinant.
+    S = np.einsum("nij,nj,nkj->nik", U, np.exp(rng.normal(0.0, 2.0, (400, 3))), V)
+    S[:5] = 0.0
+    S[5] = np.outer([1.0, 0, 0], [0, 1.0, 0])
+    S[6] = np.diag([1.0, 1.0, 0.0])
+    S[7] = -np.eye(3)
+    S[8] = np.diag([1.0, 1.0, -1e-9])
+    R = registration._best_rotations(S)
+    expected = registration._svd_rotations(S.copy())
+    assert np.abs(R - expected).max() < 1e-12
+    assert np.abs(np.linalg.det(R) - 1.0).max() < 1e-12
+    assert (np.linalg.det(S[9:]) < 0).any() and (np.linalg.det(S[9:]) > 0).any()
+
+
+def test_arap_solve_matches_a_direct_solve(source):
+    """The ARAP step factored in the order found once gives the solution of its linear system."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    X0, F = source.V, np.asarray(source.F)
+    fit = registration.ArapFit(X0, F)
+    rng = np.random.default_rng(2)
+    X = X0 + rng.normal(0.0, 1e-3, X0.shape)
+    P = X0[rng.choice(X0.shape[0], 500, replace=False)] + rng.normal(0.0, 1e-3, (500, 3))
+    Np = np.tile([0.0, 0.0, 1.0], (500, 1))
+    B, wt, _ = registration._pairs_from_target(X, F, P, Np, -2.0, np.inf)
+    ws = rng.random(X0.shape[0])
+    C = X0 + rng.normal(0.0, 1e-3, X0.shape)
+    for alpha in (200.0, 1.0):
+        got = fit.solve(X, alpha, ws, C, B, wt, P)
+        R = registration._svd_rotations(np.asarray(
+            fit.both @ np.einsum("ka,kb->kab", fit.e0, X[fit.i] - X[fit.j]).reshape(-1, 9)).reshape(-1, 3, 3))
+        eps = 1e-8 * (alpha * 8.0 + 1.0)
+        A = 2 * alpha * fit.L + sp.diags(ws) + B.T @ sp.diags(wt) @ B + eps * sp.identity(fit.n)
+        rhs = 2 * alpha * fit.arap_rhs(R) + ws[:, None] * C + B.T @ (wt[:, None] * P) + eps * X
+        want = spla.spsolve(A.tocsc(), rhs)
+        assert np.abs(got - want).max() < 1e-9 * np.abs(want).max()
