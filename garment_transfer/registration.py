@@ -267,6 +267,39 @@ def surface_samples(V, F, count, seed=0):
     return P, tri.astype(np.int64), bary
 
 
+def coherent_order(P):
+    """(p,) int64: an order of the points P (p,3) along a Morton (Z-order) curve, near points together.
+
+    Closest-point queries in this order visit the search tree's nodes in turn: measured on 8K
+    area-uniform samples (random order) against a 50K-triangle body, 0.035 s against 0.055 s. Each
+    point's answer does not depend on the order.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    if P.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    lo = P.min(axis=0)
+    span = max(float(np.ptp(P, axis=0).max()), 1e-300)
+    q = np.clip((P - lo) / span * 1023.0, 0, 1023).astype(np.int64)
+    code = np.zeros(P.shape[0], np.int64)
+    for bit in range(10):
+        for k in range(3):
+            code |= ((q[:, k] >> bit) & 1) << (3 * bit + k)
+    return np.argsort(code, kind="stable")
+
+
+def closest_in_order(surface: TriangleSurface, P, order=None):
+    """``surface.closest(P)`` (closest points, distances, triangles, barycentric coordinates), the
+    queries made in ``order`` (``coherent_order(P)`` by default; pass it when P moves by a rigid map or
+    a small step, so near points stay near) and the answers given back in P's order."""
+    P = np.asarray(P, dtype=np.float64)
+    if order is None:
+        order = coherent_order(P)
+    out = surface.closest(P[order])
+    back = np.empty_like(order)
+    back[order] = np.arange(order.size)
+    return tuple(x[back] for x in out)
+
+
 def _rigid_icp(P, src_tree, src_pts, R, t, iterations=20):
     """Trimmed rigid ICP of target samples P (transformed by R, t) onto source samples: a coarse pose.
 
@@ -292,12 +325,13 @@ def _refine_rigid(source_surface, target_surface, Ps, Pt, scale, R, t, iteration
     The pose maps target points p to ``scale * R p + t``; Ps, Pt are samples of the source and of
     the target (in their own frames).
     """
+    order_t, order_s = coherent_order(Pt), coherent_order(Ps)
     for _ in range(iterations):
         A = scale * Pt @ R.T + t
-        C1, d1 = source_surface.closest(A)[:2]
+        C1, d1 = closest_in_order(source_surface, A, order_t)[:2]
         # Source samples taken back into the target's frame, their closest target points brought forward.
         B = ((Ps - t) @ R) / scale
-        C2, d2 = target_surface.closest(B)[:2]
+        C2, d2 = closest_in_order(target_surface, B, order_s)[:2]
         C2 = scale * C2 @ R.T + t
         k1 = d1 <= np.quantile(d1, trim)
         k2 = d2 <= np.quantile(d2, trim)
@@ -529,17 +563,19 @@ class ArapFit:
                          options={"SymmetricMode": True})
 
 
-def _pairs_to_target(X, N, surface: TriangleSurface, tn_cos, max_dist):
-    """Closest target points of the fit's vertices, with weights 0 for rejected pairs."""
-    C, d, tri, bary = surface.closest(X)
+def _pairs_to_target(X, N, surface: TriangleSurface, tn_cos, max_dist, order=None):
+    """Closest target points of the fit's vertices, with weights 0 for rejected pairs (queried in
+    ``order``, see ``closest_in_order``)."""
+    C, d, tri, bary = closest_in_order(surface, X, order)
     Nt = surface.normals_at(tri, bary)
     ok = (np.einsum("ij,ij->i", N, Nt) >= tn_cos) & (d <= max_dist)
     return C, ok.astype(np.float64), d
 
 
-def _pairs_from_target(X, F, P, Np, tn_cos, max_dist):
-    """Closest points on the fit for target points P: sparse barycentric rows and weights."""
-    _, d, tri, bary = TriangleSurface(X, F).closest(P)
+def _pairs_from_target(X, F, P, Np, tn_cos, max_dist, order=None):
+    """Closest points on the fit for target points P: sparse barycentric rows and weights (queried in
+    ``order``, see ``closest_in_order``)."""
+    _, d, tri, bary = closest_in_order(TriangleSurface(X, F), P, order)
     m = P.shape[0]
     Nf, _ = triangle_normals(X, F[tri])
     ok = (np.einsum("ij,ij->i", Np, Nf) >= tn_cos) & (d <= max_dist)
@@ -585,11 +621,12 @@ def _global_similarity(X, F, surface, P, iterations=10, samples=2000, trim=0.9):
     scale = float(np.ptp(ends_t) / np.ptp(X_used @ axis))
     mid_t = 0.5 * (ends_t.min() + ends_t.max())
     R, t = np.eye(3), ct - scale * cs
+    order_s, order_t = coherent_order(Qs), coherent_order(Pt)
     for _ in range(iterations):
         Y = scale * Qs @ R.T + t
-        C, d = surface.closest(Y)[:2]
+        C, d = closest_in_order(surface, Y, order_s)[:2]
         back = ((Pt - t) @ R) / scale
-        Cb, db = source_surface.closest(back)[:2]
+        Cb, db = closest_in_order(source_surface, back, order_t)[:2]
         k1 = d <= np.quantile(d, trim)
         k2 = db <= np.quantile(db, trim)
         src_pts = np.vstack([Qs[k1], Cb[k2]])
@@ -973,11 +1010,13 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
     total = sum(s for _, s in schedule)
     done = 0
     axis = principal_frame(surface_moments(fit.X0, F)[1])[0][:, 0]
+    # The fit moves a little per step: the query orders of its start and of the target points serve all.
+    order_x, order_p = coherent_order(X), coherent_order(P)
     for alpha, steps in schedule:
         for _ in range(steps):
             N = _vertex_normals(X, F)
-            C, ws, _ = _pairs_to_target(X, N, surface, normal_cos, max_dist)
-            B, wt, _ = _pairs_from_target(X, F, P, Np, normal_cos, max_dist)
+            C, ws, _ = _pairs_to_target(X, N, surface, normal_cos, max_dist, order_x)
+            B, wt, _ = _pairs_from_target(X, F, P, Np, normal_cos, max_dist, order_p)
             w = ws * wv
             if alpha >= LANDMARK_UNTIL and li.size and LANDMARK_WEIGHT > 0:
                 # Landmarks pull the limbs' ends while the fit is stiff (a limb held at another angle
@@ -1215,15 +1254,16 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     mid_t, span_t = 0.5 * (ends_t.min() + ends_t.max()), float(np.ptp(ends_t))
     rho = SHAPE_POINT_SHARE
     info = {"iterations": 0}
+    order_s, order_p = coherent_order(Sv @ X0), coherent_order(P)
     kw = w.size
     for it in range(iterations):
         X = X0 + np.tensordot(w, Da, axes=1)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
-        C, d1, ctri, cbary = surface.closest(Sv @ Y)
+        C, d1, ctri, cbary = closest_in_order(surface, Sv @ Y, order_s)
         Nt = surface.normals_at(ctri, cbary)
         ok1 = (np.einsum("ij,ij->i", triangle_normals(Y, F[stri])[0], Nt) >= normal_cos) & (d1 <= max_dist)
-        _, d2, tri2, bary2 = TriangleSurface(Y, F).closest(P)
+        _, d2, tri2, bary2 = closest_in_order(TriangleSurface(Y, F), P, order_p)
         ok2 = (np.einsum("ij,ij->i", Np, triangle_normals(Y, F[tri2])[0]) >= normal_cos) & (d2 <= max_dist)
         B = sp.csr_matrix((bary2[ok2].ravel(), (np.repeat(np.arange(int(ok2.sum())), 3), F[tri2[ok2]].ravel())),
                           shape=(int(ok2.sum()), X0.shape[0]))
@@ -1329,8 +1369,8 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     height = float(np.ptp(np.asarray(target_V), axis=0).max())
     # Area-uniform points: a surface distance, not a vertex one (a body dense in the fingers and
     # face would otherwise be judged by them).
-    d1 = TriangleSurface(target_V, target_F).closest(surface_samples(X, F, QUALITY_SAMPLES, seed=3)[0])[1]
-    d2 = TriangleSurface(X, F).closest(surface_samples(target_V, target_F, QUALITY_SAMPLES, seed=4)[0])[1]
+    d1 = closest_in_order(TriangleSurface(target_V, target_F), surface_samples(X, F, QUALITY_SAMPLES, seed=3)[0])[1]
+    d2 = closest_in_order(TriangleSurface(X, F), surface_samples(target_V, target_F, QUALITY_SAMPLES, seed=4)[0])[1]
     q = {}
     for name, d in (("to_target", d1), ("from_target", d2)):
         for stat, v in (("mean", d.mean()), ("p95", np.quantile(d, 0.95)), ("max", d.max())):
