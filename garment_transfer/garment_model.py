@@ -203,6 +203,8 @@ class GarmentFitModel:
 
     #: ``transfer_garment`` passes the garment and both bodies to ``body_field``.
     conditions_on_garment = True
+    #: Values the network gives per triangle.
+    OUTPUTS = 9
 
     def __init__(self, arrays, metadata, name="garment model"):
         self.name = name
@@ -234,8 +236,9 @@ class GarmentFitModel:
             need(W.ndim == 2 and W.shape[1] == width and b.shape == (W.shape[0],),
                  f"layer {i} has shape {W.shape}, expected (*, {width})")
             width = W.shape[0]
-        need(width == 9, f"the last layer gives {width} values, expected 9")
-        need(np.asarray(md["output_scale"]).shape == (9,), "'output_scale' must be 9 numbers")
+        need(width == self.OUTPUTS, f"the last layer gives {width} values, expected {self.OUTPUTS}")
+        need(np.asarray(md["output_scale"]).shape == (self.OUTPUTS,),
+             f"'output_scale' must be {self.OUTPUTS} numbers")
         lb = a["label_bodies"]
         need(lb.ndim == 3 and lb.shape[0] == K and lb.shape[1:] == (int(md["source"]["n_vertices"]), 3),
              "'label_bodies' must be (K, source vertices, 3)")
@@ -287,7 +290,7 @@ class GarmentFitModel:
         return np.concatenate(parts, axis=1), covered, dev
 
     def forward(self, X):
-        """Network output, normalised, for inputs ``X (M,P)``: ``(M,9)`` float64."""
+        """Network output, normalised, for inputs ``X (M,P)``: ``(M,OUTPUTS)`` float64."""
         h = (np.asarray(X, np.float64) - self.arrays["input_mean"]) / self.arrays["input_std"]
         n = int(self.metadata["layers"])
         for i in range(n):
@@ -336,6 +339,24 @@ def load_garment_model(path) -> GarmentFitModel:
         Naming the file: missing, unreadable, pickled objects, metadata missing or of another format or
         version, arrays that do not fit together.
     """
+    arrays, metadata = read_model_npz(path, FORMAT, FORMAT_VERSION, "a garment fit model")
+    return GarmentFitModel(arrays, metadata, os.fspath(path))
+
+
+def read_model_npz(path, format_name, version, what):
+    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``).
+
+    Returns
+    -------
+    arrays : dict of str -> ndarray
+    metadata : dict
+
+    Raises
+    ------
+    ModelError
+        Naming the file: missing, unreadable, pickled objects, metadata missing or of another format
+        or version.
+    """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise ModelError(path, "model file not found")
@@ -353,9 +374,9 @@ def load_garment_model(path) -> GarmentFitModel:
         metadata = json.loads(str(meta))
     except json.JSONDecodeError as exc:
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
-    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
-        raise ModelError(path, f"is not a garment fit model (metadata 'format' is not {FORMAT!r})")
-    if metadata.get("format_version") != FORMAT_VERSION:
+    if not isinstance(metadata, dict) or metadata.get("format") != format_name:
+        raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
+    if metadata.get("format_version") != version:
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "
-                               f"{FORMAT_VERSION}")
-    return GarmentFitModel(arrays, metadata, path)
+                               f"{version}")
+    return arrays, metadata
