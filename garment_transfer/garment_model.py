@@ -226,7 +226,7 @@ class GarmentFitModel:
             need(key in a, f"array {key!r} is missing")
             need(a[key].dtype.kind == "f", f"array {key!r} has dtype {a[key].dtype}")
         K = len(md["targets"])
-        P = len(GARMENT_FEATURES) + 9 * (1 + len(md["neighbourhood_shares"])) + (K if md["use_label"] else 0)
+        P = self.n_inputs(md)
         need(a["input_mean"].shape == (P,) and a["input_std"].shape == (P,),
              f"the input normalisation must have {P} values")
         need(np.all(a["input_std"] > 0), "'input_std' must be positive")
@@ -242,6 +242,12 @@ class GarmentFitModel:
         lb = a["label_bodies"]
         need(lb.ndim == 3 and lb.shape[0] == K and lb.shape[1:] == (int(md["source"]["n_vertices"]), 3),
              "'label_bodies' must be (K, source vertices, 3)")
+
+    @staticmethod
+    def n_inputs(md):
+        """The network's input width for metadata ``md``."""
+        K = len(md["targets"])
+        return len(GARMENT_FEATURES) + 9 * (1 + len(md["neighbourhood_shares"])) + (K if md["use_label"] else 0)
 
     @property
     def targets(self) -> list:

@@ -147,7 +147,7 @@ def _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_lab
     return arrays, metadata
 
 
-def placement_tables(dataset, source, targets, garments, tables, length=None):
+def placement_tables(dataset, source, targets, garments, tables, length=None, context_shares=None):
     """The training targets of the placement model: every garment's true placement on every target.
 
     Parameters
@@ -162,14 +162,17 @@ def placement_tables(dataset, source, targets, garments, tables, length=None):
         triangle) are added to it.
     length : float, optional
         Smoothing length (default ``placement.SMOOTHING_SHARE`` of the body scale).
+    context_shares : sequence of float, optional
+        ``placement.garment_context``'s (default ``placement.CONTEXT_SHARES``); ``garment_context
+        (G,M,3c)`` and ``context_shares`` are added too.
 
     Returns
     -------
     dict
-        ``tables``, with the two entries added.
+        ``tables``, with those entries added.
     """
     from .binding import bind
-    from .placement import true_offsets
+    from .placement import CONTEXT_SHARES, garment_context, true_offsets
 
     ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
     body = tables["body"]
@@ -184,19 +187,24 @@ def placement_tables(dataset, source, targets, garments, tables, length=None):
             _, y, w = true_offsets(binding, body, bodies[k], ds.garment(name, t).V, length)
             offset[g, k] = y
             bound[g] = w
+    shares = tuple(CONTEXT_SHARES if context_shares is None else context_shares)
+    tables["garment_context"] = np.stack([garment_context(body.V, body.F, X, shares) for X in tables["garment_X"]]
+                                         ).astype(np.float32)
+    tables["context_shares"] = list(shares)
     tables["offset"] = offset
     tables["bound"] = bound
     return tables
 
 
-def train_placement_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192, lr=3e-3, use_label=True,
-                          seed=0, threads=None, length_share=None, progress=None):
+def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=8192, lr=1e-2, use_label=True,
+                          garment_inputs=True, seed=0, threads=None, length_share=None, progress=None):
     """Fit the placement model (``placement.PlacementModel``) on ``placement_tables``.
 
     Every body triangle a garment vertex is bound to, for every target, is one sample: the garment's
     and target's features in, its smoothed offset in the triangle's unrotated frame out. Parameters as
-    ``train_garment_model``'s; ``length_share``: the smoothing of the predictions (default that of the
-    targets, ``placement.SMOOTHING_SHARE``).
+    ``train_garment_model``'s (more passes and a larger step by default: there are as many samples as
+    bound triangles, a tenth of the field model's); ``length_share``: the smoothing of the predictions
+    (default that of the targets, ``placement.SMOOTHING_SHARE``).
 
     Returns
     -------
@@ -215,7 +223,15 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192
         torch.set_num_threads(int(threads))
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
-    GX = torch.from_numpy(np.array(tables["garment_X"], dtype=np.float32))
+    from .placement import CONTEXT_COLUMNS
+
+    own = np.array(tables["garment_X"], dtype=np.float32)
+    context = np.array(tables["garment_context"], dtype=np.float32)
+    if not garment_inputs:
+        own[:, :, 1:9] = 0.0
+        # What the context is of zeroed distances: only the coverage is left.
+        context.reshape(*context.shape[:2], -1, CONTEXT_COLUMNS)[..., 1:] = 0.0
+    GX = torch.from_numpy(np.concatenate([own, context], axis=2))
     TX = torch.from_numpy(np.ascontiguousarray(tables["target_X"]))
     off = tables["offset"]
     G, K = off.shape[0], off.shape[1]
@@ -226,9 +242,9 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192
     Y = off[gi, ki, ai].astype(np.float32)
     net, mean, std, out_scale, losses = _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen,
                                              progress, "placement model")
-    arrays, metadata = _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_label, True,
-                                epochs, batch, lr, seed, len(Y), G, t0)
-    metadata.update(format=PFORMAT, format_version=PVERSION,
+    arrays, metadata = _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_label,
+                                garment_inputs, epochs, batch, lr, seed, len(Y), G, t0)
+    metadata.update(format=PFORMAT, format_version=PVERSION, context_shares=list(tables["context_shares"]),
                     smoothing_share=float(SMOOTHING_SHARE if length_share is None else length_share))
     info = {"seconds": metadata["training"]["seconds"], "samples": len(Y), "epochs": epochs, "losses": losses}
     return PlacementModel(arrays, metadata, "placement model"), info

@@ -69,6 +69,8 @@ VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hi
             "placement": {"placement_model": True}}
 #: Passes over the samples of the garment model, whatever ``epochs`` the shared model gets.
 GARMENT_EPOCHS = 6
+#: Passes over the samples of the placement model.
+PLACEMENT_EPOCHS = 30
 
 #: Every method the lab compares, by key.
 METHODS = {m.key: m for m in (
@@ -104,6 +106,8 @@ METHODS = {m.key: m for m in (
            "garment", anchoring="contact", placement="model"),
     Method("direct_placed", "Direct deformation transfer and learned placement, anchors everywhere", "direct",
            placement="model"),
+    Method("direct_oracle_placed", "Direct deformation transfer and the held-out garment's own placement, "
+           "anchors everywhere", "direct", placement="oracle"),
     Method("garment_oracle_placed", "Garment fit model and the held-out garment's own placement, anchors "
            "everywhere", "model", "garment", placement="oracle"),
     Method("garment_oracle_placed_contact", "Garment fit model and the held-out garment's own placement, "
@@ -253,7 +257,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
             if VARIANTS[v].get("placement_model"):
                 tables = tables or training_tables(ds, source, targets, list(train), fields=part)
                 placement_tables(ds, source, targets, list(train), tables)
-                model, info = train_placement_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed,
+                model, info = train_placement_model(tables, targets, epochs=PLACEMENT_EPOCHS, seed=seed,
                                                     threads=threads)
                 model.metadata["dataset"] = dataset_info
                 models[v] = model

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
@@ -159,6 +160,11 @@ def main(argv=None):
     ap.add_argument("--epochs", type=int, default=300, help="epochs of the paper's shared model")
     ap.add_argument("--garment-epochs", type=int, default=experiment.GARMENT_EPOCHS,
                     help="passes over the samples of the garment fit model")
+    ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
+                    help="passes over the samples of the placement model")
+    ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
+                    help="smoothing length of the placement (its training targets and predictions), as a share "
+                         "of the body scale")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json")
@@ -166,6 +172,8 @@ def main(argv=None):
     args.targets = args.targets.split(",")
     args.methods = args.methods.split(",")
     experiment.GARMENT_EPOCHS = args.garment_epochs
+    placement.SMOOTHING_SHARE = args.placement_smoothing
+    experiment.PLACEMENT_EPOCHS = args.placement_epochs
     args.extra = [g for g in args.extra.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
     t0 = time.perf_counter()
