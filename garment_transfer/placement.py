@@ -13,11 +13,12 @@ The field is smoothed over the body (``smooth_on_body``): it only says where the
 its folds, which stay the field's.
 
 ``PlacementModel`` predicts ``C`` for a new garment and target with the same per-triangle network and
-inputs as ``garment_model.GarmentFitModel`` (garment features, target features, label weights), three
-outputs: the offset in the *unrotated* frame ``S[a]^T T[a] d`` (S, T: the triangle's frames on the
-source and target bodies), in which neighbouring triangles agree, so that it can be learned and
-smoothed; ``C = S y``. File: ``.npz`` of plain arrays plus JSON metadata of format
-``garment_transfer.garment_placement_model``, read with ``allow_pickle=False``.
+inputs as ``garment_model.GarmentFitModel`` (garment features, target features, label weights) and the
+garment's context around each triangle (``garment_context``). Its three outputs are the offset in the
+*unrotated* frame, ``y = S[a]^T T[a] d`` (S, T: the triangle's frames on the source and target bodies),
+in which neighbouring triangles agree, so that it can be learned and smoothed; ``C = S y``. File:
+``.npz`` of plain arrays plus JSON metadata of format ``garment_transfer.garment_placement_model``, read
+with ``allow_pickle=False``.
 """
 
 from __future__ import annotations
