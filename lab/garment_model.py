@@ -102,7 +102,7 @@ def unseen_body_part(args, say):
         if args.placement:
             placement_tables(ds, source, targets, train, tables)
             placer, _ = train_placement_model(tables, targets, epochs=experiment.PLACEMENT_EPOCHS, seed=args.seed,
-                                              threads=args.threads)
+                                              threads=args.threads, use_label=not args.placement_nolabel)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
         info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
                                                   "train_seconds": tinfo["seconds"]}
@@ -181,6 +181,8 @@ def main(argv=None):
                     help="passes over the samples of the garment fit model")
     ap.add_argument("--placement", action="store_true",
                     help="unseen_body: also the garment model with the learned placement")
+    ap.add_argument("--placement-nolabel", action="store_true",
+                    help="unseen_body: the placement model without the target label (body features only)")
     ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
                     help="passes over the samples of the placement model")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
