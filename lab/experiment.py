@@ -40,7 +40,8 @@ class Method:
         For ``model``: the training variant (a key of ``VARIANTS``).
     field : str
         For ``model``: how the model's field for a new garment is read (``SharedDeformationModel.body_field``'s
-        ``how``), or ``"oracle"``: the held-out garment's own embedded deformation.
+        ``how``), ``"oracle"``: the held-out garment's own embedded deformation, or ``"half"``: a garment
+        model's field halfway back to the body's own.
     interpolate, fix_penetration : bool
         ``transfer_garment``'s options.
     anchoring : str
@@ -106,6 +107,8 @@ METHODS = {m.key: m for m in (
            "garment", anchoring="contact", placement="model"),
     Method("direct_placed", "Direct deformation transfer and learned placement, anchors everywhere", "direct",
            placement="model"),
+    Method("garment_half_placed", "Garment fit model's field halfway back to the body's own, learned placement, "
+           "anchors everywhere", "model", "garment", field="half", placement="model"),
     Method("direct_oracle_placed", "Direct deformation transfer and the held-out garment's own placement, "
            "anchors everywhere", "direct", placement="oracle"),
     Method("garment_oracle_placed", "Garment fit model and the held-out garment's own placement, anchors "
@@ -166,8 +169,29 @@ def field_rms(Q, true_dev, covered):
     return float(np.sqrt(np.mean(d ** 2)))
 
 
+class _HalfField:
+    """A garment-conditioned model's field halfway back to the body's own: ``Q_body + (Q - Q_body) / 2``."""
+
+    conditions_on_garment = True
+
+    def __init__(self, model):
+        self._model = model
+        self.name = model.name
+        self.targets = model.targets
+
+    def check_source_body(self, mesh):
+        self._model.check_source_body(mesh)
+
+    def body_field(self, target, garment=None, source_body=None, target_body=None):
+        Q = self._model.body_field(target, garment, source_body, target_body)
+        own = deformation_gradients(source_body.V, target_body.V, source_body.F)[0]
+        return own + 0.5 * (Q - own)
+
+
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
+    if method.field == "half":
+        return _HalfField(model)
     if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
         return model
     if method.field != "oracle":
