@@ -211,6 +211,25 @@ class GarmentFitModel:
         self.metadata = metadata
         self._check(arrays, metadata)
         self.arrays = arrays
+        #: How much of the predicted deviation from the body's own field is used (``with_field_share``).
+        self.field_share = 1.0
+
+    def with_field_share(self, share):
+        """The same model giving ``Q_body + share * (Q - Q_body)``: its field part of the way back to the
+        body's own (0: direct transfer's field; 1: the model's). With the learned placement, half
+        (0.5) kept the MDC at direct transfer's (docs/garment-model.md).
+
+        Parameters
+        ----------
+        share : float
+            In [0, 1].
+        """
+        share = float(share)
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"the field share must be between 0 and 1, got {share}")
+        other = type(self)(self.arrays, self.metadata, self.name)
+        other.field_share = share
+        return other
 
     def _check(self, a, md):
         def need(cond, problem):
@@ -328,7 +347,7 @@ class GarmentFitModel:
         X, covered, dev = self.inputs(source_body, target_body, garment, target)
         y = self.forward(X[covered]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
         out = dev.copy()
-        out[covered] += y
+        out[covered] += self.field_share * y
         return out.reshape(-1, 3, 3) + np.eye(3)
 
     def save(self, path):

@@ -169,29 +169,10 @@ def field_rms(Q, true_dev, covered):
     return float(np.sqrt(np.mean(d ** 2)))
 
 
-class _HalfField:
-    """A garment-conditioned model's field halfway back to the body's own: ``Q_body + (Q - Q_body) / 2``."""
-
-    conditions_on_garment = True
-
-    def __init__(self, model):
-        self._model = model
-        self.name = model.name
-        self.targets = model.targets
-
-    def check_source_body(self, mesh):
-        self._model.check_source_body(mesh)
-
-    def body_field(self, target, garment=None, source_body=None, target_body=None):
-        Q = self._model.body_field(target, garment, source_body, target_body)
-        own = deformation_gradients(source_body.V, target_body.V, source_body.F)[0]
-        return own + 0.5 * (Q - own)
-
-
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
     if method.field == "half":
-        return _HalfField(model)
+        return model.with_field_share(0.5)
     if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
         return model
     if method.field != "oracle":
