@@ -203,12 +203,33 @@ class GarmentFitModel:
 
     #: ``transfer_garment`` passes the garment and both bodies to ``body_field``.
     conditions_on_garment = True
+    #: Values the network gives per triangle.
+    OUTPUTS = 9
 
     def __init__(self, arrays, metadata, name="garment model"):
         self.name = name
         self.metadata = metadata
         self._check(arrays, metadata)
         self.arrays = arrays
+        #: How much of the predicted deviation from the body's own field is used (``with_field_share``).
+        self.field_share = 1.0
+
+    def with_field_share(self, share):
+        """The same model giving ``Q_body + share * (Q - Q_body)``: its field part of the way back to the
+        body's own (0: direct transfer's field; 1: the model's). With the learned placement, half
+        (0.5) kept the MDC at direct transfer's (docs/garment-model.md).
+
+        Parameters
+        ----------
+        share : float
+            In [0, 1].
+        """
+        share = float(share)
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"the field share must be between 0 and 1, got {share}")
+        other = type(self)(self.arrays, self.metadata, self.name)
+        other.field_share = share
+        return other
 
     def _check(self, a, md):
         def need(cond, problem):
@@ -224,7 +245,7 @@ class GarmentFitModel:
             need(key in a, f"array {key!r} is missing")
             need(a[key].dtype.kind == "f", f"array {key!r} has dtype {a[key].dtype}")
         K = len(md["targets"])
-        P = len(GARMENT_FEATURES) + 9 * (1 + len(md["neighbourhood_shares"])) + (K if md["use_label"] else 0)
+        P = self.n_inputs(md)
         need(a["input_mean"].shape == (P,) and a["input_std"].shape == (P,),
              f"the input normalisation must have {P} values")
         need(np.all(a["input_std"] > 0), "'input_std' must be positive")
@@ -234,11 +255,18 @@ class GarmentFitModel:
             need(W.ndim == 2 and W.shape[1] == width and b.shape == (W.shape[0],),
                  f"layer {i} has shape {W.shape}, expected (*, {width})")
             width = W.shape[0]
-        need(width == 9, f"the last layer gives {width} values, expected 9")
-        need(np.asarray(md["output_scale"]).shape == (9,), "'output_scale' must be 9 numbers")
+        need(width == self.OUTPUTS, f"the last layer gives {width} values, expected {self.OUTPUTS}")
+        need(np.asarray(md["output_scale"]).shape == (self.OUTPUTS,),
+             f"'output_scale' must be {self.OUTPUTS} numbers")
         lb = a["label_bodies"]
         need(lb.ndim == 3 and lb.shape[0] == K and lb.shape[1:] == (int(md["source"]["n_vertices"]), 3),
              "'label_bodies' must be (K, source vertices, 3)")
+
+    @staticmethod
+    def n_inputs(md):
+        """The network's input width for metadata ``md``."""
+        K = len(md["targets"])
+        return len(GARMENT_FEATURES) + 9 * (1 + len(md["neighbourhood_shares"])) + (K if md["use_label"] else 0)
 
     @property
     def targets(self) -> list:
@@ -287,7 +315,7 @@ class GarmentFitModel:
         return np.concatenate(parts, axis=1), covered, dev
 
     def forward(self, X):
-        """Network output, normalised, for inputs ``X (M,P)``: ``(M,9)`` float64."""
+        """Network output, normalised, for inputs ``X (M,P)``: ``(M,OUTPUTS)`` float64."""
         h = (np.asarray(X, np.float64) - self.arrays["input_mean"]) / self.arrays["input_std"]
         n = int(self.metadata["layers"])
         for i in range(n):
@@ -319,7 +347,7 @@ class GarmentFitModel:
         X, covered, dev = self.inputs(source_body, target_body, garment, target)
         y = self.forward(X[covered]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
         out = dev.copy()
-        out[covered] += y
+        out[covered] += self.field_share * y
         return out.reshape(-1, 3, 3) + np.eye(3)
 
     def save(self, path):
@@ -335,6 +363,24 @@ def load_garment_model(path) -> GarmentFitModel:
     ModelError
         Naming the file: missing, unreadable, pickled objects, metadata missing or of another format or
         version, arrays that do not fit together.
+    """
+    arrays, metadata = read_model_npz(path, FORMAT, FORMAT_VERSION, "a garment fit model")
+    return GarmentFitModel(arrays, metadata, os.fspath(path))
+
+
+def read_model_npz(path, format_name, version, what):
+    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``).
+
+    Returns
+    -------
+    arrays : dict of str -> ndarray
+    metadata : dict
+
+    Raises
+    ------
+    ModelError
+        Naming the file: missing, unreadable, pickled objects, metadata missing or of another format
+        or version.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -353,9 +399,9 @@ def load_garment_model(path) -> GarmentFitModel:
         metadata = json.loads(str(meta))
     except json.JSONDecodeError as exc:
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
-    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
-        raise ModelError(path, f"is not a garment fit model (metadata 'format' is not {FORMAT!r})")
-    if metadata.get("format_version") != FORMAT_VERSION:
+    if not isinstance(metadata, dict) or metadata.get("format") != format_name:
+        raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
+    if metadata.get("format_version") != version:
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "
-                               f"{FORMAT_VERSION}")
-    return GarmentFitModel(arrays, metadata, path)
+                               f"{version}")
+    return arrays, metadata

@@ -112,6 +112,147 @@ def train_garment_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192, 
     ai = np.repeat(a_idx, K)
     ki = np.tile(np.arange(K), len(g_idx))
     Y = (dev[gi, ki, ai] - bdev[ki, ai]).astype(np.float32)
+    net, mean, std, out_scale, losses = _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen,
+                                             progress, "garment model")
+    arrays, metadata = _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_label,
+                                garment_inputs, epochs, batch, lr, seed, len(Y), G, t0)
+    metadata.update(format=FORMAT, format_version=FORMAT_VERSION)
+    info = {"seconds": metadata["training"]["seconds"], "samples": len(Y), "epochs": epochs, "losses": losses}
+    return GarmentFitModel(arrays, metadata, "garment fit model"), info
+
+
+def _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_label, garment_inputs, epochs, batch,
+             lr, seed, n, G, t0):
+    """The arrays and metadata (all but the format) of a trained per-triangle network."""
+    import torch
+
+    linear = [m for m in net if isinstance(m, torch.nn.Linear)]
+    arrays = {"input_mean": mean.double().numpy(), "input_std": std.double().numpy(),
+              "label_bodies": tables["bodies"].astype(np.float32)}
+    for i, m in enumerate(linear):
+        arrays[f"W{i}"] = m.weight.detach().numpy().astype(np.float32)
+        arrays[f"b{i}"] = m.bias.detach().double().numpy()
+    body = tables["body"]
+    seconds = time.perf_counter() - t0
+    metadata = {"targets": list(targets),
+                "layers": len(linear), "hidden": list(hidden), "use_label": bool(use_label),
+                "garment_inputs": bool(garment_inputs),
+                "output_scale": out_scale.tolist(), "garment_features": list(GARMENT_FEATURES),
+                "neighbourhood_shares": list(NEIGHBOURHOOD_SHARES), "cover_distance": None,
+                "source": {"name": body.name, "n_vertices": body.n_vertices, "n_faces": body.n_faces,
+                           "n_triangles": body.n_triangles, "faces_hash": faces_hash(body)},
+                "training": {"epochs": epochs, "batch": batch, "lr": lr, "seed": seed, "samples": int(n),
+                             "garments": int(G), "seconds": round(seconds, 2),
+                             "final_loss": losses[-1] if losses else None}}
+    return arrays, metadata
+
+
+def placement_tables(dataset, source, targets, garments, tables, length=None, context_shares=None):
+    """The training targets of the placement model: every garment's true placement on every target.
+
+    Parameters
+    ----------
+    dataset : Dataset or str or Path
+    source : str
+    targets, garments : list of str
+        In the order of ``tables``.
+    tables : dict
+        ``training_tables`` of the same garments and targets; ``offset (G,K,M,3)`` (the unrotated
+        smoothed offsets, ``placement.true_offsets``) and ``bound (G,M)`` (bound garment vertices per
+        triangle) are added to it.
+    length : float, optional
+        Smoothing length (default ``placement.SMOOTHING_SHARE`` of the body scale).
+    context_shares : sequence of float, optional
+        ``placement.garment_context``'s (default ``placement.CONTEXT_SHARES``); ``garment_context
+        (G,M,3c)`` and ``context_shares`` are added too.
+
+    Returns
+    -------
+    dict
+        ``tables``, with those entries added.
+    """
+    from .binding import bind
+    from .placement import CONTEXT_SHARES, garment_context, true_offsets
+
+    ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
+    body = tables["body"]
+    bodies = [ds.body(t) for t in targets]
+    G, K, M = len(garments), len(targets), body.n_triangles
+    offset = np.zeros((G, K, M, 3), np.float32)
+    bound = np.zeros((G, M), np.float32)
+    for g, name in enumerate(garments):
+        garment = ds.garment(name, source)
+        binding = bind(garment.V, body.V, body.F)
+        for k, t in enumerate(targets):
+            _, y, w = true_offsets(binding, body, bodies[k], ds.garment(name, t).V, length)
+            offset[g, k] = y
+            bound[g] = w
+    shares = tuple(CONTEXT_SHARES if context_shares is None else context_shares)
+    tables["garment_context"] = np.stack([garment_context(body.V, body.F, X, shares) for X in tables["garment_X"]]
+                                         ).astype(np.float32)
+    tables["context_shares"] = list(shares)
+    tables["offset"] = offset
+    tables["bound"] = bound
+    return tables
+
+
+def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=8192, lr=1e-2, use_label=True,
+                          garment_inputs=True, seed=0, threads=None, length_share=None, progress=None):
+    """Fit the placement model (``placement.PlacementModel``) on ``placement_tables``.
+
+    Every body triangle a garment vertex is bound to, for every target, is one sample: the garment's
+    and target's features in, its smoothed offset in the triangle's unrotated frame out. Parameters as
+    ``train_garment_model``'s (more passes and a larger step by default: there are as many samples as
+    bound triangles, a tenth of the field model's); ``length_share``: the smoothing of the predictions
+    (default that of the targets, ``placement.SMOOTHING_SHARE``).
+
+    Returns
+    -------
+    model : placement.PlacementModel
+    info : dict
+        ``seconds``, ``samples``, ``epochs``, ``losses``.
+    """
+    import torch
+
+    from .placement import FORMAT as PFORMAT
+    from .placement import FORMAT_VERSION as PVERSION
+    from .placement import SMOOTHING_SHARE, PlacementModel
+
+    t0 = time.perf_counter()
+    if threads:
+        torch.set_num_threads(int(threads))
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    from .placement import CONTEXT_COLUMNS
+
+    own = np.array(tables["garment_X"], dtype=np.float32)
+    context = np.array(tables["garment_context"], dtype=np.float32)
+    if not garment_inputs:
+        own[:, :, 1:9] = 0.0
+        # What the context is of zeroed distances: only the coverage is left.
+        context.reshape(*context.shape[:2], -1, CONTEXT_COLUMNS)[..., 1:] = 0.0
+    GX = torch.from_numpy(np.concatenate([own, context], axis=2))
+    TX = torch.from_numpy(np.ascontiguousarray(tables["target_X"]))
+    off = tables["offset"]
+    G, K = off.shape[0], off.shape[1]
+    g_idx, a_idx = np.nonzero(tables["bound"] > 0)
+    gi = np.repeat(g_idx, K)
+    ai = np.repeat(a_idx, K)
+    ki = np.tile(np.arange(K), len(g_idx))
+    Y = off[gi, ki, ai].astype(np.float32)
+    net, mean, std, out_scale, losses = _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen,
+                                             progress, "placement model")
+    arrays, metadata = _package(net, mean, std, out_scale, losses, tables, targets, hidden, use_label,
+                                garment_inputs, epochs, batch, lr, seed, len(Y), G, t0)
+    metadata.update(format=PFORMAT, format_version=PVERSION, context_shares=list(tables["context_shares"]),
+                    smoothing_share=float(SMOOTHING_SHARE if length_share is None else length_share))
+    info = {"seconds": metadata["training"]["seconds"], "samples": len(Y), "epochs": epochs, "losses": losses}
+    return PlacementModel(arrays, metadata, "placement model"), info
+
+def _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen, progress, what):
+    """The per-triangle network fitted to samples ``Y (n,c)`` at (garment gi, target ki, triangle ai)."""
+    import torch
+
     out_scale = np.maximum(Y.std(axis=0), 1e-3).astype(np.float64)
     Y = torch.from_numpy(Y / out_scale.astype(np.float32))
     gi, ki, ai = (torch.from_numpy(x.astype(np.int64)) for x in (gi, ki, ai))
@@ -127,7 +268,7 @@ def train_garment_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192, 
     probe = inputs(torch.randperm(n, generator=gen)[:min(n, 200_000)])
     mean = probe.mean(0)
     std = probe.std(0).clamp_min(1e-3)
-    sizes = [probe.shape[1], *hidden, 9]
+    sizes = [probe.shape[1], *hidden, Y.shape[1]]
     layers = []
     for i in range(len(sizes) - 1):
         layers.append(torch.nn.Linear(sizes[i], sizes[i + 1]))
@@ -151,26 +292,7 @@ def train_garment_model(tables, targets, hidden=(64, 64), epochs=8, batch=8192, 
             sched.step()
             total += float(loss.detach()) * len(sel)
         losses.append(total / n)
-        log.info("garment model epoch %d/%d: loss %.4f", ep + 1, epochs, losses[-1])
+        log.info("%s epoch %d/%d: loss %.4f", what, ep + 1, epochs, losses[-1])
         if progress is not None and progress((ep + 1) / epochs, losses[-1]):
-            raise Cancelled("training of the garment model was cancelled")
-    linear = [m for m in net if isinstance(m, torch.nn.Linear)]
-    arrays = {"input_mean": mean.double().numpy(), "input_std": std.double().numpy(),
-              "label_bodies": tables["bodies"].astype(np.float32)}
-    for i, m in enumerate(linear):
-        arrays[f"W{i}"] = m.weight.detach().numpy().astype(np.float32)
-        arrays[f"b{i}"] = m.bias.detach().double().numpy()
-    body = tables["body"]
-    seconds = time.perf_counter() - t0
-    metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, "targets": list(targets),
-                "layers": len(linear), "hidden": list(hidden), "use_label": bool(use_label),
-                "garment_inputs": bool(garment_inputs),
-                "output_scale": out_scale.tolist(), "garment_features": list(GARMENT_FEATURES),
-                "neighbourhood_shares": list(NEIGHBOURHOOD_SHARES), "cover_distance": None,
-                "source": {"name": body.name, "n_vertices": body.n_vertices, "n_faces": body.n_faces,
-                           "n_triangles": body.n_triangles, "faces_hash": faces_hash(body)},
-                "training": {"epochs": epochs, "batch": batch, "lr": lr, "seed": seed, "samples": int(n),
-                             "garments": int(G), "seconds": round(seconds, 2),
-                             "final_loss": losses[-1] if losses else None}}
-    info = {"seconds": seconds, "samples": int(n), "epochs": epochs, "losses": losses}
-    return GarmentFitModel(arrays, metadata, "garment fit model"), info
+            raise Cancelled(f"training of the {what} was cancelled")
+    return net, mean, std, out_scale, losses

@@ -279,7 +279,7 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
 def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, method="direct",
                      model=None, target=None, offset=None, fix_penetration=True, interpolate=True,
                      stiffness=None, prepared: PreparedGarment | None = None, anchoring="everywhere",
-                     progress=None, resolve_crossings=True):
+                     progress=None, resolve_crossings=True, placement=None):
     """Transfer ``garment`` from ``source_body`` to ``target_body``.
 
     Parameters
@@ -309,6 +309,9 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         After the penetration fix, remove every edge-triangle crossing between garment and body
         and undo the self-intersections the source garment does not have by giving the cloth
         there its source shape (``clearance.separate``; only with ``fix_penetration``).
+    placement : placement.PlacementModel or (M,3) array, optional
+        Move the anchors from where the body carries the garment by a learned placement (or given
+        offsets per source body triangle, in the triangle's frame on the target: ``placement.true_offsets``).
 
     Returns
     -------
@@ -340,6 +343,10 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     step(0.5, "bind")
     t = time.perf_counter()
     anchors = carry(prepared.binding, target_body.V, source_body.F)
+    if placement is not None:
+        from .placement import anchor_offsets
+
+        anchors = anchors + anchor_offsets(placement, prepared.binding, source_body, target_body, garment, target)
     seconds["bind"] = seconds.get("bind", 0.0) + time.perf_counter() - t
     if method == "surface":
         V = anchors
@@ -361,7 +368,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         offset = OFFSET_SHARE * body_scale(target_body.V)
     info = {"method": method, "target": target, "offset": float(offset),
             "interpolate": bool(interpolate), "fix_penetration": bool(fix_penetration),
-            "anchoring": prepared.anchoring}
+            "anchoring": prepared.anchoring, "placement": placement is not None}
     if fix_penetration:
         V, fix_info = penetration.fix_penetration(V, garment.F, surface, offset,
                                                   edge_length=prepared.edge_length,

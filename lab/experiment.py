@@ -17,7 +17,9 @@ import numpy as np
 from garment_transfer.dataset import build_training_fields, load_dataset
 from garment_transfer.gradients import deformation_gradients
 from garment_transfer.metrics import evaluate
-from garment_transfer.garment_training import train_garment_model, training_tables
+from garment_transfer.garment_training import (placement_tables, train_garment_model, train_placement_model,
+                                               training_tables)
+from garment_transfer.placement import true_offsets
 from garment_transfer.training import train_model
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -38,11 +40,15 @@ class Method:
         For ``model``: the training variant (a key of ``VARIANTS``).
     field : str
         For ``model``: how the model's field for a new garment is read (``SharedDeformationModel.body_field``'s
-        ``how``), or ``"oracle"``: the held-out garment's own embedded deformation.
+        ``how``), ``"oracle"``: the held-out garment's own embedded deformation, or ``"half"``: a garment
+        model's field halfway back to the body's own.
     interpolate, fix_penetration : bool
         ``transfer_garment``'s options.
     anchoring : str
         ``transfer_garment``'s: ``everywhere`` or ``contact``.
+    placement : str, optional
+        ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
+        fold's garments) or ``"oracle"`` (the held-out garment's own placement, from its simulation).
     """
 
     key: str
@@ -53,15 +59,19 @@ class Method:
     interpolate: bool = True
     fix_penetration: bool = True
     anchoring: str = "everywhere"
+    placement: str | None = None
 
 
 #: Training variants: ``train_model`` keyword arguments, or (``garment_model``) those of
 #: ``train_garment_model``.
 VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]},
             "garment": {"garment_model": True}, "garment_nolabel": {"garment_model": True, "use_label": False},
-            "garment_blind": {"garment_model": True, "garment_inputs": False}}
+            "garment_blind": {"garment_model": True, "garment_inputs": False},
+            "placement": {"placement_model": True}}
 #: Passes over the samples of the garment model, whatever ``epochs`` the shared model gets.
 GARMENT_EPOCHS = 6
+#: Passes over the samples of the placement model.
+PLACEMENT_EPOCHS = 30
 
 #: Every method the lab compares, by key.
 METHODS = {m.key: m for m in (
@@ -91,6 +101,24 @@ METHODS = {m.key: m for m in (
            "contact anchors", "model", "garment_nolabel", anchoring="contact"),
     Method("garment_blind_contact", "Garment fit model without the garment's distance and direction, contact "
            "anchors", "model", "garment_blind", anchoring="contact"),
+    Method("garment_placed", "Garment fit model and learned placement, anchors everywhere", "model", "garment",
+           placement="model"),
+    Method("garment_placed_contact", "Garment fit model and learned placement, contact anchors", "model",
+           "garment", anchoring="contact", placement="model"),
+    Method("direct_placed", "Direct deformation transfer and learned placement, anchors everywhere", "direct",
+           placement="model"),
+    Method("garment_half_placed", "Garment fit model's field halfway back to the body's own, learned placement, "
+           "anchors everywhere", "model", "garment", field="half", placement="model"),
+    Method("direct_oracle_placed", "Direct deformation transfer and the held-out garment's own placement, "
+           "anchors everywhere", "direct", placement="oracle"),
+    Method("garment_oracle_placed", "Garment fit model and the held-out garment's own placement, anchors "
+           "everywhere", "model", "garment", placement="oracle"),
+    Method("garment_oracle_placed_contact", "Garment fit model and the held-out garment's own placement, "
+           "contact anchors", "model", "garment", anchoring="contact", placement="oracle"),
+    Method("oracle_placed", "The held-out garment's own field and placement, anchors everywhere", "model",
+           "ours", field="oracle", placement="oracle"),
+    Method("oracle_placed_contact", "The held-out garment's own field and placement, contact anchors", "model",
+           "ours", field="oracle", anchoring="contact", placement="oracle"),
 )}
 
 
@@ -143,6 +171,8 @@ def field_rms(Q, true_dev, covered):
 
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
+    if method.field == "half":
+        return model.with_field_share(0.5)
     if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
         return model
     if method.field != "oracle":
@@ -201,7 +231,9 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     methods = [METHODS[k] for k in methods]
     external = external or {}
     reference_seconds = reference_seconds or {}
-    variants = sorted({m.variant for m in methods if m.kind == "model"}, key=list(VARIANTS).index)
+    variants = sorted({m.variant for m in methods if m.kind == "model"}
+                      | ({"placement"} if any(m.placement == "model" for m in methods) else set()),
+                      key=list(VARIANTS).index)
 
     def step(fraction, stage):
         log.info("%s", stage)
@@ -227,6 +259,18 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         models, tables = {}, None
         for v in variants:
             curve = []
+            if VARIANTS[v].get("placement_model"):
+                tables = tables or training_tables(ds, source, targets, list(train), fields=part)
+                placement_tables(ds, source, targets, list(train), tables)
+                model, info = train_placement_model(tables, targets, epochs=PLACEMENT_EPOCHS, seed=seed,
+                                                    threads=threads)
+                model.metadata["dataset"] = dataset_info
+                models[v] = model
+                trainings.append({"fold": i, "test": list(test), "variant": v, "masked": True,
+                                  "seconds": info["seconds"], "epochs": info["epochs"], "samples": info["samples"],
+                                  "final_loss": info["losses"][-1], "curve": [[e + 1, None, x] for e, x in
+                                                                              enumerate(info["losses"])]})
+                continue
             if VARIANTS[v].get("garment_model"):
                 options = {k: x for k, x in VARIANTS[v].items() if k != "garment_model"}
                 tables = tables or training_tables(ds, source, targets, list(train), fields=part)
@@ -264,6 +308,10 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                 body = bodies[b]
                 ref = ds.garment(g, b)
                 k = targets.index(b)
+                oracle_placement = None
+                if any(m.placement == "oracle" for m in methods):
+                    binding = next(iter(prepared.values())).binding
+                    oracle_placement = true_offsets(binding, source_body, body, ref.V)[0]
 
                 def add(key, V, seconds, Q=None, **extra):
                     e = evaluate(garment, garment.with_vertices(V), body, reference=ref)
@@ -292,9 +340,11 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                             Q = model.body_field(b)
                     elif m.kind == "direct":
                         Q = body_fields.get(b)
+                    placement = {None: None, "model": models.get("placement"),
+                                 "oracle": oracle_placement}[m.placement]
                     r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
                                          prepared=prepared[key], interpolate=m.interpolate,
-                                         fix_penetration=m.fix_penetration)
+                                         fix_penetration=m.fix_penetration, placement=placement)
                     add(m.key, r.V, prep_seconds[key] + r.seconds["total"], Q=Q,
                         seconds_reused=r.seconds["total"],
                         stages={s: v for s, v in r.seconds.items() if s != "total"})

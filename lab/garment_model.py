@@ -7,10 +7,12 @@ Parts (``--parts``, default all):
   everywhere, and only where the garment rests on the body), the paper's shared model (decoder at the
   mean latent), the garment fit model with anchors everywhere and with contact anchors, without the
   target label, without the garment's distance and direction, and the held-out garment's own
-  embedded deformation with contact anchors (the ceiling of any body field here).
+  embedded deformation with contact anchors (the ceiling of any body field here); with the learned
+  placement (``garment_placed``, ``garment_placed_contact``, ``direct_placed``) and the held-out
+  garment's own placement (``*_oracle_placed*``, ``oracle_placed*``: the ceiling of a placement).
 * ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
   test garments go to it with label weights read from its shape (between the training bodies), against
-  the same model trained on every target.
+  the same model trained on every target (``--placement``: also with the learned placement).
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
 
@@ -27,10 +29,12 @@ import time
 
 import numpy as np
 
+from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import train_garment_model, training_tables
+from garment_transfer.garment_training import (placement_tables, train_garment_model, train_placement_model,
+                                               training_tables)
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -94,6 +98,11 @@ def unseen_body_part(args, say):
         tables = training_tables(ds, source, targets, train)
         model, tinfo = train_garment_model(tables, targets, epochs=experiment.GARMENT_EPOCHS, seed=args.seed,
                                            threads=args.threads)
+        placer = None
+        if args.placement:
+            placement_tables(ds, source, targets, train, tables)
+            placer, _ = train_placement_model(tables, targets, epochs=experiment.PLACEMENT_EPOCHS, seed=args.seed,
+                                              threads=args.threads, use_label=not args.placement_nolabel)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
         info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
                                                   "train_seconds": tinfo["seconds"]}
@@ -105,13 +114,16 @@ def unseen_body_part(args, say):
             ref = ds.garment(g, args.unseen)
             runs = [("garment_contact", dict(method="model", model=model,
                                              target=args.unseen if with_it else None))]
+            if placer is not None:
+                runs.append(("garment_placed_contact", dict(method="model", model=model, placement=placer,
+                                                            target=args.unseen if with_it else None)))
             if with_it:
                 runs.append(("direct", dict(method="direct")))
             for key, kw in runs:
                 r = transfer_garment(src, body, garment, prepared=prepared, **kw)
                 e = evaluate(garment, garment.with_vertices(r.V), body, reference=ref)
                 e.update(garment=g, target=args.unseen, method=key if with_it or key == "direct"
-                         else "garment_contact_unseen")
+                         else f"{key}_unseen")
                 rows.append(e)
     bodies = np.stack([ds.body(t).V for t in args.targets if t != args.unseen])
     info["shape_weights_of_unseen"] = label_weights(body.V, bodies).tolist()
@@ -120,11 +132,19 @@ def unseen_body_part(args, say):
         return float(np.mean([r[k] for r in rows if r["method"] == m]))
 
     lines = [f"{'method':26s} {'vertex mm':>9s} {'drape rel':>9s} {'MDC':>7s}"]
-    for m in ("direct", "garment_contact", "garment_contact_unseen"):
+    shown = ["direct", "garment_contact", "garment_contact_unseen"]
+    if args.placement:
+        shown += ["garment_placed_contact", "garment_placed_contact_unseen"]
+    for m in shown:
         lines.append(f"{m:26s} {1000 * mean(m, 'vertex_error_mean'):9.1f} {mean(m, 'drape_error_relative'):9.3f} "
                      f"{mean(m, 'mdc'):7.4f}")
     ratio = mean("garment_contact_unseen", "vertex_error_mean") / mean("garment_contact", "vertex_error_mean")
     lines.append(f"vertex error, body unseen / body in training: {ratio:.2f}")
+    if args.placement:
+        ratio_p = mean("garment_placed_contact_unseen", "vertex_error_mean") / mean("garment_placed_contact",
+                                                                                   "vertex_error_mean")
+        lines.append(f"with the learned placement, body unseen / body in training: {ratio_p:.2f}")
+        info["ratio_placed"] = ratio_p
     info.update(rows=rows, ratio=ratio, text="\n".join(lines))
     return info
 
@@ -159,6 +179,15 @@ def main(argv=None):
     ap.add_argument("--epochs", type=int, default=300, help="epochs of the paper's shared model")
     ap.add_argument("--garment-epochs", type=int, default=experiment.GARMENT_EPOCHS,
                     help="passes over the samples of the garment fit model")
+    ap.add_argument("--placement", action="store_true",
+                    help="unseen_body: also the garment model with the learned placement")
+    ap.add_argument("--placement-nolabel", action="store_true",
+                    help="unseen_body: the placement model without the target label (body features only)")
+    ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
+                    help="passes over the samples of the placement model")
+    ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
+                    help="smoothing length of the placement (its training targets and predictions), as a share "
+                         "of the body scale")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json")
@@ -166,6 +195,8 @@ def main(argv=None):
     args.targets = args.targets.split(",")
     args.methods = args.methods.split(",")
     experiment.GARMENT_EPOCHS = args.garment_epochs
+    placement.SMOOTHING_SHARE = args.placement_smoothing
+    experiment.PLACEMENT_EPOCHS = args.placement_epochs
     args.extra = [g for g in args.extra.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
     t0 = time.perf_counter()

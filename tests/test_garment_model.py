@@ -135,6 +135,20 @@ def test_field_is_the_body_s_own_where_the_garment_is_absent_and_learned_where_i
     assert np.abs(Q[covered] - body_Q[covered]).max() > 1e-4
 
 
+def test_field_share_goes_from_the_body_s_field_to_the_model_s(trained, tiny):
+    model, _, _ = trained
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    Q = model.body_field("pear", g, src, tgt)
+    body_Q = deformation_gradients(src.V, tgt.V, src.F)[0]
+    np.testing.assert_allclose(model.with_field_share(0.0).body_field("pear", g, src, tgt), body_Q, atol=1e-12)
+    np.testing.assert_allclose(model.with_field_share(0.5).body_field("pear", g, src, tgt), 0.5 * (Q + body_Q),
+                               atol=1e-12)
+    assert model.field_share == 1.0
+    with pytest.raises(ValueError, match="field share"):
+        model.with_field_share(1.5)
+
+
 def test_saved_model_loads_without_pickle_and_transfers(trained, tiny, tmp_path):
     model, _, _ = trained
     path = tmp_path / "g.npz"

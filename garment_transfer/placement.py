@@ -1,0 +1,308 @@
+"""A learned placement: where a garment hangs relative to where the body carries it.
+
+The binding (``binding.py``) carries each garment vertex to the target body with the body triangle it
+is bound to: the anchors of the Poisson solve. A simulated garment differs from that by a
+long-wavelength offset: a loose skirt drops and flares on wider hips, a tight top rides up. This module
+represents that offset per source body triangle ``a`` as a 3-vector ``C[a]`` in the triangle's own
+orthonormal frame (rows ``t1`` along its first edge, ``t2``, ``n`` its normal; ``garment_model``'s
+frames) on the target body, so that it turns with the body under it, and moves the anchors by it::
+
+    anchor_i = carry(binding_i, target) + T[a_i]^T C[a_i]        a_i: the triangle vertex i is bound to
+
+The field is smoothed over the body (``smooth_on_body``): it only says where the garment lies, not
+its folds, which stay the field's.
+
+``PlacementModel`` predicts ``C`` for a new garment and target with the same per-triangle network and
+inputs as ``garment_model.GarmentFitModel`` (garment features, target features, label weights) and the
+garment's context around each triangle (``garment_context``). Its three outputs are the offset in the
+*unrotated* frame, ``y = S[a]^T T[a] d`` (S, T: the triangle's frames on the source and target bodies),
+in which neighbouring triangles agree, so that it can be learned and smoothed; ``C = S y``. File:
+``.npz`` of plain arrays plus JSON metadata of format ``garment_transfer.garment_placement_model``, read
+with ``allow_pickle=False``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .binding import Binding, carry
+from .embedding import body_scale, triangle_centroids
+from .errors import ModelError
+from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, read_model_npz
+from .mesh import Mesh, require_same_topology
+
+log = logging.getLogger(__name__)
+
+FORMAT = "garment_transfer.garment_placement_model"
+FORMAT_VERSION = 1
+#: Length over which the placement is smoothed on the body, as a share of the body scale (about 2 cm on
+#: a 1.7 m body). Measured on the demo's test garments on pear (``lab.garment_model
+#: --placement-smoothing``), garment model with the learned placement: 0.08 gives 0.78x direct's vertex
+#: error and drape 0.505, 0.04 0.68x and 0.432, 0.02 0.62x and 0.393, 0.01 0.59x and 0.398, at the same
+#: MDC (1.28-1.31x direct's); shorter placements are no noisier on the cloth, since the anchors are weak
+#: and only decide features longer than the stiffness length.
+SMOOTHING_SHARE = 0.01
+#: The garment's surroundings seen from each body triangle: its coverage, distance and normal offset
+#: (``garment_model.GARMENT_FEATURES[:3]``) smoothed over the body at these lengths (shares of the
+#: body scale: about 8 cm, 23 cm, 57 cm). A triangle's own distance does not tell a loose skirt's
+#: waist from a tight one's; the skirt's looseness around it does (measured: the placement's error on
+#: the demo's test garments 9.3 -> 6.7 mm RMS with them).
+CONTEXT_SHARES = (0.04, 0.12, 0.3)
+CONTEXT_COLUMNS = 3
+
+
+def bound_counts(binding: Binding, n_triangles):
+    """(M,) float64: how many bound points each body triangle carries."""
+    return np.bincount(binding.triangle, minlength=n_triangles).astype(np.float64)
+
+
+def triangle_laplacian(F, n_triangles=None):
+    """(M,M) csr graph Laplacian of the triangles sharing an edge."""
+    F = np.asarray(F, dtype=np.int64)
+    M = F.shape[0] if n_triangles is None else n_triangles
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    e.sort(axis=1)
+    owner = np.tile(np.arange(F.shape[0]), 3)
+    key = e[:, 0] * (int(e.max()) + 1) + e[:, 1]
+    order = np.argsort(key, kind="stable")
+    key, owner = key[order], owner[order]
+    same = key[1:] == key[:-1]
+    i, j = owner[1:][same], owner[:-1][same]
+    A = sp.coo_matrix((np.ones(2 * len(i)), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(M, M)).tocsr()
+    A.data[:] = 1.0
+    return (sp.diags(np.asarray(A.sum(axis=1)).ravel()) - A).tocsr()
+
+
+def smooth_on_body(values, weights, body_V, body_F, length):
+    """Weighted low-pass of a per-triangle field over the body: ``(W + t L) X = W values``.
+
+    Triangles with weight 0 take the values diffused from their neighbours; features shorter than about
+    ``length`` go (``t = (length / h)^2``, h the mean distance between adjacent triangles' centroids).
+
+    Parameters
+    ----------
+    values : (M,c) float
+    weights : (M,) float
+        >= 0; the data's confidence per triangle (bound points).
+    body_V : (nb,3) float
+    body_F : (M,3) int
+    length : float
+
+    Returns
+    -------
+    X : (M,c) float64
+    """
+    values = np.asarray(values, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    M = body_F.shape[0]
+    if values.shape[0] != M or w.shape != (M,):
+        raise ValueError(f"values and weights must have {M} rows, got {values.shape} and {w.shape}")
+    if length <= 0:
+        return values.copy()
+    positive = w[w > 0]
+    if positive.size == 0:
+        return np.zeros_like(values)
+    w = w / positive.mean()
+    L = triangle_laplacian(body_F, M)
+    c = triangle_centroids(body_V, body_F)
+    rows, cols = L.nonzero()
+    off = rows != cols
+    h = float(np.mean(np.linalg.norm(c[rows[off]] - c[cols[off]], axis=1)))
+    t = (length / max(h, 1e-300)) ** 2
+    # A faint pull to zero keeps triangles cut off from every bound point defined.
+    K = (sp.diags(w + 1e-9) + t * L).tocsc()
+    return spla.splu(K, permc_spec="COLAMD").solve(w[:, None] * values)
+
+
+def garment_context(body_V, body_F, garment_X, shares=CONTEXT_SHARES):
+    """The garment's coverage, distance and normal offset smoothed over the body at several lengths.
+
+    Parameters
+    ----------
+    body_V : (nb,3) float
+        The source body.
+    body_F : (M,3) int
+    garment_X : (M,12) float
+        ``garment_model.garment_features`` of the garment on that body.
+    shares : sequence of float
+        Smoothing lengths as shares of the body scale.
+
+    Returns
+    -------
+    (M, 3 * len(shares)) float64
+    """
+    V = np.asarray(body_V, dtype=np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(V[body_F[:, 1]] - V[body_F[:, 0]], V[body_F[:, 2]] - V[body_F[:, 0]]),
+                                axis=1)
+    scale = body_scale(V)
+    X = np.asarray(garment_X, dtype=np.float64)[:, :CONTEXT_COLUMNS]
+    if not shares:
+        return np.zeros((X.shape[0], 0))
+    return np.concatenate([smooth_on_body(X, area, V, body_F, s * scale) for s in shares], axis=1)
+
+
+def unrotate(source_V, target_V, F):
+    """(M,3,3) per triangle ``S^T T``: a vector on the target body in the source body's orientation."""
+    S = _orthonormal_frames(source_V, F)
+    T = _orthonormal_frames(target_V, F)
+    return np.einsum("mji,mjk->mik", S, T)
+
+
+def true_offsets(binding: Binding, source_body: Mesh, target_body: Mesh, garment_on_target, length=None):
+    """The placement of a garment whose shape on the target body is known (the simulation): its offset
+    from where the body carries it, smoothed, per body triangle in the triangle's frame on the target.
+
+    Parameters
+    ----------
+    binding : Binding
+        The garment bound to the source body.
+    source_body, target_body : Mesh
+    garment_on_target : (n,3) float
+        The garment on the target body (same vertex order as the bound garment).
+    length : float, optional
+        Smoothing length (default ``SMOOTHING_SHARE`` of the source body scale); 0: none.
+
+    Returns
+    -------
+    C : (M,3) float64
+        Per body triangle: the offset in the target triangle's frame (``placement_displacements``).
+    y : (M,3) float64
+        The same in each triangle's unrotated frame (``C = S y``), as ``PlacementModel`` predicts it.
+    weights : (M,) float64
+        Bound garment vertices per triangle.
+    """
+    require_same_topology(source_body, target_body)
+    F = source_body.F
+    M = F.shape[0]
+    d = np.asarray(garment_on_target, dtype=np.float64) - carry(binding, target_body.V, F)
+    Rst = unrotate(source_body.V, target_body.V, F)
+    per_vertex = np.einsum("pij,pj->pi", Rst[binding.triangle], d)
+    w = bound_counts(binding, M)
+    y = np.zeros((M, 3))
+    for c in range(3):
+        y[:, c] = np.bincount(binding.triangle, weights=per_vertex[:, c], minlength=M)
+    y /= np.maximum(w, 1.0)[:, None]
+    length = SMOOTHING_SHARE * body_scale(source_body.V) if length is None else float(length)
+    y = smooth_on_body(y, w, source_body.V, F, length)
+    S = _orthonormal_frames(source_body.V, F)
+    return np.einsum("mij,mj->mi", S, y), y, w
+
+
+def placement_displacements(binding: Binding, target_V, body_F, C):
+    """How far each bound point's anchor moves: ``T[a_i]^T C[a_i]`` on the target body.
+
+    Parameters
+    ----------
+    binding : Binding
+    target_V : (nb,3) float
+        The target body.
+    body_F : (M,3) int
+    C : (M,3) float
+        Per body triangle, the offset in that triangle's frame on the target body.
+
+    Returns
+    -------
+    D : (p,3) float64
+    """
+    C = np.asarray(C, dtype=np.float64)
+    if C.shape != (body_F.shape[0], 3):
+        raise ValueError(f"the placement must be ({body_F.shape[0]}, 3): one offset per body triangle, "
+                         f"got {C.shape}")
+    if not np.isfinite(C).all():
+        raise ValueError("the placement has values that are not finite")
+    tri = binding.triangle
+    T = _orthonormal_frames(target_V, body_F)[tri]
+    return np.einsum("pji,pj->pi", T, C[tri])
+
+
+class PlacementModel(GarmentFitModel):
+    """A trained placement model (see the module docstring): ``GarmentFitModel``'s inputs, 3 outputs.
+
+    Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions) and
+    ``context_shares`` (``garment_context``, inputs after the garment's own features).
+    """
+
+    OUTPUTS = 3
+
+    @staticmethod
+    def n_inputs(md):
+        return GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
+
+    def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """``GarmentFitModel.inputs`` with the garment's context after its own features."""
+        X, covered, dev = super().inputs(source_body, target_body, garment, target)
+        n = len(GARMENT_FEATURES)
+        ctx = garment_context(source_body.V, source_body.F, X[:, :n], tuple(self.metadata.get("context_shares", [])))
+        return np.concatenate([X[:, :n], ctx, X[:, n:]], axis=1), covered, dev
+
+    def body_field(self, *args, **kwargs):
+        raise ModelError(self.name, "is a placement model, not a field model: pass it as placement=")
+
+    def frame_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """The predicted placement of ``garment`` on ``target_body``.
+
+        Parameters
+        ----------
+        binding : Binding
+            ``garment`` bound to ``source_body``.
+        source_body, target_body : Mesh
+        garment : Mesh
+            Dressed on the source body.
+        target : str, optional
+            A training target's label; None (or an unknown name): label weights from the body's shape.
+
+        Returns
+        -------
+        C : (M,3) float64
+            Per body triangle, the offset in the triangle's frame on the target body.
+        """
+        self.check_source_body(source_body)
+        F = source_body.F
+        M = F.shape[0]
+        w = bound_counts(binding, M)
+        sel = w > 0
+        X, _, _ = self.inputs(source_body, target_body, garment, target)
+        y = np.zeros((M, 3))
+        y[sel] = self.forward(X[sel]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
+        length = float(self.metadata["smoothing_share"]) * body_scale(source_body.V)
+        y = smooth_on_body(y, w, source_body.V, F, length)
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, F), y)
+
+
+def anchor_offsets(placement, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+    """The anchors' displacements for ``transfer_garment``'s ``placement``.
+
+    Parameters
+    ----------
+    placement : PlacementModel or (M,3) array
+        A model, or the offsets per body triangle in its frame on the target (``true_offsets``).
+
+    Returns
+    -------
+    D : (n,3) float64
+    """
+    if hasattr(placement, "frame_offsets"):
+        C = placement.frame_offsets(binding, source_body, target_body, garment, target)
+    else:
+        C = placement
+    return placement_displacements(binding, target_body.V, source_body.F, C)
+
+
+def load_placement_model(path) -> PlacementModel:
+    """Read a placement model file (plain arrays only, ``allow_pickle=False``).
+
+    Raises
+    ------
+    ModelError
+        Naming the file: missing, unreadable, pickled objects, another format or version, arrays that do
+        not fit together.
+    """
+    arrays, metadata = read_model_npz(path, FORMAT, FORMAT_VERSION, "a garment placement model")
+    if "smoothing_share" not in metadata:
+        raise ModelError(os.fspath(path), "metadata lacks 'smoothing_share'")
+    return PlacementModel(arrays, metadata, os.fspath(path))

@@ -1,0 +1,179 @@
+import json
+
+import numpy as np
+import pytest
+
+from garment_transfer.binding import bind, carry
+from garment_transfer.dataset import load_dataset
+from garment_transfer.errors import ModelError
+from garment_transfer.garment_model import _orthonormal_frames, load_garment_model
+from garment_transfer.placement import (placement_displacements, smooth_on_body, triangle_laplacian,
+                                        true_offsets, unrotate)
+from garment_transfer.transfer import transfer_garment
+from meshes import icosphere
+from test_dataset import make_tiny_dataset
+
+TARGETS = ["similar", "pear"]
+
+
+def rotation(axis, degrees):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    a = np.radians(degrees)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    return make_tiny_dataset(tmp_path_factory.mktemp("tiny") / "ds")
+
+
+@pytest.fixture(scope="module")
+def moved(tiny):
+    """The tiny source body, the same body turned and shifted, and a garment on it."""
+    ds = load_dataset(tiny)
+    src, g = ds.body("src"), ds.garment("top", "src")
+    R = rotation([1.0, 2.0, 0.5], 40)
+    t = np.array([0.3, -0.1, 0.2])
+    return src, src.with_vertices(src.V @ R.T + t, name="moved"), g, R
+
+
+def test_triangle_laplacian_of_a_closed_surface():
+    V, F = icosphere(1)
+    L = triangle_laplacian(F)
+    # Every triangle of a closed surface has three edge neighbours.
+    np.testing.assert_array_equal(L.diagonal(), 3.0)
+    np.testing.assert_allclose(L @ np.ones(F.shape[0]), 0.0, atol=1e-12)
+    assert (L - L.T).nnz == 0
+
+
+def test_smoothing_keeps_a_constant_and_fills_empty_triangles():
+    V, F = icosphere(2)
+    M = F.shape[0]
+    w = np.zeros(M)
+    w[: M // 3] = 2.0
+    values = np.where(w[:, None] > 0, [[1.0, -2.0, 0.5]], 7.0)
+    X = smooth_on_body(values, w, V, F, 0.3)
+    np.testing.assert_allclose(X, np.tile([1.0, -2.0, 0.5], (M, 1)), atol=1e-6)
+    np.testing.assert_array_equal(smooth_on_body(values, w, V, F, 0.0), values)
+    noisy = np.random.default_rng(0).normal(size=(M, 3))
+    assert smooth_on_body(noisy, np.ones(M), V, F, 0.3).std() < 0.5 * noisy.std()
+
+
+def test_zero_placement_leaves_the_transfer_unchanged(tiny):
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    for anchoring in ("everywhere", "contact"):
+        a = transfer_garment(src, tgt, g, anchoring=anchoring)
+        b = transfer_garment(src, tgt, g, anchoring=anchoring, placement=np.zeros((src.F.shape[0], 3)))
+        np.testing.assert_allclose(b.V, a.V, atol=1e-12, rtol=0)
+        assert b.info["placement"] and not a.info["placement"]
+
+
+def test_constant_offset_in_every_frame_of_a_rigidly_moved_body(moved):
+    src, tgt, g, R = moved
+    binding = bind(g.V, src.V, src.F)
+    S = _orthonormal_frames(src.V, src.F)
+    M = src.F.shape[0]
+    # A lift along every triangle's normal: each anchor moves along its triangle's normal on the target.
+    D = placement_displacements(binding, tgt.V, src.F, np.tile([0.0, 0.0, 0.02], (M, 1)))
+    np.testing.assert_allclose(D, 0.02 * (S[binding.triangle, 2] @ R.T), atol=1e-12)
+    # Any constant offset in the frames: the source frame's vector, turned with the body.
+    c = np.array([0.01, -0.03, 0.005])
+    D = placement_displacements(binding, tgt.V, src.F, np.tile(c, (M, 1)))
+    np.testing.assert_allclose(D, np.einsum("pji,j->pi", S[binding.triangle], c) @ R.T, atol=1e-12)
+    # The triangles' own turn is the body's.
+    np.testing.assert_allclose(unrotate(src.V, tgt.V, src.F), np.broadcast_to(R.T, (M, 3, 3)), atol=1e-12)
+
+
+def test_a_placement_that_is_one_vector_unrotated_moves_the_whole_transfer_by_it_turned(moved):
+    # A rigid motion: the direct field is the rotation everywhere, so a uniform shift of the anchors
+    # shifts the rebuilt garment by exactly as much.
+    src, tgt, g, R = moved
+    v = np.array([0.02, 0.01, -0.015])
+    C = _orthonormal_frames(src.V, src.F) @ v
+    a = transfer_garment(src, tgt, g, fix_penetration=False)
+    b = transfer_garment(src, tgt, g, fix_penetration=False, placement=C)
+    np.testing.assert_allclose(b.V - a.V, np.tile(R @ v, (g.n_vertices, 1)), atol=1e-9)
+
+
+def test_true_offsets_give_back_a_known_placement(moved):
+    src, tgt, g, R = moved
+    binding = bind(g.V, src.V, src.F)
+    v = np.array([0.01, 0.0, -0.02])
+    on_target = carry(binding, tgt.V, src.F) + R @ v
+    C, y, w = true_offsets(binding, src, tgt, on_target)
+    assert w.sum() == g.n_vertices
+    np.testing.assert_allclose(y, np.tile(v, (src.F.shape[0], 1)), atol=1e-6)
+    np.testing.assert_allclose(placement_displacements(binding, tgt.V, src.F, C), np.tile(R @ v, (g.n_vertices, 1)),
+                               atol=1e-6)
+
+
+def test_a_placement_of_the_wrong_size_is_refused(tiny):
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    with pytest.raises(ValueError, match="one offset per body triangle"):
+        transfer_garment(src, tgt, g, placement=np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="not finite"):
+        transfer_garment(src, tgt, g, placement=np.full((src.F.shape[0], 3), np.nan))
+
+
+torch = pytest.importorskip("torch")
+
+
+@pytest.fixture(scope="module")
+def trained(tiny):
+    from garment_transfer.garment_training import placement_tables, train_placement_model, training_tables
+
+    tables = training_tables(tiny, "src", TARGETS, ["band", "skirt"])
+    placement_tables(tiny, "src", TARGETS, ["band", "skirt"], tables)
+    model, info = train_placement_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1)
+    return model, info, tables
+
+
+def test_placement_training_lowers_the_loss(trained):
+    model, info, tables = trained
+    assert info["samples"] == int((tables["bound"] > 0).sum()) * len(TARGETS)
+    assert info["losses"][-1] < 0.85 * info["losses"][0]
+    assert model.metadata["format"] == "garment_transfer.garment_placement_model"
+
+
+def test_placement_model_round_trip_and_transfer(trained, tiny, tmp_path):
+    model, _, _ = trained
+    path = tmp_path / "placement.npz"
+    model.save(path)
+    with np.load(path, allow_pickle=False) as npz:
+        assert all(npz[k].dtype != object for k in npz.files)
+    from garment_transfer.placement import load_placement_model
+
+    loaded = load_placement_model(path)
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    C = model.frame_offsets(binding, src, tgt, g, "pear")
+    np.testing.assert_array_equal(loaded.frame_offsets(binding, src, tgt, g, "pear"), C)
+    assert np.isfinite(C).all() and np.abs(C).max() > 0
+    r = transfer_garment(src, tgt, g, placement=loaded, target="pear")
+    expect = transfer_garment(src, tgt, g, placement=C)
+    np.testing.assert_allclose(r.V, expect.V, atol=1e-12)
+    # A body between the training targets: label weights from its shape.
+    mid = src.with_vertices(0.5 * (ds.body("similar").V + tgt.V))
+    assert np.isfinite(loaded.frame_offsets(binding, src, mid, g)).all()
+
+
+def test_placement_model_files_of_another_version_or_kind_are_refused(trained, tmp_path):
+    from garment_transfer.placement import load_placement_model
+
+    model, _, _ = trained
+    newer = tmp_path / "newer.npz"
+    np.savez(newer, metadata=np.array(json.dumps({**model.metadata, "format_version": 99})), **model.arrays)
+    with pytest.raises(ModelError, match=r"newer.npz: has format version 99; this version reads 1"):
+        load_placement_model(newer)
+    with pytest.raises(ModelError, match="is not a garment fit model"):
+        load_garment_model(newer)
+    pickled = tmp_path / "pickled.npz"
+    np.savez(pickled, metadata=np.array(json.dumps(model.metadata)), W0=np.array([object()], dtype=object))
+    with pytest.raises(ModelError, match="only plain arrays"):
+        load_placement_model(pickled)
+    with pytest.raises(ModelError, match="placement model, not a field model"):
+        model.body_field("pear")
