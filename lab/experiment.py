@@ -259,23 +259,16 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         models, tables = {}, None
         for v in variants:
             curve = []
-            if VARIANTS[v].get("placement_model"):
+            if VARIANTS[v].get("placement_model") or VARIANTS[v].get("garment_model"):
                 tables = tables or training_tables(ds, source, targets, list(train), fields=part)
-                placement_tables(ds, source, targets, list(train), tables)
-                model, info = train_placement_model(tables, targets, epochs=PLACEMENT_EPOCHS, seed=seed,
-                                                    threads=threads)
-                model.metadata["dataset"] = dataset_info
-                models[v] = model
-                trainings.append({"fold": i, "test": list(test), "variant": v, "masked": True,
-                                  "seconds": info["seconds"], "epochs": info["epochs"], "samples": info["samples"],
-                                  "final_loss": info["losses"][-1], "curve": [[e + 1, None, x] for e, x in
-                                                                              enumerate(info["losses"])]})
-                continue
-            if VARIANTS[v].get("garment_model"):
-                options = {k: x for k, x in VARIANTS[v].items() if k != "garment_model"}
-                tables = tables or training_tables(ds, source, targets, list(train), fields=part)
-                model, info = train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed,
-                                                  threads=threads, **options)
+                if VARIANTS[v].get("placement_model"):
+                    placement_tables(ds, source, targets, list(train), tables)
+                    model, info = train_placement_model(tables, targets, epochs=PLACEMENT_EPOCHS, seed=seed,
+                                                        threads=threads)
+                else:
+                    options = {k: x for k, x in VARIANTS[v].items() if k != "garment_model"}
+                    model, info = train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed,
+                                                      threads=threads, **options)
                 model.metadata["dataset"] = dataset_info
                 models[v] = model
                 trainings.append({"fold": i, "test": list(test), "variant": v, "masked": True,
