@@ -565,11 +565,11 @@ class ArapFit:
 
 def _pairs_to_target(X, N, surface: TriangleSurface, tn_cos, max_dist, order=None):
     """Closest target points of the fit's vertices, with weights 0 for rejected pairs (queried in
-    ``order``, see ``closest_in_order``)."""
+    ``order``, see ``closest_in_order``), their distances and the target's normals there."""
     C, d, tri, bary = closest_in_order(surface, X, order)
     Nt = surface.normals_at(tri, bary)
     ok = (np.einsum("ij,ij->i", N, Nt) >= tn_cos) & (d <= max_dist)
-    return C, ok.astype(np.float64), d
+    return C, ok.astype(np.float64), d, Nt
 
 
 def _pairs_from_target(X, F, P, Np, tn_cos, max_dist, order=None):
@@ -1015,7 +1015,7 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, normal_cos=0.5
     for alpha, steps in schedule:
         for _ in range(steps):
             N = _vertex_normals(X, F)
-            C, ws, _ = _pairs_to_target(X, N, surface, normal_cos, max_dist, order_x)
+            C, ws, _, _ = _pairs_to_target(X, N, surface, normal_cos, max_dist, order_x)
             B, wt, _ = _pairs_from_target(X, F, P, Np, normal_cos, max_dist, order_p)
             w = ws * wv
             if alpha >= LANDMARK_UNTIL and li.size and LANDMARK_WEIGHT > 0:
@@ -1260,13 +1260,11 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         X = X0 + np.tensordot(w, Da, axes=1)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
-        C, d1, ctri, cbary = closest_in_order(surface, Sv @ Y, order_s)
-        Nt = surface.normals_at(ctri, cbary)
-        ok1 = (np.einsum("ij,ij->i", triangle_normals(Y, F[stri])[0], Nt) >= normal_cos) & (d1 <= max_dist)
-        _, d2, tri2, bary2 = closest_in_order(TriangleSurface(Y, F), P, order_p)
-        ok2 = (np.einsum("ij,ij->i", Np, triangle_normals(Y, F[tri2])[0]) >= normal_cos) & (d2 <= max_dist)
-        B = sp.csr_matrix((bary2[ok2].ravel(), (np.repeat(np.arange(int(ok2.sum())), 3), F[tri2[ok2]].ravel())),
-                          shape=(int(ok2.sum()), X0.shape[0]))
+        C, ok1, d1, Nt = _pairs_to_target(Sv @ Y, triangle_normals(Y, F[stri])[0], surface, normal_cos, max_dist,
+                                          order_s)
+        B, ok2, d2 = _pairs_from_target(Y, F, P, Np, normal_cos, max_dist, order_p)
+        ok1, ok2 = ok1 > 0, ok2 > 0
+        B = B[ok2]
         # In the source's frame: the model points (linear in the weights) against the target points
         # moved by a small rigid motion (omega, tau) about c, which updates the similarity. Gauss-Newton
         # on point-to-plane distances: the pairs slide into place in a few steps, where point-to-point
