@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 from .embedding import body_scale, body_to_cloth, triangle_centroids
 from .errors import ModelError
 from .gradients import deformation_gradients
-from .mesh import Mesh, require_same_topology
+from .mesh import Mesh, require_same_topology, triangle_normals
 from .model import save_npz_atomic
 
 log = logging.getLogger(__name__)
@@ -152,8 +152,7 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
     Q, _ = deformation_gradients(source_V, target_V, F)
     dev = (Q - np.eye(3)).reshape(-1, 9)
     c = triangle_centroids(source_V, F)
-    S = np.asarray(source_V, dtype=np.float64)
-    area = 0.5 * np.linalg.norm(np.cross(S[F[:, 1]] - S[F[:, 0]], S[F[:, 2]] - S[F[:, 0]]), axis=1)
+    area = triangle_normals(np.asarray(source_V, dtype=np.float64), F)[1]
     scale = body_scale(source_V)
     parts = [dev] + [_neighbourhood_mean(c, dev, s * scale, area + 1e-300) for s in shares]
     return np.concatenate(parts, axis=1), dev

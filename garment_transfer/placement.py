@@ -34,7 +34,7 @@ from .binding import Binding, carry
 from .embedding import body_scale, triangle_centroids
 from .errors import ModelError
 from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, read_model_npz
-from .mesh import Mesh, require_same_topology
+from .mesh import Mesh, require_same_topology, triangle_normals
 
 log = logging.getLogger(__name__)
 
@@ -137,8 +137,7 @@ def garment_context(body_V, body_F, garment_X, shares=CONTEXT_SHARES):
     (M, 3 * len(shares)) float64
     """
     V = np.asarray(body_V, dtype=np.float64)
-    area = 0.5 * np.linalg.norm(np.cross(V[body_F[:, 1]] - V[body_F[:, 0]], V[body_F[:, 2]] - V[body_F[:, 0]]),
-                                axis=1)
+    area = triangle_normals(V, body_F)[1]
     scale = body_scale(V)
     X = np.asarray(garment_X, dtype=np.float64)[:, :CONTEXT_COLUMNS]
     if not shares:
