@@ -22,6 +22,7 @@ does); it is a baseline.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +33,7 @@ from .gradients import deformation_gradients
 from .mesh import Mesh, degenerate_triangles, edge_lengths_mean, require_same_topology
 from . import clearance, penetration
 from .poisson import PoissonSolver, anchor_weight_for, choose_method
-from .proximity import TriangleSurface
+from .proximity import THREADS, TriangleSurface
 
 METHODS = ("direct", "model", "surface")
 
@@ -222,28 +223,39 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     degenerate = degenerate_triangles(garment.V, garment.F, edge_length=h)
     if degenerate.all():
         raise MeshError(garment.name, "every face has zero area")
-    surface = TriangleSurface(source_body.V, source_body.F)
-    binding = bind(garment.V, source_body.V, source_body.F, surface)
-    _check_placement(source_body, garment, surface, binding)
-    seconds["bind"] = time.perf_counter() - t
-    index = weights = matrix = None
-    t = time.perf_counter()
-    if interpolate:
-        matrix = interpolation_matrix(source_body.F, source_body.n_vertices, binding.triangle, binding.bary,
-                                      garment.F)
-    else:
-        index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=1)
-    seconds["embed"] = time.perf_counter() - t
-    solver = None
-    if need_solver:
-        t = time.perf_counter()
-        scale = body_scale(source_body.V)
-        length = stiffness if stiffness else STIFFNESS_SHARE * scale
-        w = anchor_weights(garment, binding.distance, scale, length, anchoring, contact, edge_length=h)
-        method = solver_method or choose_method(garment.n_vertices, reused)
+    scale = body_scale(source_body.V)
+    length = stiffness if stiffness else STIFFNESS_SHARE * scale
+    method = solver_method or choose_method(garment.n_vertices, reused)
+
+    def make_solver(distance):
+        started = time.perf_counter()
+        w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
         solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
                                method=method)
-        seconds["factor"] = time.perf_counter() - t
+        seconds["factor"] = time.perf_counter() - started
+        return solver
+
+    with ThreadPoolExecutor(1) as pool:
+        # Anchors everywhere do not depend on the binding: the solver is built on a thread while the
+        # garment is bound (both are mostly compiled code that releases the GIL).
+        early = pool.submit(make_solver, None) if need_solver and anchoring == "everywhere" and THREADS > 1 else None
+        surface = TriangleSurface(source_body.V, source_body.F)
+        binding = bind(garment.V, source_body.V, source_body.F, surface)
+        _check_placement(source_body, garment, surface, binding)
+        seconds["bind"] = time.perf_counter() - t
+        index = weights = matrix = None
+        t = time.perf_counter()
+        if interpolate:
+            matrix = interpolation_matrix(source_body.F, source_body.n_vertices, binding.triangle, binding.bary,
+                                          garment.F)
+        else:
+            index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=1)
+        seconds["embed"] = time.perf_counter() - t
+        solver = None
+        if early is not None:
+            solver = early.result()
+        elif need_solver:
+            solver = make_solver(binding.distance)
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
                            edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring)
 

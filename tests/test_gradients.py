@@ -149,6 +149,32 @@ def test_multigrid_solve_equals_the_factor():
     assert np.abs(out - exact).max() < 1e-7 * size
 
 
+def test_multigrid_on_threads_equals_one_thread(monkeypatch):
+    # The coordinates are independent systems: solved at once on threads or one after the other, the
+    # answer is the same to the last bit.
+    from garment_transfer import poisson
+
+    V, F, Y = _garment_pair()
+    Q, _ = deformation_gradients(V, Y, F)
+    anchors = Y + 0.02 * np.sin(3 * Y)
+    solver = PoissonSolver(V, F, 1e-3, method="multigrid")
+    monkeypatch.setattr(poisson, "SOLVE_THREADS", 3)
+    threaded = solver.solve(Q, anchors)
+    monkeypatch.setattr(poisson, "SOLVE_THREADS", 1)
+    np.testing.assert_array_equal(threaded, solver.solve(Q, anchors))
+
+
+def test_multigrid_cycle_is_a_symmetric_positive_preconditioner():
+    # Conjugate gradients needs u . M v = v . M u and v . M v > 0 of its preconditioner M (one V-cycle).
+    V, F, _ = _garment_pair()
+    hierarchy = PoissonSolver(V, F, 1e-3, method="multigrid").hierarchy
+    rng = np.random.default_rng(2)
+    u, v = rng.normal(size=(2, V.shape[0]))
+    Mu, Mv = hierarchy.cycle(u), hierarchy.cycle(v)
+    assert abs(u @ Mv - v @ Mu) <= 1e-10 * abs(u @ Mv)
+    assert v @ Mv > 0 and u @ Mu > 0
+
+
 def test_multigrid_that_does_not_converge_falls_back_to_the_factor(caplog):
     V, F, Y = _garment_pair()
     Q, _ = deformation_gradients(V, Y, F)
