@@ -38,3 +38,15 @@ def test_bench_refuses_sizes_and_repeats_out_of_range():
     for args in (("--repeats", "0"), ("--sizes", "-5"), ("--sizes", "")):
         p = run("bench", *args)
         assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+
+
+def test_multigrid_study_compares_the_cycles_on_a_real_system():
+    # A small benchmark dress (multigrid from 40K vertices: 90K triangles): every variant answers within
+    # the tolerance of pyamg's cycle.
+    p = subprocess.run([sys.executable, "-m", "lab.multigrid", "--sizes", "90000", "--repeats", "1"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = [line for line in p.stdout.splitlines() if "iterations" in line]
+    assert len(rows) == 3
+    for line in rows:
+        assert float(line.rsplit("difference", 1)[1]) < 1e-6
