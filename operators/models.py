@@ -14,25 +14,26 @@ def model_file_path(path):
     return os.path.abspath(bpy.path.abspath(path)) if path else ""
 
 
-def load_model_cached(path):
-    """The model in ``path``; loaded again only when the file changed.
+def load_model_cached(path, field_share=None):
+    """The model file in ``path``, of any kind (``model_files.ModelFile``); loaded again only when the file
+    changed. ``field_share``: for a garment fit model (None: the core's default).
 
     Raises
     ------
     ModelError
-        From the core: missing, unreadable or corrupt file.
+        From the core: missing, unreadable or corrupt file, or a kind this version does not read.
     """
-    from ..garment_transfer.model import load_model
+    from ..garment_transfer.model_files import read_model_file
 
     path = model_file_path(path)
     try:
         st = os.stat(path)
-        key = (path, st.st_mtime_ns, st.st_size)
+        key = (path, st.st_mtime_ns, st.st_size, field_share)
     except OSError:
         key = None
     if key is not None and key in _cache:
         return _cache[key]
-    model = load_model(path)
+    model = read_model_file(path, field_share=field_share)
     if key is not None:
         _cache.clear()
         _cache[key] = model
