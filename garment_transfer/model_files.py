@@ -24,7 +24,7 @@ A placement model alone is refused: it is meant to go with the field it was meas
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -78,6 +78,15 @@ class ModelFile:
     def targets(self) -> list:
         """The training targets' labels."""
         return list(self.model.targets)
+
+    def with_field_share(self, share):
+        """The same file with another share of the garment fit model's field (a ModelError for the shared
+        model, which has none)."""
+        if self.kind != "garment":
+            raise ModelError(self.path, "holds the paper's shared deformation model, which has no field share "
+                                        "(that is for a garment fit model)")
+        share = float(share)
+        return replace(self, model=self.model.with_field_share(share), field_share=share)
 
     def check_source_body(self, mesh):
         """Raise ModelError unless the model serves garments dressed on ``mesh``."""

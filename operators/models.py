@@ -14,9 +14,9 @@ def model_file_path(path):
     return os.path.abspath(bpy.path.abspath(path)) if path else ""
 
 
-def load_model_cached(path, field_share=None):
+def load_model_cached(path):
     """The model file in ``path``, of any kind (``model_files.ModelFile``); loaded again only when the file
-    changed. ``field_share``: for a garment fit model (None: the core's default).
+    changed.
 
     Raises
     ------
@@ -28,12 +28,12 @@ def load_model_cached(path, field_share=None):
     path = model_file_path(path)
     try:
         st = os.stat(path)
-        key = (path, st.st_mtime_ns, st.st_size, field_share)
+        key = (path, st.st_mtime_ns, st.st_size)
     except OSError:
         key = None
     if key is not None and key in _cache:
         return _cache[key]
-    model = read_model_file(path, field_share=field_share)
+    model = read_model_file(path)
     if key is not None:
         _cache.clear()
         _cache[key] = model

@@ -36,14 +36,17 @@ def model_frame(model):
 
 def chosen_model(method, model_path, source, field_share=None):
     """The model file of the ``MODEL`` method (``model_files.ModelFile``, checked against the source body,
-    a core Mesh) and the (3,3) rotation into its frame; (None, identity) for the other methods."""
+    a core Mesh) and the (3,3) rotation into its frame; (None, identity) for the other methods.
+    ``field_share`` applies to a garment fit model only (the panel shows it for that kind alone)."""
     from ..garment_transfer.errors import ModelError
 
     if method != "MODEL":
         return None, np.eye(3)
     if not model_path:
         raise ModelError("model file", "none chosen; choose one, or use the Direct method")
-    model = load_model_cached(model_path, field_share)
+    model = load_model_cached(model_path)
+    if model.kind == "garment" and field_share is not None:
+        model = model.with_field_share(field_share)
     model.check_source_body(source)
     return model, model_frame(model)
 

@@ -139,6 +139,8 @@ def test_a_placement_alone_is_refused_and_a_garment_model_alone_is_read(bundle, 
     assert alone.kind == "garment" and alone.placement is None and not alone.has_placement
     assert alone.model.field_share == 0.25
     assert alone.describe().endswith("field share 0.25, no placement in the file")
+    other = read_model_file(path).with_field_share(0.25)
+    assert other.field_share == other.model.field_share == 0.25 and other.placement is not None
     save_garment_fit_bundle(tmp_path / "no_placement.npz", field)
     assert read_model_file(tmp_path / "no_placement.npz").placement is None
 
@@ -152,5 +154,6 @@ def test_the_shared_model_is_read_as_before_and_takes_no_field_share(bundle, tmp
     model = read_model_file(shared)
     assert model.kind == "shared" and model.placement is None and model.field_share is None
     assert model.targets == TARGETS and model.describe() == "shared deformation model (shared.npz)"
-    with pytest.raises(ModelError, match="shared.npz: holds the paper's shared deformation model"):
-        read_model_file(shared, field_share=0.5)
+    for read in (lambda: read_model_file(shared, field_share=0.5), lambda: model.with_field_share(0.5)):
+        with pytest.raises(ModelError, match="shared.npz: holds the paper's shared deformation model"):
+            read()
