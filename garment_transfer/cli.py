@@ -289,7 +289,7 @@ def cmd_train(args):
                                  epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
                                  out=args.out,
                                  progress=stderr_progress("train"),
-                                 masked=not args.unmasked)
+                                 masked=not args.unmasked, threads=args.threads)
     _emit(args, summary, [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss "
                           f"{summary.get('final_loss')}, {summary.get('seconds', 0):.1f} s"])
 
@@ -300,7 +300,7 @@ def _train_garment(args, targets, garments):
     summary = train_garment_fit_from_dataset(
         args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
         placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
-        progress=stderr_progress("train"))
+        progress=stderr_progress("train"), threads=args.threads)
     parts = [f"field {summary['field']['epochs']} passes over {summary['field']['samples']} samples, final loss "
              f"{summary['field']['final_loss']:.4g}"]
     if summary["placement"]:
@@ -435,6 +435,9 @@ def build_parser():
     r.add_argument("--latent", type=number_option(int, 1, what="a whole number"), default=None,
                    help="shared only: size of the shared deformation space (>= 1, default 30)")
     r.add_argument("--seed", type=number_option(int, 0, what="a whole number"), default=0)
+    r.add_argument("--threads", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="torch threads (default: half the cores, 1 to 4); the same data, seed and threads give "
+                        "the same model")
     r.add_argument("--unmasked", action="store_true", help="shared only: the paper's unmasked loss")
     r.add_argument("--placement-epochs", type=number_option(int, 1, what="a whole number"), default=None,
                    help="garment only: passes over the placement model's samples (default 30)")

@@ -333,19 +333,21 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
         Reading 0 to 0.1 (loss None), the field model to 0.5 (or 1), the placement to 1. Returning True
         cancels (raises Cancelled; nothing is written).
     threads : int, optional
-        torch threads.
+        torch threads (default ``training.default_threads()``).
 
     Returns
     -------
     info : dict
         JSON-serialisable: ``kind`` ("garment"), ``out``, ``source``, ``targets``, ``garments``,
-        ``dataset``, ``read_seconds``, ``seconds``, and per part (``field``, ``placement`` or None) its
+        ``dataset``, ``threads``, ``read_seconds``, ``seconds``, and per part (``field``, ``placement`` or None) its
         ``epochs``, ``samples``, ``seconds`` and ``final_loss``.
     """
     import os
 
     from .dataset import build_training_fields, load_dataset
+    from .training import default_threads
 
+    threads = default_threads() if threads is None else max(1, int(threads))
     if isinstance(targets, str):
         targets = [t for t in targets.split(",") if t]
     for what, n in (("epochs", epochs), ("placement_epochs", placement_epochs)):
@@ -391,6 +393,6 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
                                           "seconds": info["seconds"], "final_loss": float(info["losses"][-1])}
 
     return {"kind": "garment", "out": None if out is None else os.fspath(out), "source": source,
-            "targets": targets, "garments": garments, "dataset": os.fspath(dataset_dir),
+            "targets": targets, "garments": garments, "dataset": os.fspath(dataset_dir), "threads": threads,
             "read_seconds": round(read_seconds, 3), "seconds": round(time.perf_counter() - t0, 2),
             "field": part(field_info), "placement": part(placement_info)}
