@@ -338,8 +338,8 @@ def build_parser():
                    help="OBJ to write (the garment's own faces, new positions); for an outfit, one per "
                         "--garment in the same order, or one existing folder (files named as the garments)")
     t.add_argument("--method", choices=["direct", "model", "surface"], default=None,
-                   help="direct: the body's own deformation (default); model: a trained shared "
-                        "deformation model (the default when --model or --target is given); "
+                   help="direct: the body's own deformation (default); model: a trained model, --model "
+                        "(the default when --model or --target is given); "
                         "surface: follow the body only (baseline)")
     t.add_argument("--model", help="model file (.npz) written by train, of either kind: the paper's shared "
                                    "deformation model, or the garment fit model with its learned placement "
@@ -443,7 +443,8 @@ def build_parser():
                    help="garment only: passes over the placement model's samples (default 30)")
     r.add_argument("--no-placement", action="store_true",
                    help="garment only: train the garment fit model alone, without the learned placement")
-    r.add_argument("--out", required=True, help="model file to write (.npz)")
+    r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
+                                                "replacing a writable file of that name")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 

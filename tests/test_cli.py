@@ -189,3 +189,16 @@ def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
             "--out", tmp_path / "m.npz")
     assert p.returncode == 1 and "nobody" in p.stderr and not (tmp_path / "m.npz").exists()
     assert not out.exists()
+
+
+def test_train_without_torch_says_how_to_get_it_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    from garment_transfer.cli import main
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    monkeypatch.setitem(sys.modules, "torch", None)
+    for kind in ("shared", "garment"):
+        code = main(["train", "--kind", kind, "--dataset", str(ds), "--source", "src", "--targets", "pear",
+                     "--out", str(tmp_path / "m.npz")])
+        assert code == 1 and "pip install torch==2.13.0" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()
