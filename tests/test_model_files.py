@@ -157,3 +157,28 @@ def test_the_shared_model_is_read_as_before_and_takes_no_field_share(bundle, tmp
     for read in (lambda: read_model_file(shared, field_share=0.5), lambda: model.with_field_share(0.5)):
         with pytest.raises(ModelError, match="shared.npz: holds the paper's shared deformation model"):
             read()
+
+
+def test_one_transfer_computes_the_target_body_s_features_once(bundle, monkeypatch):
+    from collections import OrderedDict
+
+    import garment_transfer.garment_model as gm
+
+    ds, path, _ = bundle
+    ds = load_dataset(ds)
+    src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    calls = []
+    real = gm.target_features
+    monkeypatch.setattr(gm, "target_features", lambda *a: calls.append(a) or real(*a))
+    monkeypatch.setattr(gm, "_TARGET_CACHE", OrderedDict())
+    model = read_model_file(path)
+    first = transfer_garment(src, tgt, garment, method="model", model=model.model, placement=model.placement).V
+    assert len(calls) == 1                       # the field and the placement model share them
+    again = transfer_garment(src, tgt, garment, method="model", model=model.model, placement=model.placement).V
+    assert len(calls) == 1 and np.array_equal(first, again)
+    shares = tuple(model.model.metadata["neighbourhood_shares"])
+    X, dev = gm._target_features_cached(src.V, tgt.V, src.F, shares)
+    np.testing.assert_array_equal(X, real(src.V, tgt.V, src.F, shares)[0])
+    assert not X.flags.writeable and not dev.flags.writeable
+    gm._target_features_cached(src.V, 1.01 * tgt.V, src.F, shares)    # another body: computed
+    assert len(calls) == 2
