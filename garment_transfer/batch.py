@@ -43,7 +43,7 @@ from .errors import DatasetError, GarmentTransferError
 log = logging.getLogger(__name__)
 
 METHODS = ("direct", "model", "surface")
-SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness")
+SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness", "field_share")
 ENTRY_KEYS = ("name", "file", "source", "targets", "labels", "references", *SETTING_KEYS)
 TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels")
 CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seconds", "mdc",
@@ -59,8 +59,8 @@ PARTIAL_PREFIX = ".partial-"
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
 # The modules whose code decides a result's vertices or metrics: a change to any of them makes
 # every earlier result stale.
-_RESULT_MODULES = ("binding", "embedding", "gradients", "mesh", "metrics", "model", "obj",
-                   "penetration", "poisson", "proximity", "transfer")
+_RESULT_MODULES = ("binding", "embedding", "garment_model", "gradients", "mesh", "metrics", "model",
+                   "model_files", "obj", "penetration", "placement", "poisson", "proximity", "transfer")
 
 
 class CatalogueError(DatasetError):
@@ -85,6 +85,8 @@ class Settings:
     fix_penetration: bool = True
     interpolate: bool = True
     stiffness: float | None = None
+    #: For a garment fit model file: the share of its field (None: ``model_files.DEFAULT_FIELD_SHARE``).
+    field_share: float | None = None
 
 
 @dataclass(frozen=True)
@@ -377,6 +379,11 @@ def _settings(d, defaults: Settings, base, where, fail) -> Settings:
                 fail(where, f"{key} must be a {'non-negative' if key == 'offset' else 'positive'} "
                             f"number in the files' units, not {v!r}")
             v = None if v is None else float(v)
+        elif key == "field_share":
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or not 0.0 <= v <= 1.0):
+                fail(where, f"field_share must be a number from 0 to 1, not {v!r}")
+            v = None if v is None else float(v)
         elif not isinstance(v, bool):
             fail(where, f"{key} must be true or false, not {v!r}")
         values[key] = v
@@ -470,6 +477,9 @@ def _settings_record(s: Settings) -> dict:
     # The model's path may differ between machines; its content is in the inputs' digests.
     d = asdict(s)
     d["model"] = None if s.model is None else os.path.basename(s.model)
+    if d["field_share"] is None:
+        # Unset, it is not part of the key: results of catalogues without it keep theirs.
+        del d["field_share"]
     return d
 
 
@@ -555,10 +565,11 @@ class _Inputs:
 
         return self._get(path, ("mesh", name), lambda: read_obj(path, name=name))
 
-    def model(self, path):
-        from .model import load_model
+    def model(self, path, field_share=None):
+        """The model file (``model_files.ModelFile``, any kind)."""
+        from .model_files import read_model_file
 
-        return self._get(path, "model", lambda: load_model(path))
+        return self._get(path, ("model", field_share), lambda: read_model_file(path, field_share=field_share))
 
     def _get(self, path, what, make):
         key = (self._stat(path), what)
@@ -652,7 +663,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
     try:
         source_body = _INPUTS.mesh(job.source_file, job.source)
         garment = _read_garment(job.file)
-        model = _INPUTS.model(s.model) if s.method == "model" else None
+        model = _INPUTS.model(s.model, s.field_share) if s.method == "model" else None
         prepared = prepare_garment(source_body, garment, interpolate=s.interpolate,
                                    stiffness=s.stiffness, need_solver=s.method != "surface")
     except Exception as exc:  # noqa: BLE001 - any failure of the garment is recorded for its pairs
@@ -667,7 +678,8 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         t1 = time.perf_counter()
         try:
             target_body = _INPUTS.mesh(t.body, t.name)
-            result = transfer_garment(source_body, target_body, garment, method=s.method, model=model,
+            result = transfer_garment(source_body, target_body, garment, method=s.method,
+                                      model=model and model.model, placement=model and model.placement,
                                       target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
                                       interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
             reference = _read_garment(t.reference) if t.reference is not None else None
@@ -683,7 +695,9 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         rec.update({k: _plain(metrics.get(k)) for k in METRIC_KEYS})
         rec.update(outcome="done", output=str(obj_path), worker=_where(),
                    seconds=time.perf_counter() - t1, prepare_seconds=prepare_seconds)
-        record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s),
+        used = {} if model is None else {k: v for k, v in model.summary().items()
+                                         if k in ("model_kind", "field_share", "placement")}
+        record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s), **used,
                       inputs=digests, stage_seconds=result.seconds,
                       output_sha256=hashlib.sha256(text).hexdigest())
         write_atomic(obj_path, text)

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from .cli import number_option
+from .cli import number_option, share_option
 from .errors import GarmentTransferError
 
 log = logging.getLogger("garment_transfer.batch")
@@ -32,7 +32,10 @@ def add_batch_arguments(p):
     p.add_argument("--garments", help="only these garments, comma-separated")
     g = p.add_argument_group("settings (defaults for the garments that do not set them in the catalogue)")
     g.add_argument("--method", choices=["direct", "model", "surface"])
-    g.add_argument("--model", help="model file (.npz) for --method model")
+    g.add_argument("--model", help="model file (.npz) for --method model: the paper's shared model or a garment "
+                                   "fit model with its learned placement (train --kind garment)")
+    g.add_argument("--field-share", type=share_option, default=None, metavar="SHARE",
+                   help="garment fit model only: the share of its field, 0 to 1 (default 0.5)")
     g.add_argument("--offset", type=number_option(float, 0.0, what="a distance"),
                    help="distance kept from the body, in the files' units (>= 0)")
     g.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
@@ -59,6 +62,8 @@ def _settings(args):
         s["model"] = os.path.abspath(args.model)
     if args.offset is not None:
         s["offset"] = args.offset
+    if args.field_share is not None:
+        s["field_share"] = args.field_share
     if args.no_fix:
         s["fix_penetration"] = False
     if args.no_interpolate:

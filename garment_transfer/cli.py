@@ -103,7 +103,7 @@ def cmd_transfer(args):
     shape_basis = _shape_basis_for(args, source_body)
     result, registration = transfer_to_any_body(
         source_body, target_body, garment, cache=not args.no_cache, shape_basis=shape_basis,
-        method=args.method, model=model,
+        method=args.method, model=model and model.model, placement=model and model.placement,
         target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
         interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
@@ -114,10 +114,12 @@ def cmd_transfer(args):
     out = {"out": args.out, "method": args.method, "target": args.target,
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
            "seconds": seconds, "penetrating_vertices": result.penetrating_vertices,
-           "info": result.info, "registered": registration is not None}
+           "info": result.info, "registered": registration is not None, **_model_summary(model)}
     lines = [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
              f"{result.penetrating_vertices} inside the target body, "
              f"{result.seconds['total']:.3f} s (transfer)"]
+    if model is not None:
+        lines.append(f"model: {model.describe()}")
     if registration is not None:
         lines.append(_registration_line(args.source_body, args.target_body, registration))
     _emit(args, out, lines)
@@ -173,13 +175,22 @@ def cmd_shapes(args):
 
 
 def _model_for(args):
+    """The ``--model`` file as ``model_files.ModelFile`` (any kind), or None for the other methods."""
     if args.method != "model":
         return None
     if not args.model:
-        raise GarmentTransferError("--method model needs --model MODEL.npz and --target LABEL")
-    from .model import load_model
+        raise GarmentTransferError("--method model needs --model MODEL.npz (and, for the paper's shared model, "
+                                   "--target LABEL)")
+    from .model_files import read_model_file
 
-    return load_model(args.model)
+    return read_model_file(args.model, field_share=args.field_share, use_placement=not args.no_placement)
+
+
+def _model_summary(model):
+    """What the JSON output says of the model used: file, kind, field share, placement (or all None)."""
+    if model is None:
+        return {"model": None, "model_kind": None, "field_share": None, "placement": False}
+    return {k: v for k, v in model.summary().items() if k != "targets"}
 
 
 def outfit_out_paths(garments, outs):
@@ -229,7 +240,8 @@ def cmd_transfer_outfit(args):
     model = _model_for(args)
     load = time.perf_counter() - t
     result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
-                             model=model, target=args.target, interpolate=not args.no_interpolate)
+                             model=model and model.model, placement=model and model.placement,
+                             target=args.target, interpolate=not args.no_interpolate)
     t = time.perf_counter()
     on = f"{os.path.basename(args.target_body)} ({args.method})"
     texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
@@ -237,11 +249,12 @@ def cmd_transfer_outfit(args):
              for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
     write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model])
     seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
-    out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds,
+    out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds, **_model_summary(model),
            "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
                        "info": i} for f, p, g, i in zip(args.garment, paths, garments, result.info)]}
     _emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
-          + [f"{result.seconds['total']:.3f} s (outfit transfer)"])
+          + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
+          + ([f"model: {model.describe()}"] if model is not None else []))
 
 
 def cmd_evaluate(args):
@@ -259,7 +272,7 @@ def cmd_evaluate(args):
 
 def cmd_train(args):
     try:
-        from .training import train_from_dataset
+        import torch  # noqa: F401
     except ImportError as exc:
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
@@ -268,12 +281,33 @@ def cmd_train(args):
     check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
+    if args.kind == "garment":
+        return _train_garment(args, targets, garments)
+    from .training import train_from_dataset
+
     summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
-                                 epochs=args.epochs, latent=args.latent, seed=args.seed, out=args.out,
+                                 epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
+                                 out=args.out,
                                  progress=stderr_progress("train"),
-                                 masked=not args.unmasked)
+                                 masked=not args.unmasked, threads=args.threads)
     _emit(args, summary, [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss "
                           f"{summary.get('final_loss')}, {summary.get('seconds', 0):.1f} s"])
+
+
+def _train_garment(args, targets, garments):
+    from .garment_training import FIELD_EPOCHS, train_garment_fit_from_dataset
+
+    summary = train_garment_fit_from_dataset(
+        args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
+        placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
+        progress=stderr_progress("train"), threads=args.threads)
+    parts = [f"field {summary['field']['epochs']} passes over {summary['field']['samples']} samples, final loss "
+             f"{summary['field']['final_loss']:.4g}"]
+    if summary["placement"]:
+        parts.append(f"placement {summary['placement']['epochs']} passes over {summary['placement']['samples']} "
+                     f"samples, final loss {summary['placement']['final_loss']:.4g}")
+    what = "garment fit model and learned placement" if summary["placement"] else "garment fit model"
+    _emit(args, summary, [f"wrote {args.out}: {what}; {'; '.join(parts)}; {summary['seconds']:.1f} s"])
 
 
 def cmd_batch(args):
@@ -283,6 +317,8 @@ def cmd_batch(args):
 
 
 def build_parser():
+    from .model_files import DEFAULT_FIELD_SHARE
+
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
                                 description="Design-preserving garment transfer between body shapes.",
                                 epilog="The demo, benchmarks and studies live in the repository's lab: "
@@ -302,11 +338,22 @@ def build_parser():
                    help="OBJ to write (the garment's own faces, new positions); for an outfit, one per "
                         "--garment in the same order, or one existing folder (files named as the garments)")
     t.add_argument("--method", choices=["direct", "model", "surface"], default=None,
-                   help="direct: the body's own deformation (default); model: a trained shared "
-                        "deformation model (the default when --model or --target is given); "
+                   help="direct: the body's own deformation (default); model: a trained model, --model "
+                        "(the default when --model or --target is given); "
                         "surface: follow the body only (baseline)")
-    t.add_argument("--model", help="model file (.npz); implies --method model")
-    t.add_argument("--target", help="the model's target label; implies --method model")
+    t.add_argument("--model", help="model file (.npz) written by train, of either kind: the paper's shared "
+                                   "deformation model, or the garment fit model with its learned placement "
+                                   "(train --kind garment); implies --method model")
+    t.add_argument("--target", help="the model's target label; implies --method model. Needed by the shared "
+                                    "model; the garment fit model takes any body of the source's mesh without "
+                                    "it (weights over its training targets from the body's shape)")
+    t.add_argument("--field-share", type=share_option, default=None, metavar="SHARE",
+                   help="garment fit model only: how much of its predicted field is used, from 0 (the body's "
+                        f"own, as direct) to 1 (default {DEFAULT_FIELD_SHARE:g}: with the learned placement, half "
+                        "kept the design (MDC) at direct transfer's and its vertex error 0.63x direct's on the "
+                        "demo's unseen garments; docs/garment-model.md)")
+    t.add_argument("--no-placement", action="store_true",
+                   help="garment fit model only: leave out the learned placement the file holds")
     t.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
                    help="distance kept from the body (for an outfit: by each layer from what is under it), in "
                         "the files' units: >= 0 and at most 5%% of the body's size (default about 5 mm on a "
@@ -366,18 +413,38 @@ def build_parser():
     e.add_argument("--json", action="store_true", help="print one JSON object")
     e.set_defaults(func=cmd_evaluate)
 
-    r = sub.add_parser("train", help="train a shared deformation model on a dataset folder")
+    r = sub.add_parser("train", help="train a model on a dataset folder: the paper's shared deformation model "
+                                     "(default) or the garment fit model with its learned placement",
+                       description="Train a model on a dataset folder and write it to one .npz file (plain "
+                                   "arrays, no pickle), atomically: --kind shared (default), the paper's "
+                                   "shared deformation model; --kind garment, the garment fit model and the "
+                                   "learned placement in one file (docs/garment-model.md). Give the file to "
+                                   "transfer --model.")
+    r.add_argument("--kind", choices=["shared", "garment"], default="shared",
+                   help="shared: the paper's model (default; one field per target); garment: the garment fit "
+                        "model and its learned placement (a field and a hang of each garment's own; better on "
+                        "the demo's unseen garments on its training bodies, not yet on a body left out of "
+                        "training)")
     r.add_argument("--dataset", required=True, help="folder with bodies/ and garments/")
     r.add_argument("--source", required=True, help="source body name")
     r.add_argument("--targets", required=True, help="target body names, comma-separated")
     r.add_argument("--garments", help="garment names to train on, comma-separated (default: all)")
-    r.add_argument("--epochs", type=number_option(int, 1, what="a whole number"), default=1000,
-                   help="training epochs (>= 1)")
-    r.add_argument("--latent", type=number_option(int, 1, what="a whole number"), default=30,
-                   help="size of the shared deformation space (>= 1)")
+    r.add_argument("--epochs", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="training epochs (>= 1; default 1000 for shared; for garment, passes over the field "
+                        "model's samples, default 3)")
+    r.add_argument("--latent", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="shared only: size of the shared deformation space (>= 1, default 30)")
     r.add_argument("--seed", type=number_option(int, 0, what="a whole number"), default=0)
-    r.add_argument("--unmasked", action="store_true", help="the paper's unmasked loss")
-    r.add_argument("--out", required=True, help="model file to write (.npz)")
+    r.add_argument("--threads", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="torch threads (default: half the cores, 1 to 4); the same data, seed and threads give "
+                        "the same model")
+    r.add_argument("--unmasked", action="store_true", help="shared only: the paper's unmasked loss")
+    r.add_argument("--placement-epochs", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="garment only: passes over the placement model's samples (default 30)")
+    r.add_argument("--no-placement", action="store_true",
+                   help="garment only: train the garment fit model alone, without the learned placement")
+    r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
+                                                "replacing a writable file of that name")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
@@ -390,6 +457,28 @@ def build_parser():
     return p
 
 
+def share_option(text):
+    """An argparse type: a number in [0, 1]."""
+    value = number_option(float, 0.0, what="a share")(text)
+    if value > 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be <= 1")
+    return value
+
+
+def _check_train_options(parser, args):
+    """Options of one kind given for the other are usage errors, not silently ignored."""
+    other = {"shared": [("--placement-epochs", args.placement_epochs is not None),
+                        ("--no-placement", args.no_placement)],
+             "garment": [("--latent", args.latent is not None), ("--unmasked", args.unmasked)]}[args.kind]
+    wrong = [name for name, given in other if given]
+    if wrong:
+        parser.error(f"{', '.join(wrong)} {'is' if len(wrong) == 1 else 'are'} not for train --kind {args.kind}")
+    if args.kind == "garment" and args.placement_epochs is None:
+        from .garment_training import PLACEMENT_EPOCHS
+
+        args.placement_epochs = PLACEMENT_EPOCHS
+
+
 def main(argv=None):
     try:
         parser = build_parser()
@@ -399,6 +488,10 @@ def main(argv=None):
                 args.method = "model" if (args.model or args.target) else "direct"
             elif args.method != "model" and (args.model or args.target):
                 parser.error(f"--model and --target are for --method model, not --method {args.method}")
+            if (args.field_share is not None or args.no_placement) and not args.model:
+                parser.error("--field-share and --no-placement are for a garment fit model given with --model")
+        if args.command == "train":
+            _check_train_options(parser, args)
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
         code = args.func(args)

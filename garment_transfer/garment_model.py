@@ -30,10 +30,13 @@ faces hash, targets, feature names, neighbourhood radii, normalisation, training
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
+import threading
 import zipfile
+from collections import OrderedDict
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -156,6 +159,37 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
     scale = body_scale(source_V)
     parts = [dev] + [_neighbourhood_mean(c, dev, s * scale, area + 1e-300) for s in shares]
     return np.concatenate(parts, axis=1), dev
+
+
+#: The last few ``target_features`` of the models' inputs, by content: the field model and the placement
+#: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body 20-25 s each, nearly all of
+#: it the neighbourhood means), and so do further garments sent to the same target body.
+_TARGET_CACHE = OrderedDict()
+_TARGET_CACHE_SIZE = 4
+_TARGET_CACHE_LOCK = threading.Lock()
+
+
+def _target_features_cached(source_V, target_V, F, shares):
+    """``target_features``, kept for the last few bodies; the arrays returned are read-only."""
+    arrays = [np.ascontiguousarray(source_V, dtype=np.float64), np.ascontiguousarray(target_V, dtype=np.float64),
+              np.ascontiguousarray(F, dtype=np.int64)]
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    key = (h.hexdigest(), tuple(float(x) for x in shares))
+    with _TARGET_CACHE_LOCK:
+        if key in _TARGET_CACHE:
+            _TARGET_CACHE.move_to_end(key)
+            return _TARGET_CACHE[key]
+    X, dev = target_features(*arrays, shares)
+    X.setflags(write=False)
+    dev.setflags(write=False)
+    with _TARGET_CACHE_LOCK:
+        _TARGET_CACHE[key] = (X, dev)
+        while len(_TARGET_CACHE) > _TARGET_CACHE_SIZE:
+            _TARGET_CACHE.popitem(last=False)
+    return X, dev
 
 
 def label_weights(target_V, label_bodies):
@@ -303,8 +337,8 @@ class GarmentFitModel:
         require_same_topology(source_body, target_body)
         G, covered = garment_features(source_body.V, source_body.F, garment.V, garment.F,
                                       self.metadata.get("cover_distance"))
-        T, dev = target_features(source_body.V, target_body.V, source_body.F,
-                                 tuple(self.metadata["neighbourhood_shares"]))
+        T, dev = _target_features_cached(source_body.V, target_body.V, source_body.F,
+                                         tuple(self.metadata["neighbourhood_shares"]))
         if not self.metadata.get("garment_inputs", True):
             G[:, 1:9] = 0.0
         parts = [G, T]

@@ -296,3 +296,103 @@ def _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen, pr
         if progress is not None and progress((ep + 1) / epochs, losses[-1]):
             raise Cancelled(f"training of the {what} was cancelled")
     return net, mean, std, out_scale, losses
+
+
+#: Passes of ``train_garment_fit_from_dataset`` over the field model's and the placement model's samples:
+#: those of the measured combination (docs/garment-model.md: 3 and 30).
+FIELD_EPOCHS = 3
+PLACEMENT_EPOCHS = 30
+
+
+def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, epochs=FIELD_EPOCHS,
+                                   placement_epochs=PLACEMENT_EPOCHS, placement=True, seed=0, out=None,
+                                   progress=None, threads=None):
+    """Read a dataset folder, train the garment fit model and its learned placement, and write both to
+    one file (``model_files.save_garment_fit_bundle``).
+
+    Parameters
+    ----------
+    dataset_dir : str or Path
+        See ``dataset.load_dataset``.
+    source : str
+        Source body name.
+    targets : list of str
+        Target body names.
+    garments : list of str, optional
+        Training garments (default: all).
+    epochs : int
+        Passes over the field model's samples.
+    placement_epochs : int
+        Passes over the placement model's samples.
+    placement : bool
+        Train the learned placement too.
+    seed : int
+    out : str or Path, optional
+        Model file (.npz) to write, atomically, once both are trained.
+    progress : callable(fraction, loss) -> bool, optional
+        Reading 0 to 0.1 (loss None), the field model to 0.5 (or 1), the placement to 1. Returning True
+        cancels (raises Cancelled; nothing is written).
+    threads : int, optional
+        torch threads (default ``training.default_threads()``).
+
+    Returns
+    -------
+    info : dict
+        JSON-serialisable: ``kind`` ("garment"), ``out``, ``source``, ``targets``, ``garments``,
+        ``dataset``, ``threads``, ``read_seconds``, ``seconds``, and per part (``field``, ``placement`` or None) its
+        ``epochs``, ``samples``, ``seconds`` and ``final_loss``.
+    """
+    import os
+
+    from .dataset import build_training_fields, load_dataset
+    from .training import default_threads
+
+    threads = default_threads() if threads is None else max(1, int(threads))
+    if isinstance(targets, str):
+        targets = [t for t in targets.split(",") if t]
+    for what, n in (("epochs", epochs), ("placement_epochs", placement_epochs)):
+        if int(n) != n or n < 1:
+            raise ValueError(f"{what} must be a whole number >= 1, got {n}")
+    if out is not None:
+        from .files import check_output
+
+        check_output(out, (), "the model file")
+    t0 = time.perf_counter()
+    ds = load_dataset(dataset_dir)
+    garments = list(ds.garments) if garments is None else list(garments)
+    targets = list(targets)
+    read_progress = None if progress is None else (lambda f: progress(0.1 * f, None))
+    fields = build_training_fields(ds, source, targets, garments, progress=read_progress)
+    tables = training_tables(ds, source, targets, garments, fields=fields)
+    read_seconds = time.perf_counter() - t0
+    end = 0.5 if placement else 1.0
+
+    def span(lo, hi):
+        return None if progress is None else (lambda f, loss: progress(lo + (hi - lo) * f, loss))
+
+    field_model, field_info = train_garment_model(tables, targets, epochs=int(epochs), seed=seed, threads=threads,
+                                                  progress=span(0.1, end))
+    placement_model, placement_info = None, None
+    if placement:
+        placement_tables(ds, source, targets, garments, tables)
+        placement_model, placement_info = train_placement_model(tables, targets, epochs=int(placement_epochs),
+                                                                seed=seed, threads=threads,
+                                                                progress=span(0.5, 1.0))
+    dataset_info = {"folder": os.path.basename(os.path.abspath(os.fspath(dataset_dir))), "units": ds.units,
+                    "up_axis": ds.up_axis}
+    for m in (field_model, placement_model):
+        if m is not None:
+            m.metadata["dataset"] = dataset_info
+    if out is not None:
+        from .model_files import save_garment_fit_bundle
+
+        save_garment_fit_bundle(out, field_model, placement_model, dataset=dataset_info)
+
+    def part(info):
+        return None if info is None else {"epochs": info["epochs"], "samples": int(info["samples"]),
+                                          "seconds": info["seconds"], "final_loss": float(info["losses"][-1])}
+
+    return {"kind": "garment", "out": None if out is None else os.fspath(out), "source": source,
+            "targets": targets, "garments": garments, "dataset": os.fspath(dataset_dir), "threads": threads,
+            "read_seconds": round(read_seconds, 3), "seconds": round(time.perf_counter() - t0, 2),
+            "field": part(field_info), "placement": part(placement_info)}

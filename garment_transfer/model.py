@@ -370,6 +370,36 @@ def load_model(path) -> SharedDeformationModel:
         Naming the file: missing, not an .npz, holding pickled objects, metadata missing or invalid, a
         format version this code does not read, arrays that do not fit together.
     """
+    arrays, metadata = read_model_arrays(path)
+    name = os.fspath(path)
+    if metadata.get("format") != FORMAT:
+        raise ModelError(name, "is not a garment transfer model (metadata 'format' differs)")
+    version = metadata.get("format_version")
+    if version != FORMAT_VERSION:
+        raise ModelError(name, f"has format version {version}; this version of garment_transfer reads "
+                               f"version {FORMAT_VERSION}")
+    return SharedDeformationModel(arrays, metadata, name)
+
+
+def read_model_arrays(path):
+    """The plain arrays and the JSON metadata of a model file of any kind, refusing anything else.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    arrays : dict of str -> ndarray
+        Every array but ``metadata``.
+    metadata : dict
+        The parsed ``metadata`` string (its ``format`` is not checked here).
+
+    Raises
+    ------
+    ModelError
+        Naming the file: missing, not an .npz, holding pickled objects, metadata missing or invalid.
+    """
     path = os.fspath(path)
     name = path
     if not os.path.isfile(path):
@@ -409,10 +439,6 @@ def load_model(path) -> SharedDeformationModel:
         metadata = json.loads(str(meta))
     except json.JSONDecodeError as exc:
         raise ModelError(name, f"metadata is not valid JSON ({exc})") from None
-    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
+    if not isinstance(metadata, dict):
         raise ModelError(name, "is not a garment transfer model (metadata 'format' differs)")
-    version = metadata.get("format_version")
-    if version != FORMAT_VERSION:
-        raise ModelError(name, f"has format version {version}; this version of garment_transfer reads "
-                               f"version {FORMAT_VERSION}")
-    return SharedDeformationModel(arrays, metadata, name)
+    return arrays, metadata

@@ -15,14 +15,15 @@ def model_file_path(path):
 
 
 def load_model_cached(path):
-    """The model in ``path``; loaded again only when the file changed.
+    """The model file in ``path``, of any kind (``model_files.ModelFile``); loaded again only when the file
+    changed.
 
     Raises
     ------
     ModelError
-        From the core: missing, unreadable or corrupt file.
+        From the core: missing, unreadable or corrupt file, or a kind this version does not read.
     """
-    from ..garment_transfer.model import load_model
+    from ..garment_transfer.model_files import read_model_file
 
     path = model_file_path(path)
     try:
@@ -32,7 +33,7 @@ def load_model_cached(path):
         key = None
     if key is not None and key in _cache:
         return _cache[key]
-    model = load_model(path)
+    model = read_model_file(path)
     if key is not None:
         _cache.clear()
         _cache[key] = model

@@ -47,7 +47,7 @@ def check_outfit_objects(source_body, target_body, garments):
 
 
 def transfer_outfit_objects(context, source_body, target_body, garments, *, offsets=None, method="DIRECT",
-                            model_path="", target_label="", evaluated=True, progress=None):
+                            model_path="", target_label="", field_share=None, evaluated=True, progress=None):
     """Transfer the outfit ``garments`` (innermost first, on ``source_body``) onto ``target_body``.
 
     Reads every object (world space), runs the core's ``transfer_outfit`` and only then makes one
@@ -86,7 +86,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
                                                       "in another shape (same vertices and faces); transfer "
                                                       "each garment alone to fit another body mesh")
     cloths = [convert.core_mesh_from_object(g, depsgraph, evaluated, "garment") for g in garments]
-    model, frame = chosen_model(method, model_path, source)
+    model, frame = chosen_model(method, model_path, source, field_share)
 
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)
@@ -96,7 +96,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
         automatic = OFFSET_SHARE * body_scale(source_framed.V)
         offsets = [automatic if o is None else o for o in offsets]
     outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], offsets=offsets,
-                              method=method.lower(), model=model, target=target_label or None,
+                              method=method.lower(), model=model and model.model,
+                              placement=model and model.placement, target=target_label or None,
                               progress=progress)
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]
@@ -151,7 +152,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
                 results, outcome, design = transfer_outfit_objects(
                     context, settings.source_body, settings.target_body, outfit_garments(settings),
                     offsets=outfit_offsets(settings), method=settings.method, model_path=settings.model_path,
-                    target_label=settings.target_label, evaluated=settings.use_evaluated, progress=progress)
+                    target_label=settings.target_label, field_share=settings.field_share,
+                    evaluated=settings.use_evaluated, progress=progress)
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start

@@ -34,9 +34,10 @@ def model_frame(model):
     raise ModelError(model.name, f"was trained on data whose up axis is {up!r}; Y or Z is needed")
 
 
-def chosen_model(method, model_path, source):
-    """The model of the ``MODEL`` method (checked against the source body, a core Mesh) and the
-    (3,3) rotation into its frame; (None, identity) for the other methods."""
+def chosen_model(method, model_path, source, field_share=None):
+    """The model file of the ``MODEL`` method (``model_files.ModelFile``, checked against the source body,
+    a core Mesh) and the (3,3) rotation into its frame; (None, identity) for the other methods.
+    ``field_share`` applies to a garment fit model only (the panel shows it for that kind alone)."""
     from ..garment_transfer.errors import ModelError
 
     if method != "MODEL":
@@ -44,6 +45,8 @@ def chosen_model(method, model_path, source):
     if not model_path:
         raise ModelError("model file", "none chosen; choose one, or use the Direct method")
     model = load_model_cached(model_path)
+    if model.kind == "garment" and field_share is not None:
+        model = model.with_field_share(field_share)
     model.check_source_body(source)
     return model, model_frame(model)
 
@@ -90,7 +93,7 @@ def shape_key_basis(body, evaluated=True):
 
 
 def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
-                     target_label="", offset=None, fix_penetration=True, evaluated=True,
+                     target_label="", field_share=None, offset=None, fix_penetration=True, evaluated=True,
                      progress=None, keep_registered=False, use_shape_keys=False):
     """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
 
@@ -99,7 +102,9 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     another mesh is registered first (the core's registration); with ``keep_registered`` the
     fitted body is kept as ``<source>_fitted_to_<target>`` (``outcome.registered_body``). With
     ``use_shape_keys`` the source body's shape keys are the registration's shape basis
-    (``shape_key_basis``; their names in ``outcome.shape_keys``).
+    (``shape_key_basis``; their names in ``outcome.shape_keys``). ``field_share``: for a garment fit
+    model file (None: the core's default); its learned placement is used when the file holds one, and
+    ``outcome.model_text`` says which model was used.
 
     Returns
     -------
@@ -125,7 +130,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
 
-    model, frame = chosen_model(method, model_path, source)
+    model, frame = chosen_model(method, model_path, source, field_share)
 
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)
@@ -136,11 +141,13 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
                                           f"has {source.n_vertices} (a modifier changes the vertex count): "
                                           "turn off Fit With Shape Keys or Use Evaluated")
     outcome, registration = transfer_to_any_body(
-        framed(source), framed(target), framed(cloth), method=method.lower(), model=model,
-        target=target_label or None, offset=offset, fix_penetration=fix_penetration, progress=progress,
+        framed(source), framed(target), framed(cloth), method=method.lower(), model=model and model.model,
+        placement=model and model.placement, target=target_label or None, offset=offset,
+        fix_penetration=fix_penetration, progress=progress,
         shape_basis=None if deltas is None else deltas @ frame.T,
         shape_bounds=SHAPE_BOUNDS if bounds is None else bounds)
     outcome.shape_keys = key_names
+    outcome.model_text = model_text(model)
     outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
@@ -152,6 +159,11 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
             source_body, registration.V @ frame, registered_name(source_body, target_body), depsgraph,
             evaluated, scene=context.scene, view_layer=context.view_layer)
     return result, outcome, metrics
+
+
+def model_text(model):
+    """One line for the panel: which model was used ("" without one)."""
+    return "" if model is None else "Model: " + model.describe()
 
 
 def registration_text(context, outcome):
@@ -199,7 +211,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                 result, outcome, metrics = transfer_objects(
                     context, settings.source_body, settings.target_body, settings.garment,
                     method=settings.method, model_path=settings.model_path,
-                    target_label=settings.target_label,
+                    target_label=settings.target_label, field_share=settings.field_share,
                     offset=None if settings.auto_offset else settings.offset,
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
                     progress=progress, keep_registered=settings.keep_registered_body,
@@ -213,6 +225,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         context.view_layer.objects.active = result
         settings.last_metrics = format_metrics(metrics)
         settings.last_registration = registration_text(context, outcome)
+        settings.last_model = outcome.model_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
         return {'FINISHED'}

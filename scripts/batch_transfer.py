@@ -188,6 +188,7 @@ class Job:
     offset: float | None
     fix: bool
     catalogue: bool = False
+    field_share: float | None = None
 
     def output(self, out, target):
         if self.catalogue:
@@ -224,7 +225,8 @@ def plan(args):
                              "the Blender operator; run it with python -m garment_transfer batch")
         jobs.append(Job(j.name, Path(j.file), j.source, Path(j.source_file),
                         [(t.name, Path(t.body), t.label or t.name) for t in j.targets], s.method,
-                        None if s.model is None else Path(s.model), s.offset, s.fix_penetration, True))
+                        None if s.model is None else Path(s.model), s.offset, s.fix_penetration, True,
+                        s.field_share))
     return jobs
 
 
@@ -376,6 +378,9 @@ def run(args, log, records=None):
         settings.source_body = source
         settings.method = job.method.upper()
         settings.model_path = str(job.model) if job.model else ""
+        # Reset for every job: a catalogue's garments may set their own share, or none (the default).
+        settings.field_share = (settings.bl_rna.properties["field_share"].default if job.field_share is None
+                                else job.field_share)
         settings.fix_penetration = job.fix
         settings.auto_offset = job.offset is None
         if job.offset is not None:

@@ -130,6 +130,7 @@ BAD_ENTRIES = [
     ({"colour": "red"}, "garments[1] 'top'", "unknown key 'colour'"),
     ({"file": "s3://bucket/top.obj"}, "garments[1] 'top' file", "URLs are not read"),
     ({"fix_penetration": "yes"}, "garments[1] 'top'", "must be true or false"),
+    ({"field_share": 1.5}, "garments[1] 'top'", "field_share must be a number from 0 to 1"),
 ]
 
 
@@ -220,6 +221,40 @@ def test_a_changed_setting_or_input_redoes_only_what_it_touches(dataset, tmp_pat
     (out / "band" / "wide.obj").write_text("damaged")
     s = run_batch(read_catalogue(dataset / "cat.json"), out, workers=1)
     assert [(r["garment"], r["target"]) for r in s.records if r["outcome"] == "done"] == [("band", "wide")]
+
+
+def test_a_garment_fit_model_file_with_its_placement_and_a_field_share(tmp_path):
+    pytest.importorskip("torch")
+    from garment_transfer.garment_training import train_garment_fit_from_dataset
+    from garment_transfer.model_files import read_model_file
+    from garment_transfer.transfer import transfer_garment
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    model = tmp_path / "garment.npz"
+    train_garment_fit_from_dataset(ds, "src", ["similar", "pear"], garments=["band", "skirt"],
+                                   placement_epochs=10, out=model, threads=1)
+    out = tmp_path / "out"
+    cat = read_catalogue(ds, source="src", targets=["pear"], garments=["top"],
+                         settings={"method": "model", "model": str(model)})
+    s = run_batch(cat, out, workers=1)
+    assert s.ok and s.counts["done"] == 1
+    record = json.loads((out / "top" / "pear.json").read_text())
+    assert (record["model_kind"], record["field_share"], record["placement"]) == ("garment", 0.5, True)
+    assert "field_share" not in record["settings"]          # unset: not part of the result's key
+    loaded = read_model_file(model)
+    expected = transfer_garment(read_obj(ds / "bodies" / "src.obj"), read_obj(ds / "bodies" / "pear.obj"),
+                                read_obj(ds / "garments" / "top" / "src.obj"), method="model", model=loaded.model,
+                                placement=loaded.placement, target="pear").V
+    np.testing.assert_allclose(read_obj(out / "top" / "pear.obj").V, expected, rtol=1e-8, atol=1e-9)
+    # Another share is another result: the pair is done again.
+    cat = read_catalogue(ds, source="src", targets=["pear"], garments=["top"],
+                         settings={"method": "model", "model": str(model), "field_share": 1.0})
+    s = run_batch(cat, out, workers=1)
+    assert s.counts["done"] == 1
+    record = json.loads((out / "top" / "pear.json").read_text())
+    assert record["field_share"] == 1.0 and record["settings"]["field_share"] == 1.0
+    assert np.abs(read_obj(out / "top" / "pear.obj").V - expected).max() > 1e-5
 
 
 def test_a_broken_garment_and_a_missing_body_fail_and_the_rest_is_done(dataset, tmp_path, capsys):

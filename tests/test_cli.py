@@ -100,3 +100,105 @@ def test_train_then_transfer_with_the_model(tmp_path, makehuman_pair):
     p = run("transfer", "--method", "model", "--model", model, "--target", "nobody",
             "--source-body", src, "--target-body", tgt, "--garment", garment, "--out", tmp_path / "x.obj")
     assert p.returncode == 1 and "nobody" in p.stderr and not (tmp_path / "x.obj").exists()
+
+
+def as_written(V):
+    """Coordinates as an OBJ written by the command line holds them (``obj.obj_text``: 9 digits)."""
+    import numpy as np
+
+    return np.vectorize(lambda x: float("%.9g" % x))(V)
+
+
+def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
+    pytest.importorskip("torch")
+    import numpy as np
+
+    from garment_transfer.model_files import read_model_file
+    from garment_transfer.transfer import transfer_garment
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    model = tmp_path / "garment.npz"
+    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
+            "--garments", "band,skirt", "--placement-epochs", "10", "--out", model, "--json")
+    assert p.returncode == 0, p.stderr
+    summary = json.loads(p.stdout)
+    assert summary["kind"] == "garment" and summary["field"]["epochs"] == 3
+    assert summary["placement"]["epochs"] == 10 and "train:" in p.stderr
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["ds", "garment.npz"]     # no temporary file left
+
+    src, tgt, garment = (ds / "bodies" / "src.obj", ds / "bodies" / "pear.obj",
+                         ds / "garments" / "top" / "src.obj")
+    out = tmp_path / "top_on_pear.obj"
+    p = run("transfer", "--model", model, "--source-body", src, "--target-body", tgt, "--garment", garment,
+            "--out", out, "--json")
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert (data["method"], data["model"], data["model_kind"], data["field_share"], data["placement"]) == \
+        ("model", str(model), "garment", 0.5, True)
+    loaded = read_model_file(model)
+    expect = transfer_garment(read_obj(src), read_obj(tgt), read_obj(garment), method="model", model=loaded.model,
+                              placement=loaded.placement).V
+    # The same to the last digit of the file (9 significant digits).
+    np.testing.assert_array_equal(read_obj(out).V, as_written(expect))
+    p = run("transfer", "--model", model, "--source-body", src, "--target-body", tgt, "--garment", garment,
+            "--out", tmp_path / "whole.obj", "--field-share", "1", "--no-placement")
+    assert p.returncode == 0, p.stderr
+    assert "model: garment fit model (garment.npz), field share 1, placement left out" in p.stdout
+    whole = read_model_file(model, field_share=1.0, use_placement=False)
+    expect_whole = transfer_garment(read_obj(src), read_obj(tgt), read_obj(garment), method="model",
+                                    model=whole.model).V
+    np.testing.assert_array_equal(read_obj(tmp_path / "whole.obj").V, as_written(expect_whole))
+    assert np.abs(expect_whole - expect).max() > 1e-5
+
+
+def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    src, tgt, garment = (ds / "bodies" / "src.obj", ds / "bodies" / "pear.obj",
+                         ds / "garments" / "top" / "src.obj")
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(b"PK\x03\x04" + bytes(100))
+    newer = tmp_path / "newer.npz"
+    import numpy as np
+
+    np.savez(newer, metadata=np.array(json.dumps({"format": "garment_transfer.garment_fit_bundle",
+                                                  "format_version": 9})))
+    out = tmp_path / "out.obj"
+    for bad, problem in ((src, "is not a model file (.npz, a zip archive) but a text file"),
+                         (truncated, "is not a model file"),
+                         (newer, "has format version 9"),
+                         (tmp_path / "missing.npz", "model file not found")):
+        p = run("transfer", "--model", bad, "--source-body", src, "--target-body", tgt, "--garment", garment,
+                "--out", out)
+        assert p.returncode == 1, p.stderr
+        assert p.stderr.startswith(f"error: {bad}: ") and problem in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not out.exists()
+    # Options of the other kind are usage errors.
+    p = run("transfer", "--field-share", "0.5", "--source-body", src, "--target-body", tgt, "--garment", garment,
+            "--out", out)
+    assert p.returncode == 2 and "--field-share" in p.stderr
+    p = run("transfer", "--model", newer, "--field-share", "1.5", "--source-body", src, "--target-body", tgt,
+            "--garment", garment, "--out", out)
+    assert p.returncode == 2 and "must be <= 1" in p.stderr
+    p = run("train", "--kind", "garment", "--latent", "4", "--dataset", ds, "--source", "src", "--targets", "pear",
+            "--out", tmp_path / "m.npz")
+    assert p.returncode == 2 and "--latent is not for train --kind garment" in p.stderr
+    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "pear,nobody",
+            "--out", tmp_path / "m.npz")
+    assert p.returncode == 1 and "nobody" in p.stderr and not (tmp_path / "m.npz").exists()
+    assert not out.exists()
+
+
+def test_train_without_torch_says_how_to_get_it_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    from garment_transfer.cli import main
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    monkeypatch.setitem(sys.modules, "torch", None)
+    for kind in ("shared", "garment"):
+        code = main(["train", "--kind", kind, "--dataset", str(ds), "--source", "src", "--targets", "pear",
+                     "--out", str(tmp_path / "m.npz")])
+        assert code == 1 and "pip install torch==2.13.0" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()

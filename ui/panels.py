@@ -58,6 +58,8 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
                           icon='INFO' if settings.model_targets else 'ERROR')
             if settings.model_targets:
                 col.prop_search(settings, "target_label", settings, "model_targets")
+            if settings.model_kind == 'GARMENT':
+                col.prop(settings, "field_share", slider=True)
         col.prop(settings, "fix_penetration")
         sub = col.column()
         sub.enabled = settings.fix_penetration
@@ -70,6 +72,8 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
         if settings.last_registration:
             layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')
+        if settings.last_model:
+            layout.label(text=settings.last_model, icon='NETWORK_DRIVE')
         layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 

@@ -169,6 +169,58 @@ def test_model_method_uses_the_loaded_model(dressed, tmp_path, extension):
     assert error < 0.35 * moved
 
 
+def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension):
+    pytest.importorskip("torch", reason="training a model needs torch")
+    import importlib
+
+    core_name = extension.__name__ + ".garment_transfer"
+    training = importlib.import_module(core_name + ".garment_training")
+    model_files = importlib.import_module(core_name + ".model_files")
+    make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01", "male_casualsuit04"))
+    path = tmp_path / "garment.npz"
+    training.train_garment_fit_from_dataset(tmp_path / "ds", "female_average", ["female_pear"], epochs=2,
+                                            placement_epochs=5, out=path, threads=1)
+    settings = dressed.settings
+    settings.method = 'MODEL'
+    settings.model_path = str(path)
+    assert settings.model_status == "Garment fit model + learned placement, 1 target(s)"
+    assert settings.model_kind == 'GARMENT' and settings.target_label == "female_pear"
+    assert settings.field_share == 0.5
+    result = transfer_result()
+    assert settings.last_model == "Model: garment fit model (garment.npz), field share 0.5, learned placement"
+
+    # The same as the core with the file's models, in the model's frame (a Y-up dataset).
+    convert = extension.operators.convert
+    dg = bpy.context.evaluated_depsgraph_get()
+    meshes = [convert.core_mesh_from_object(o, dg) for o in (dressed.source, dressed.target, dressed.garment)]
+    loaded = model_files.read_model_file(path)
+    frame = extension.operators.transfer.model_frame(loaded)
+    expected = core(extension)["transfer"].transfer_garment(
+        *[m.with_vertices(m.V @ frame.T) for m in meshes], method="model", model=loaded.model,
+        placement=loaded.placement, target="female_pear").V @ frame
+    np.testing.assert_allclose(world_vertices(result), expected, atol=1e-5)
+
+    settings.field_share = 1.0
+    whole = transfer_result()
+    assert settings.last_model == "Model: garment fit model (garment.npz), field share 1, learned placement"
+    assert np.abs(world_vertices(whole) - world_vertices(result)).max() > 1e-4
+    settings.method = 'DIRECT'
+    transfer_result()
+    assert settings.last_model == ""
+
+    # A placement model alone is refused, naming the file, and nothing in the scene changes.
+    placement_alone = tmp_path / "placement_alone.npz"
+    loaded.placement.save(placement_alone)
+    settings.method = 'MODEL'
+    settings.model_path = str(placement_alone)
+    assert "placement_alone.npz: holds a placement model alone" in settings.model_status
+    assert settings.model_kind == 'NONE'
+    before = scene_state()
+    with pytest.raises(RuntimeError, match="placement_alone.npz"):
+        bpy.ops.garment_transfer.transfer()
+    assert scene_state() == before
+
+
 def make_tiny_dataset(makehuman, folder, garments, bodies=("female_average", "female_pear")):
     """A dataset folder of links to the MakeHuman files."""
     (folder / "bodies").mkdir(parents=True)

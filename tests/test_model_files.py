@@ -1,0 +1,184 @@
+"""One model file of the garment fit model and its learned placement; one loader for every kind of file."""
+
+import json
+
+import numpy as np
+import pytest
+
+from garment_transfer.dataset import load_dataset
+from garment_transfer.errors import ModelError
+from garment_transfer.garment_model import GarmentFitModel
+from garment_transfer.model_files import DEFAULT_FIELD_SHARE, read_model_file, save_garment_fit_bundle
+from garment_transfer.placement import PlacementModel
+from garment_transfer.registration import transfer_to_any_body
+from garment_transfer.transfer import transfer_garment
+from test_dataset import make_tiny_dataset
+
+torch = pytest.importorskip("torch")
+
+TARGETS = ["similar", "pear"]
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory):
+    from garment_transfer.garment_training import train_garment_fit_from_dataset
+
+    folder = tmp_path_factory.mktemp("bundle")
+    ds = make_tiny_dataset(folder / "ds")
+    path = folder / "garment.npz"
+    info = train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3,
+                                          placement_epochs=10, seed=1, out=path, threads=1)
+    return ds, path, info
+
+
+def parts_by_hand(path):
+    """The two models rebuilt from the file's arrays without ``read_model_file``."""
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    md = json.loads(str(arrays.pop("metadata")))
+    field = {k[6:]: v for k, v in arrays.items() if k.startswith("field.")}
+    placed = {k[10:]: v for k, v in arrays.items() if k.startswith("placement.")}
+    return GarmentFitModel(field, md["field"], "field"), PlacementModel(placed, md["placement"], "placement"), md
+
+
+def test_training_writes_one_file_with_both_models(bundle):
+    ds, path, info = bundle
+    assert info["kind"] == "garment" and info["out"] == str(path)
+    assert info["field"]["epochs"] == 3 and info["placement"]["epochs"] == 10
+    assert info["field"]["samples"] > 0 and info["placement"]["samples"] > 0
+    field, placed, md = parts_by_hand(path)
+    assert md["format"] == "garment_transfer.garment_fit_bundle" and md["format_version"] == 1
+    assert md["dataset"] == {"folder": "ds", "units": "metres", "up_axis": "Z"}
+    assert field.targets == TARGETS and placed.targets == TARGETS
+    model = read_model_file(path)
+    assert model.kind == "garment" and model.field_share == DEFAULT_FIELD_SHARE == 0.5
+    assert model.placement is not None and model.has_placement
+    assert model.summary() == {"model": str(path), "model_kind": "garment", "field_share": 0.5, "placement": True,
+                               "targets": TARGETS}
+    assert model.describe() == "garment fit model (garment.npz), field share 0.5, learned placement"
+
+
+def test_the_file_transfers_as_the_core_with_the_same_models(bundle):
+    ds, path, _ = bundle
+    ds = load_dataset(ds)
+    src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    field, placed, _ = parts_by_hand(path)
+    expect = transfer_garment(src, tgt, garment, method="model", model=field.with_field_share(0.5),
+                              placement=placed).V
+    model = read_model_file(path)
+    # The command line's call: transfer_to_any_body, the same mesh.
+    got, registration = transfer_to_any_body(src, tgt, garment, method="model", model=model.model,
+                                             placement=model.placement)
+    assert registration is None
+    np.testing.assert_allclose(got.V, expect, rtol=0, atol=1e-12)
+    # The share and the placement each change the result: the comparison above could fail.
+    whole = transfer_garment(src, tgt, garment, method="model", model=read_model_file(path, 1.0).model,
+                             placement=placed).V
+    unplaced = read_model_file(path, use_placement=False)
+    assert unplaced.placement is None and unplaced.has_placement
+    alone = transfer_garment(src, tgt, garment, method="model", model=unplaced.model).V
+    scale = np.ptp(src.V, axis=0).max()
+    assert np.abs(whole - expect).max() > 1e-6 * scale and np.abs(alone - expect).max() > 1e-6 * scale
+
+
+def rewrite(path, out, metadata=None, drop=(), add=None):
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k not in drop}
+    md = json.loads(str(arrays.pop("metadata")))
+    if metadata:
+        metadata(md)
+    np.savez(out, metadata=np.array(json.dumps(md)), **arrays, **(add or {}))
+    return out
+
+
+def test_wrong_or_damaged_files_are_refused_naming_them(bundle, tmp_path):
+    _, path, _ = bundle
+    cases = {
+        "newer.npz": (lambda p: rewrite(path, p, lambda md: md.update(format_version=2)),
+                      "has format version 2; this version of garment_transfer reads version 1"),
+        "newer_part.npz": (lambda p: rewrite(path, p, lambda md: md["placement"].update(format_version=7)),
+                           "its placement model has format version 7"),
+        "stray.npz": (lambda p: rewrite(path, p, add={"extra": np.zeros(3)}), "has arrays of no part: extra"),
+        "short.npz": (lambda p: rewrite(path, p, drop=("field.W0",)), "array 'W0' is missing"),
+        "other_body.npz": (lambda p: rewrite(path, p, lambda md: md["placement"]["source"].update(faces_hash="x")),
+                           "trained on different source bodies"),
+        "no_metadata.npz": (lambda p: rewrite(path, p, lambda md: md["field"].pop("source")),
+                            "metadata lacks 'source'"),
+        "unknown.npz": (lambda p: rewrite(path, p, lambda md: md.update(format="something.else")),
+                        "is not a garment transfer model (metadata 'format' is 'something.else')"),
+    }
+    for name, (make, problem) in cases.items():
+        bad = make(tmp_path / name)
+        with pytest.raises(ModelError, match=None) as exc:
+            read_model_file(bad)
+        assert str(exc.value).startswith(str(bad)) and problem in str(exc.value), (name, str(exc.value))
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ModelError, match="truncated.npz: is not a model file"):
+        read_model_file(truncated)
+    pickled = tmp_path / "pickled.npz"
+    np.savez(pickled, metadata=np.array("{}"), W0=np.array([object()], dtype=object))
+    with pytest.raises(ModelError, match="pickled.npz: holds Python objects"):
+        read_model_file(pickled)
+    text = tmp_path / "body.obj"
+    text.write_text("v 0 0 0\n")
+    with pytest.raises(ModelError, match=r"body.obj: is not a model file \(.npz, a zip archive\) but a text file"):
+        read_model_file(text)
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        read_model_file(path, field_share=1.5)
+
+
+def test_a_placement_alone_is_refused_and_a_garment_model_alone_is_read(bundle, tmp_path):
+    _, path, _ = bundle
+    field, placed, _ = parts_by_hand(path)
+    placed.save(tmp_path / "placement.npz")
+    with pytest.raises(ModelError, match="placement.npz: holds a placement model alone"):
+        read_model_file(tmp_path / "placement.npz")
+    field.save(tmp_path / "field.npz")
+    alone = read_model_file(tmp_path / "field.npz", field_share=0.25)
+    assert alone.kind == "garment" and alone.placement is None and not alone.has_placement
+    assert alone.model.field_share == 0.25
+    assert alone.describe().endswith("field share 0.25, no placement in the file")
+    other = read_model_file(path).with_field_share(0.25)
+    assert other.field_share == other.model.field_share == 0.25 and other.placement is not None
+    save_garment_fit_bundle(tmp_path / "no_placement.npz", field)
+    assert read_model_file(tmp_path / "no_placement.npz").placement is None
+
+
+def test_the_shared_model_is_read_as_before_and_takes_no_field_share(bundle, tmp_path):
+    from garment_transfer.training import train_from_dataset
+
+    ds, _, _ = bundle
+    shared = tmp_path / "shared.npz"
+    train_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3, latent=2, out=shared)
+    model = read_model_file(shared)
+    assert model.kind == "shared" and model.placement is None and model.field_share is None
+    assert model.targets == TARGETS and model.describe() == "shared deformation model (shared.npz)"
+    for read in (lambda: read_model_file(shared, field_share=0.5), lambda: model.with_field_share(0.5)):
+        with pytest.raises(ModelError, match="shared.npz: holds the paper's shared deformation model"):
+            read()
+
+
+def test_one_transfer_computes_the_target_body_s_features_once(bundle, monkeypatch):
+    from collections import OrderedDict
+
+    import garment_transfer.garment_model as gm
+
+    ds, path, _ = bundle
+    ds = load_dataset(ds)
+    src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    calls = []
+    real = gm.target_features
+    monkeypatch.setattr(gm, "target_features", lambda *a: calls.append(a) or real(*a))
+    monkeypatch.setattr(gm, "_TARGET_CACHE", OrderedDict())
+    model = read_model_file(path)
+    first = transfer_garment(src, tgt, garment, method="model", model=model.model, placement=model.placement).V
+    assert len(calls) == 1                       # the field and the placement model share them
+    again = transfer_garment(src, tgt, garment, method="model", model=model.model, placement=model.placement).V
+    assert len(calls) == 1 and np.array_equal(first, again)
+    shares = tuple(model.model.metadata["neighbourhood_shares"])
+    X, dev = gm._target_features_cached(src.V, tgt.V, src.F, shares)
+    np.testing.assert_array_equal(X, real(src.V, tgt.V, src.F, shares)[0])
+    assert not X.flags.writeable and not dev.flags.writeable
+    gm._target_features_cached(src.V, 1.01 * tgt.V, src.F, shares)    # another body: computed
+    assert len(calls) == 2
