@@ -675,7 +675,7 @@ SCHEDULE = ((2000.0, 3), (600.0, 3), (200.0, 3), (60.0, 3), (20.0, 3), (5.0, 3),
 #: stopping every edge at 20 left the torso and hips 5.7 and 8.4 mm from the truth on female_pear;
 #: softening every edge took them to 4.4 and 6.8 mm but the head, hands and feet from 0.7, 0.9, 3.2
 #: to 1.5, 1.8, 5.0 mm; with the fine edges held at 60 (ratio 1.6): 3.9, 6.0, 0.5, 1.2, 3.3 mm, the
-#: garments transferred through the fit 3.2 mm from their transfer through the true body (4.0 mm
+#: garments transferred through the fit 3.1 mm from their transfer through the true body (4.0 mm
 #: stopped at 20). Ratio 2.0: the feet 4.6 mm; 1.4: the torso 4.8 mm.
 COARSE_TARGET = 1.5
 COARSE_STOP = 60.0
