@@ -57,6 +57,9 @@ GARMENT_FEATURES = ("covered", "distance", "normal_offset", "offset_t1", "offset
 #: Radii of the neighbourhoods the body's deformation is averaged over, as shares of the body scale
 #: (about 6 cm and 19 cm on a 1.7 m body).
 NEIGHBOURHOOD_SHARES = (0.035, 0.11)
+#: Triangles per block of ``_neighbourhood_mean`` (128: 1.4 s for the larger neighbourhood of a MakeHuman
+#: body; 512: 1.9 s).
+NEIGHBOURHOOD_CHUNK = 128
 
 
 def _orthonormal_frames(V, F):
@@ -118,19 +121,57 @@ def garment_features(body_V, body_F, garment_V, garment_F, cover_distance=None):
     return X, covered
 
 
-def _neighbourhood_mean(centroids, values, radius, weights):
-    """Area-weighted mean of per-triangle values over the triangles within ``radius`` of each one."""
+def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_CHUNK):
+    """Area-weighted mean of per-triangle values over the triangles within ``radius`` of each one.
+
+    Parameters
+    ----------
+    centroids : (M,3) float
+    values : (M,k) float
+    radius : float
+    weights : (M,) float
+        Positive.
+
+    Returns
+    -------
+    (M,k) float64
+
+    The triangles are taken in blocks of ``chunk`` neighbours along a Morton curve; each block's
+    candidates are those within ``radius`` of the block's bounding sphere, their squared distances to
+    the block are one matrix product, and the sums over the ball another. The same pairs as a list of
+    every pair within ``radius`` (up to the rounding of a distance equal to the radius) at a tenth of
+    the time on a MakeHuman body, where the larger neighbourhood holds 61 million pairs.
+    """
+    centroids = np.asarray(centroids, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    m = centroids.shape[0]
     tree = cKDTree(centroids)
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    m = len(centroids)
-    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(m)])
-    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(m)])
-    w = weights[j]
-    total = np.bincount(i, weights=w, minlength=m)
+    weighted = np.concatenate([weights[:, None], weights[:, None] * values], axis=1)
     out = np.empty_like(values)
-    for c in range(values.shape[1]):
-        out[:, c] = np.bincount(i, weights=w * values[j, c], minlength=m) / total
+    r2 = float(radius) ** 2
+    order = _morton_order(centroids)
+    for start in range(0, m, chunk):
+        rows = order[start:start + chunk]
+        C = centroids[rows]
+        lo, hi = C.min(axis=0), C.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        near = np.asarray(tree.query_ball_point(centre, radius + 0.5 * np.linalg.norm(hi - lo)), dtype=np.int64)
+        # About the block's centre, so the expansion |a|^2 + |b|^2 - 2ab rounds at the radius's scale.
+        A, B = C - centre, centroids[near] - centre
+        d2 = np.einsum("ij,ij->i", A, A)[:, None] + np.einsum("ij,ij->i", B, B)[None, :] - 2.0 * (A @ B.T)
+        sums = (d2 <= r2).astype(np.float64) @ weighted[near]
+        out[rows] = sums[:, 1:] / sums[:, :1]
     return out
+
+
+def _morton_order(P):
+    """(M,) int64: the points in the order of a Morton (Z-order) curve on a 1024^3 grid of their box."""
+    q = ((P - P.min(axis=0)) / max(float(np.ptp(P, axis=0).max()), 1e-300) * 1023).astype(np.uint64)
+    code = np.zeros(P.shape[0], np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable")
 
 
 def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
@@ -162,7 +203,7 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
 
 
 #: The last few ``target_features`` of the models' inputs, by content: the field model and the placement
-#: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body 20-25 s each, nearly all of
+#: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body about 2 s each, nearly all of
 #: it the neighbourhood means), and so do further garments sent to the same target body.
 _TARGET_CACHE = OrderedDict()
 _TARGET_CACHE_SIZE = 4

@@ -41,6 +41,24 @@ def test_garment_features_zero_where_uncovered():
     assert np.all(X[covered, 0] == 1)
 
 
+@pytest.mark.parametrize("share", [0.02, 0.11, 0.5])
+def test_neighbourhood_mean_equals_every_pair_within_the_radius(share):
+    # The blocked computation against the definition: every pair of centroids, its distance, the
+    # weighted mean over those within the radius (the triangle itself included). Points on a body-like
+    # cloud with clusters (dense hands, sparse torso) and blocks smaller than the cloud.
+    from garment_transfer.garment_model import _neighbourhood_mean
+
+    rng = np.random.default_rng(3)
+    P = np.concatenate([rng.normal(size=(600, 3)) * [0.2, 0.1, 0.8], 0.02 * rng.normal(size=(300, 3)) + [0.5, 0, 0.3]])
+    values = rng.normal(size=(P.shape[0], 4))
+    weights = rng.uniform(0.1, 2.0, size=P.shape[0])
+    radius = share * np.ptp(P, axis=0).max()
+    within = np.linalg.norm(P[:, None] - P[None], axis=2) <= radius
+    expected = (within * weights) @ values / (within @ weights)[:, None]
+    np.testing.assert_allclose(_neighbourhood_mean(P, values, radius, weights, chunk=64), expected,
+                               rtol=0, atol=1e-12)
+
+
 def test_target_features_of_an_unchanged_and_a_scaled_body():
     V, F = icosphere(2)
     X, dev = target_features(V, V, F)
