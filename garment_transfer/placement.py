@@ -54,6 +54,9 @@ SMOOTHING_SHARE = 0.01
 #: the demo's test garments 9.3 -> 6.7 mm RMS with them).
 CONTEXT_SHARES = (0.04, 0.12, 0.3)
 CONTEXT_COLUMNS = 3
+#: Neighbourhoods (shares of the body scale, as ``garment_model.NEIGHBOURHOOD_SHARES``) of the target's
+#: offset from the source body (``body_offset_features``), an optional input of the placement model.
+BODY_OFFSET_SHARES = (0.035, 0.11)
 
 
 def bound_counts(binding: Binding, n_triangles):
@@ -145,6 +148,43 @@ def garment_context(body_V, body_F, garment_X, shares=CONTEXT_SHARES):
     return np.concatenate([smooth_on_body(X, area, V, body_F, s * scale) for s in shares], axis=1)
 
 
+def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
+    """Where the target body lies from the source body around each triangle, in the triangle's frame.
+
+    The label tells the training bodies apart; this exists for any body and changes continuously with
+    its shape, so a body between two training bodies gets values between theirs. Per triangle: the
+    displacement of its centroid from the source to the target body, less the bodies' mean displacement,
+    in the source triangle's frame (``t1``, ``t2``, normal: the last is how far the body grew outward
+    there), over the body scale; then its area-weighted mean over each neighbourhood.
+
+    Parameters
+    ----------
+    source_V, target_V : (nb,3) float
+        The body in its source and target shapes (same topology).
+    F : (M,3) int
+    shares : sequence of float
+        Neighbourhood radii as shares of the source body scale.
+
+    Returns
+    -------
+    (M, 3 * (1 + len(shares))) float64
+    """
+    from .garment_model import _neighbourhood_mean
+
+    S_V = np.asarray(source_V, dtype=np.float64)
+    T_V = np.asarray(target_V, dtype=np.float64)
+    if S_V.shape != T_V.shape:
+        raise ValueError(f"the source and target bodies differ in shape: {S_V.shape} and {T_V.shape}")
+    cs, ct = triangle_centroids(S_V, F), triangle_centroids(T_V, F)
+    area = triangle_normals(S_V, F)[1]
+    d = ct - cs
+    d -= (area[:, None] * d).sum(axis=0) / max(area.sum(), 1e-300)
+    scale = body_scale(S_V)
+    local = np.einsum("mij,mj->mi", _orthonormal_frames(S_V, F), d) / scale
+    parts = [local] + [_neighbourhood_mean(cs, local, s * scale, area + 1e-300) for s in shares]
+    return np.concatenate(parts, axis=1)
+
+
 def unrotate(source_V, target_V, F):
     """(M,3,3) per triangle ``S^T T``: a vector on the target body in the source body's orientation."""
     S = _orthonormal_frames(source_V, F)
@@ -222,22 +262,34 @@ def placement_displacements(binding: Binding, target_V, body_F, C):
 class PlacementModel(GarmentFitModel):
     """A trained placement model (see the module docstring): ``GarmentFitModel``'s inputs, 3 outputs.
 
-    Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions) and
-    ``context_shares`` (``garment_context``, inputs after the garment's own features).
+    Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions),
+    ``context_shares`` (``garment_context``, inputs after the garment's own features) and, optionally,
+    ``body_offset_shares`` (``body_offset_features``, inputs after the target's features; absent: none).
     """
 
     OUTPUTS = 3
 
     @staticmethod
     def n_inputs(md):
-        return GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
+        offset = md.get("body_offset_shares")
+        return (GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
+                + (0 if offset is None else 3 * (1 + len(offset))))
 
     def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
-        """``GarmentFitModel.inputs`` with the garment's context after its own features."""
+        """``GarmentFitModel.inputs`` with the garment's context after its own features (and the target's
+        offset from the source body after the target's features)."""
         X, covered, dev = super().inputs(source_body, target_body, garment, target)
         n = len(GARMENT_FEATURES)
         ctx = garment_context(source_body.V, source_body.F, X[:, :n], tuple(self.metadata.get("context_shares", [])))
-        return np.concatenate([X[:, :n], ctx, X[:, n:]], axis=1), covered, dev
+        parts = [X[:, :n], ctx]
+        offset = self.metadata.get("body_offset_shares")
+        if offset is None:
+            parts.append(X[:, n:])
+        else:
+            t_end = n + 9 * (1 + len(self.metadata["neighbourhood_shares"]))
+            parts += [X[:, n:t_end], body_offset_features(source_body.V, target_body.V, source_body.F,
+                                                          tuple(offset)), X[:, t_end:]]
+        return np.concatenate(parts, axis=1), covered, dev
 
     def body_field(self, *args, **kwargs):
         raise ModelError(self.name, "is a placement model, not a field model: pass it as placement=")
