@@ -39,7 +39,7 @@ from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
 from . import experiment
-from .experiment import METHODS, run_experiment
+from .experiment import run_experiment
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
 DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
@@ -76,6 +76,11 @@ def demo_part(args, say):
     ds = load_dataset(args.data)
     train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
     test = list(ds.manifest["test_garments"])
+    if args.validation:
+        # Held-out training styles with their loose and tight variants: a validation fold that never
+        # touches the test garments.
+        held = set(args.validation) | {f"{g}_{v}" for g in args.validation for v in ("loose", "tight")}
+        train, test = [g for g in train if g not in held], list(args.validation)
     say(f"demo: {len(train)} training garments, {len(test)} test garments, targets {args.targets}")
     res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], args.methods,
                          args.epochs, seed=args.seed, threads=args.threads,
@@ -186,6 +191,9 @@ def main(argv=None):
     ap.add_argument("--targets", default="pear,heavy,hourglass")
     ap.add_argument("--extra", default="", help="extra training garments of --data, comma-separated")
     ap.add_argument("--unseen", default="hourglass")
+    ap.add_argument("--validation", default="",
+                    help="demo: test on these training garments instead (held out with their _loose and _tight "
+                         "variants), to choose settings without the test garments")
     ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
     ap.add_argument("--methods", default=",".join(DEMO_METHODS),
                     help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
@@ -215,6 +223,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     args.extra = [g for g in args.extra.split(",") if g]
+    args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
     t0 = time.perf_counter()
 
@@ -230,7 +239,7 @@ def main(argv=None):
         if args.json:
             write_json_atomic(args.json, out)
     for key in args.methods:
-        print(f"{key:26s} {METHODS[key].label}")
+        print(f"{key:26s} {experiment.method_of(key).label}")
     return 0
 
 
