@@ -33,7 +33,7 @@ import scipy.sparse.linalg as spla
 from .binding import Binding, carry
 from .embedding import body_scale, triangle_centroids
 from .errors import ModelError
-from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, read_model_npz
+from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, label_weights, read_model_npz
 from .mesh import Mesh, require_same_topology, triangle_normals
 
 log = logging.getLogger(__name__)
@@ -313,6 +313,16 @@ class PlacementModel(GarmentFitModel):
             Per body triangle, the offset in the triangle's frame on the target body.
         """
         self.check_source_body(source_body)
+        y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+
+    def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """The predicted placement in each triangle's unrotated frame (``y``; ``C = S y``), smoothed.
+
+        Returns
+        -------
+        y : (M,3) float64
+        """
         F = source_body.F
         M = F.shape[0]
         w = bound_counts(binding, M)
@@ -321,8 +331,41 @@ class PlacementModel(GarmentFitModel):
         y = np.zeros((M, 3))
         y[sel] = self.forward(X[sel]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
         length = float(self.metadata["smoothing_share"]) * body_scale(source_body.V)
-        y = smooth_on_body(y, w, source_body.V, F, length)
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, F), y)
+        return smooth_on_body(y, w, source_body.V, F, length)
+
+
+class BlendedPlacement:
+    """A placement model that gives a body it was not trained on the blend of what it predicts on the
+    training bodies, weighted by the body's label weights (``garment_model.label_weights``: the convex
+    combination of training bodies closest to its shape).
+
+    The network sees every training body with its own label and features only; a new body's mixed label
+    and features are inputs it never saw. The blend stays between the placements it learned. A training
+    body (by label) gets the model's own prediction.
+
+    Parameters
+    ----------
+    model : PlacementModel
+    """
+
+    def __init__(self, model: PlacementModel):
+        self.model = model
+        self.name = model.name
+
+    def frame_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """``PlacementModel.frame_offsets``; for a body that is not a training target, the blend."""
+        model = self.model
+        if target is not None and target in model.targets:
+            return model.frame_offsets(binding, source_body, target_body, garment, target)
+        model.check_source_body(source_body)
+        require_same_topology(source_body, target_body)
+        weights = label_weights(target_body.V, model.arrays["label_bodies"])
+        y = np.zeros((source_body.F.shape[0], 3))
+        for k, wk in enumerate(weights):
+            if wk > 1e-6:
+                body = source_body.with_vertices(np.asarray(model.arrays["label_bodies"][k], dtype=np.float64))
+                y += wk * model.unrotated_offsets(binding, source_body, body, garment, model.targets[k])
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
 
 
 def anchor_offsets(placement, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):

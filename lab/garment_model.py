@@ -116,6 +116,8 @@ def unseen_body_part(args, say):
             placer, _ = train_placement_model(tables, targets, epochs=experiment.PLACEMENT_EPOCHS, seed=args.seed,
                                               threads=args.threads, use_label=not args.placement_nolabel,
                                               body_offset=args.placement_body_offset)
+            if args.placement_blend:
+                placer = placement.BlendedPlacement(placer)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
         info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
                                                   "train_seconds": tinfo["seconds"]}
@@ -206,6 +208,9 @@ def main(argv=None):
                     help="unseen_body: the placement model without the target label (body features only)")
     ap.add_argument("--placement-body-offset", action="store_true",
                     help="unseen_body: the placement model also sees the target's offset from the source body")
+    ap.add_argument("--placement-blend", action="store_true",
+                    help="unseen_body: an unseen body gets the blend of the placements predicted on the training "
+                         "bodies, by its label weights (placement.BlendedPlacement)")
     ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
                     help="passes over the samples of the placement model")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,

@@ -217,3 +217,24 @@ def test_placement_model_with_the_body_offset(trained, tiny, tmp_path):
     C = loaded.frame_offsets(binding, src, tgt, g, "pear")
     np.testing.assert_array_equal(C, model.frame_offsets(binding, src, tgt, g, "pear"))
     assert np.isfinite(C).all() and np.abs(C).max() > 0
+
+
+def test_blended_placement_of_a_body_between_two_training_bodies(trained, tiny):
+    from garment_transfer.placement import BlendedPlacement
+
+    model, _, _ = trained
+    blend = BlendedPlacement(model)
+    ds = load_dataset(tiny)
+    src, g = ds.body("src"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    bodies = [src.with_vertices(np.asarray(model.arrays["label_bodies"][k], dtype=np.float64)) for k in range(2)]
+    own = [model.frame_offsets(binding, src, b, g, t) for b, t in zip(bodies, TARGETS)]
+    # A training body by label, or by shape alone: the model's own prediction.
+    np.testing.assert_array_equal(blend.frame_offsets(binding, src, bodies[1], g, TARGETS[1]), own[1])
+    np.testing.assert_allclose(blend.frame_offsets(binding, src, bodies[1], g), own[1], atol=1e-9)
+    # Halfway between them: halfway between their placements (not the network at a mixed label).
+    mid = src.with_vertices(0.5 * (bodies[0].V + bodies[1].V))
+    np.testing.assert_allclose(blend.frame_offsets(binding, src, mid, g), 0.5 * (own[0] + own[1]), atol=1e-9)
+    assert np.abs(own[0] - own[1]).max() > 1e-4
+    r = transfer_garment(src, mid, g, placement=blend)
+    np.testing.assert_allclose(r.V, transfer_garment(src, mid, g, placement=0.5 * (own[0] + own[1])).V, atol=1e-9)
