@@ -10,9 +10,15 @@ Parts (``--parts``, default all):
   embedded deformation with contact anchors (the ceiling of any body field here); with the learned
   placement (``garment_placed``, ``garment_placed_contact``, ``direct_placed``) and the held-out
   garment's own placement (``*_oracle_placed*``, ``oracle_placed*``: the ceiling of a placement).
+  ``--validation g1,g2``: test on these training garments instead (held out with their loose and tight
+  variants), to choose settings such as the field share (``garment_share<s>_placed``) without the test
+  garments.
 * ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
   test garments go to it with label weights read from its shape (between the training bodies), against
-  the same model trained on every target (``--placement``: also with the learned placement).
+  the same model trained on every target (``--placement``: also with the learned placement, with the body's
+  own field, the garment model's and half of it (``--field-share``); ``--placement-blend``: an unseen body
+  gets the blend of the placements predicted on the training bodies; ``--placement-body-offset``: the
+  placement model also sees the target's offset from the source body). ``--data``/``--extra`` as for demo.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
 
