@@ -197,14 +197,16 @@ def placement_tables(dataset, source, targets, garments, tables, length=None, co
 
 
 def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=8192, lr=1e-2, use_label=True,
-                          garment_inputs=True, seed=0, threads=None, length_share=None, progress=None):
+                          garment_inputs=True, seed=0, threads=None, length_share=None, body_offset=False,
+                          progress=None):
     """Fit the placement model (``placement.PlacementModel``) on ``placement_tables``.
 
     Every body triangle a garment vertex is bound to, for every target, is one sample: the garment's
     and target's features in, its smoothed offset in the triangle's unrotated frame out. Parameters as
     ``train_garment_model``'s (more passes and a larger step by default: there are as many samples as
     bound triangles, a tenth of the field model's); ``length_share``: the smoothing of the predictions
-    (default that of the targets, ``placement.SMOOTHING_SHARE``).
+    (default that of the targets, ``placement.SMOOTHING_SHARE``); ``body_offset``: also the target's
+    offset from the source body (``placement.body_offset_features``) as an input.
 
     Returns
     -------
@@ -216,7 +218,7 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
 
     from .placement import FORMAT as PFORMAT
     from .placement import FORMAT_VERSION as PVERSION
-    from .placement import SMOOTHING_SHARE, PlacementModel
+    from .placement import BODY_OFFSET_SHARES, SMOOTHING_SHARE, PlacementModel, body_offset_features
 
     t0 = time.perf_counter()
     if threads:
@@ -232,7 +234,12 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
         # What the context is of zeroed distances: only the coverage is left.
         context.reshape(*context.shape[:2], -1, CONTEXT_COLUMNS)[..., 1:] = 0.0
     GX = torch.from_numpy(np.concatenate([own, context], axis=2))
-    TX = torch.from_numpy(np.ascontiguousarray(tables["target_X"]))
+    TX = np.asarray(tables["target_X"], dtype=np.float32)
+    if body_offset:
+        body = tables["body"]
+        TX = np.concatenate([TX, np.stack([body_offset_features(body.V, V, body.F, BODY_OFFSET_SHARES)
+                                           for V in tables["bodies"]]).astype(np.float32)], axis=2)
+    TX = torch.from_numpy(np.ascontiguousarray(TX))
     off = tables["offset"]
     G, K = off.shape[0], off.shape[1]
     g_idx, a_idx = np.nonzero(tables["bound"] > 0)
@@ -246,6 +253,8 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
                                 garment_inputs, epochs, batch, lr, seed, len(Y), G, t0)
     metadata.update(format=PFORMAT, format_version=PVERSION, context_shares=list(tables["context_shares"]),
                     smoothing_share=float(SMOOTHING_SHARE if length_share is None else length_share))
+    if body_offset:
+        metadata["body_offset_shares"] = list(BODY_OFFSET_SHARES)
     info = {"seconds": metadata["training"]["seconds"], "samples": len(Y), "epochs": epochs, "losses": losses}
     return PlacementModel(arrays, metadata, "placement model"), info
 

@@ -33,7 +33,7 @@ import scipy.sparse.linalg as spla
 from .binding import Binding, carry
 from .embedding import body_scale, triangle_centroids
 from .errors import ModelError
-from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, read_model_npz
+from .garment_model import GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, label_weights, read_model_npz
 from .mesh import Mesh, require_same_topology, triangle_normals
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,9 @@ SMOOTHING_SHARE = 0.01
 #: the demo's test garments 9.3 -> 6.7 mm RMS with them).
 CONTEXT_SHARES = (0.04, 0.12, 0.3)
 CONTEXT_COLUMNS = 3
+#: Neighbourhoods (shares of the body scale, as ``garment_model.NEIGHBOURHOOD_SHARES``) of the target's
+#: offset from the source body (``body_offset_features``), an optional input of the placement model.
+BODY_OFFSET_SHARES = (0.035, 0.11)
 
 
 def bound_counts(binding: Binding, n_triangles):
@@ -145,6 +148,43 @@ def garment_context(body_V, body_F, garment_X, shares=CONTEXT_SHARES):
     return np.concatenate([smooth_on_body(X, area, V, body_F, s * scale) for s in shares], axis=1)
 
 
+def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
+    """Where the target body lies from the source body around each triangle, in the triangle's frame.
+
+    The label tells the training bodies apart; this exists for any body and changes continuously with
+    its shape, so a body between two training bodies gets values between theirs. Per triangle: the
+    displacement of its centroid from the source to the target body, less the bodies' mean displacement,
+    in the source triangle's frame (``t1``, ``t2``, normal: the last is how far the body grew outward
+    there), over the body scale; then its area-weighted mean over each neighbourhood.
+
+    Parameters
+    ----------
+    source_V, target_V : (nb,3) float
+        The body in its source and target shapes (same topology).
+    F : (M,3) int
+    shares : sequence of float
+        Neighbourhood radii as shares of the source body scale.
+
+    Returns
+    -------
+    (M, 3 * (1 + len(shares))) float64
+    """
+    from .garment_model import _neighbourhood_mean
+
+    S_V = np.asarray(source_V, dtype=np.float64)
+    T_V = np.asarray(target_V, dtype=np.float64)
+    if S_V.shape != T_V.shape:
+        raise ValueError(f"the source and target bodies differ in shape: {S_V.shape} and {T_V.shape}")
+    cs, ct = triangle_centroids(S_V, F), triangle_centroids(T_V, F)
+    area = triangle_normals(S_V, F)[1]
+    d = ct - cs
+    d -= (area[:, None] * d).sum(axis=0) / max(area.sum(), 1e-300)
+    scale = body_scale(S_V)
+    local = np.einsum("mij,mj->mi", _orthonormal_frames(S_V, F), d) / scale
+    parts = [local] + [_neighbourhood_mean(cs, local, s * scale, area + 1e-300) for s in shares]
+    return np.concatenate(parts, axis=1)
+
+
 def unrotate(source_V, target_V, F):
     """(M,3,3) per triangle ``S^T T``: a vector on the target body in the source body's orientation."""
     S = _orthonormal_frames(source_V, F)
@@ -222,22 +262,34 @@ def placement_displacements(binding: Binding, target_V, body_F, C):
 class PlacementModel(GarmentFitModel):
     """A trained placement model (see the module docstring): ``GarmentFitModel``'s inputs, 3 outputs.
 
-    Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions) and
-    ``context_shares`` (``garment_context``, inputs after the garment's own features).
+    Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions),
+    ``context_shares`` (``garment_context``, inputs after the garment's own features) and, optionally,
+    ``body_offset_shares`` (``body_offset_features``, inputs after the target's features; absent: none).
     """
 
     OUTPUTS = 3
 
     @staticmethod
     def n_inputs(md):
-        return GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
+        offset = md.get("body_offset_shares")
+        return (GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
+                + (0 if offset is None else 3 * (1 + len(offset))))
 
     def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
-        """``GarmentFitModel.inputs`` with the garment's context after its own features."""
+        """``GarmentFitModel.inputs`` with the garment's context after its own features (and the target's
+        offset from the source body after the target's features)."""
         X, covered, dev = super().inputs(source_body, target_body, garment, target)
         n = len(GARMENT_FEATURES)
         ctx = garment_context(source_body.V, source_body.F, X[:, :n], tuple(self.metadata.get("context_shares", [])))
-        return np.concatenate([X[:, :n], ctx, X[:, n:]], axis=1), covered, dev
+        parts = [X[:, :n], ctx]
+        offset = self.metadata.get("body_offset_shares")
+        if offset is None:
+            parts.append(X[:, n:])
+        else:
+            t_end = n + 9 * (1 + len(self.metadata["neighbourhood_shares"]))
+            parts += [X[:, n:t_end], body_offset_features(source_body.V, target_body.V, source_body.F,
+                                                          tuple(offset)), X[:, t_end:]]
+        return np.concatenate(parts, axis=1), covered, dev
 
     def body_field(self, *args, **kwargs):
         raise ModelError(self.name, "is a placement model, not a field model: pass it as placement=")
@@ -261,6 +313,16 @@ class PlacementModel(GarmentFitModel):
             Per body triangle, the offset in the triangle's frame on the target body.
         """
         self.check_source_body(source_body)
+        y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+
+    def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """The predicted placement in each triangle's unrotated frame (``y``; ``C = S y``), smoothed.
+
+        Returns
+        -------
+        y : (M,3) float64
+        """
         F = source_body.F
         M = F.shape[0]
         w = bound_counts(binding, M)
@@ -269,8 +331,41 @@ class PlacementModel(GarmentFitModel):
         y = np.zeros((M, 3))
         y[sel] = self.forward(X[sel]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
         length = float(self.metadata["smoothing_share"]) * body_scale(source_body.V)
-        y = smooth_on_body(y, w, source_body.V, F, length)
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, F), y)
+        return smooth_on_body(y, w, source_body.V, F, length)
+
+
+class BlendedPlacement:
+    """A placement model that gives a body it was not trained on the blend of what it predicts on the
+    training bodies, weighted by the body's label weights (``garment_model.label_weights``: the convex
+    combination of training bodies closest to its shape).
+
+    The network sees every training body with its own label and features only; a new body's mixed label
+    and features are inputs it never saw. The blend stays between the placements it learned. A training
+    body (by label) gets the model's own prediction.
+
+    Parameters
+    ----------
+    model : PlacementModel
+    """
+
+    def __init__(self, model: PlacementModel):
+        self.model = model
+        self.name = model.name
+
+    def frame_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """``PlacementModel.frame_offsets``; for a body that is not a training target, the blend."""
+        model = self.model
+        if target is not None and target in model.targets:
+            return model.frame_offsets(binding, source_body, target_body, garment, target)
+        model.check_source_body(source_body)
+        require_same_topology(source_body, target_body)
+        weights = label_weights(target_body.V, model.arrays["label_bodies"])
+        y = np.zeros((source_body.F.shape[0], 3))
+        for k, wk in enumerate(weights):
+            if wk > 1e-6:
+                body = source_body.with_vertices(np.asarray(model.arrays["label_bodies"][k], dtype=np.float64))
+                y += wk * model.unrotated_offsets(binding, source_body, body, garment, model.targets[k])
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
 
 
 def anchor_offsets(placement, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):

@@ -9,6 +9,7 @@ which bodies. Figures are ``garment_transfer.metrics.evaluate``'s.
 from __future__ import annotations
 
 import logging
+import re
 import time
 from dataclasses import dataclass
 
@@ -49,6 +50,8 @@ class Method:
     placement : str, optional
         ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
         fold's garments) or ``"oracle"`` (the held-out garment's own placement, from its simulation).
+    field_share : float
+        For ``field="half"``: the share of the garment model's field (``with_field_share``).
     """
 
     key: str
@@ -60,6 +63,7 @@ class Method:
     fix_penetration: bool = True
     anchoring: str = "everywhere"
     placement: str | None = None
+    field_share: float = 0.5
 
 
 #: Training variants: ``train_model`` keyword arguments, or (``garment_model``) those of
@@ -169,10 +173,24 @@ def field_rms(Q, true_dev, covered):
     return float(np.sqrt(np.mean(d ** 2)))
 
 
+def method_of(key):
+    """A key of ``METHODS``, or ``garment_share<s>_placed``: the garment model's field at share ``s`` (in
+    [0, 1]) with the learned placement, anchors everywhere (``garment_half_placed`` at another share)."""
+    if key in METHODS:
+        return METHODS[key]
+    m = re.fullmatch(r"garment_share([0-9.]+)_placed", key)
+    if m is None:
+        raise KeyError(f"unknown method {key!r}")
+    share = float(m.group(1))
+    return Method(key, f"Garment fit model's field at share {share} of the way from the body's own, learned "
+                  "placement, anchors everywhere", "model", "garment", field="half", placement="model",
+                  field_share=share)
+
+
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
     if method.field == "half":
-        return model.with_field_share(0.5)
+        return model.with_field_share(method.field_share)
     if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
         return model
     if method.field != "oracle":
@@ -228,7 +246,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         transfer), ``seconds_reused`` and ``stages``), ``trainings`` (per fold and variant: seconds,
         epochs, losses, loss ``curve``), ``read_seconds``, ``units``, ``up_axis``.
     """
-    methods = [METHODS[k] for k in methods]
+    methods = [method_of(k) for k in methods]
     external = external or {}
     reference_seconds = reference_seconds or {}
     variants = sorted({m.variant for m in methods if m.kind == "model"}

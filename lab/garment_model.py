@@ -10,9 +10,15 @@ Parts (``--parts``, default all):
   embedded deformation with contact anchors (the ceiling of any body field here); with the learned
   placement (``garment_placed``, ``garment_placed_contact``, ``direct_placed``) and the held-out
   garment's own placement (``*_oracle_placed*``, ``oracle_placed*``: the ceiling of a placement).
+  ``--validation g1,g2``: test on these training garments instead (held out with their loose and tight
+  variants), to choose settings such as the field share (``garment_share<s>_placed``) without the test
+  garments.
 * ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
   test garments go to it with label weights read from its shape (between the training bodies), against
-  the same model trained on every target (``--placement``: also with the learned placement).
+  the same model trained on every target (``--placement``: also with the learned placement, with the body's
+  own field, the garment model's and half of it (``--field-share``); ``--placement-blend``: an unseen body
+  gets the blend of the placements predicted on the training bodies; ``--placement-body-offset``: the
+  placement model also sees the target's offset from the source body). ``--data``/``--extra`` as for demo.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
 
@@ -39,7 +45,7 @@ from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
 from . import experiment
-from .experiment import METHODS, run_experiment
+from .experiment import run_experiment
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
 DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
@@ -76,6 +82,11 @@ def demo_part(args, say):
     ds = load_dataset(args.data)
     train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
     test = list(ds.manifest["test_garments"])
+    if args.validation:
+        # Held-out training styles with their loose and tight variants: a validation fold that never
+        # touches the test garments.
+        held = set(args.validation) | {f"{g}_{v}" for g in args.validation for v in ("loose", "tight")}
+        train, test = [g for g in train if g not in held], list(args.validation)
     say(f"demo: {len(train)} training garments, {len(test)} test garments, targets {args.targets}")
     res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], args.methods,
                          args.epochs, seed=args.seed, threads=args.threads,
@@ -85,13 +96,20 @@ def demo_part(args, say):
             "train": train, "test": test}
 
 
+UNSEEN_RUNS = ["direct", "garment_contact", "direct_placed", "garment_placed", "garment_placed_contact",
+               "garment_half_placed"]
+
+
 def unseen_body_part(args, say):
-    """The garment fit model on a target body it was not trained on, against the same with it."""
+    """The garment fit model (and the learned placement) on a target body it was not trained on, against the
+    same models trained with it; the demo's training garments and ``--extra``."""
     ds = load_dataset(args.data)
     source = ds.manifest["source"]
-    train, test = list(ds.manifest["train_garments"]), list(ds.manifest["test_garments"])
+    train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
+    test = list(ds.manifest["test_garments"])
     src = ds.body(source)
     body = ds.body(args.unseen)
+    say(f"unseen body: {len(train)} training garments, {len(test)} test garments to {args.unseen}")
     rows, info = [], {}
     for with_it in (True, False):
         targets = [t for t in args.targets if with_it or t != args.unseen]
@@ -102,25 +120,34 @@ def unseen_body_part(args, say):
         if args.placement:
             placement_tables(ds, source, targets, train, tables)
             placer, _ = train_placement_model(tables, targets, epochs=experiment.PLACEMENT_EPOCHS, seed=args.seed,
-                                              threads=args.threads, use_label=not args.placement_nolabel)
+                                              threads=args.threads, use_label=not args.placement_nolabel,
+                                              body_offset=args.placement_body_offset)
+            if args.placement_blend:
+                placer = placement.BlendedPlacement(placer)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
         info["with" if with_it else "without"] = {"targets": targets, "label_weights": weights.tolist(),
                                                   "train_seconds": tinfo["seconds"]}
         say(f"unseen body: trained on {targets} in {tinfo['seconds']:.0f}s; label weights of "
             f"{args.unseen}: {np.round(weights, 3).tolist()}")
+        label = args.unseen if with_it else None
+        half = model.with_field_share(args.field_share)
         for g in test:
             garment = ds.garment(g, source)
-            prepared = prepare_garment(src, garment, anchoring="contact")
+            prepared = {a: prepare_garment(src, garment, anchoring=a) for a in ("everywhere", "contact")}
             ref = ds.garment(g, args.unseen)
-            runs = [("garment_contact", dict(method="model", model=model,
-                                             target=args.unseen if with_it else None))]
+            runs = [("garment_contact", "contact", dict(method="model", model=model, target=label))]
             if placer is not None:
-                runs.append(("garment_placed_contact", dict(method="model", model=model, placement=placer,
-                                                            target=args.unseen if with_it else None)))
+                runs += [("direct_placed", "everywhere", dict(method="direct", placement=placer, target=label)),
+                         ("garment_placed", "everywhere", dict(method="model", model=model, placement=placer,
+                                                               target=label)),
+                         ("garment_placed_contact", "contact", dict(method="model", model=model, placement=placer,
+                                                                    target=label)),
+                         ("garment_half_placed", "everywhere", dict(method="model", model=half, placement=placer,
+                                                                    target=label))]
             if with_it:
-                runs.append(("direct", dict(method="direct")))
-            for key, kw in runs:
-                r = transfer_garment(src, body, garment, prepared=prepared, **kw)
+                runs.append(("direct", "everywhere", dict(method="direct")))
+            for key, anchoring, kw in runs:
+                r = transfer_garment(src, body, garment, prepared=prepared[anchoring], **kw)
                 e = evaluate(garment, garment.with_vertices(r.V), body, reference=ref)
                 e.update(garment=g, target=args.unseen, method=key if with_it or key == "direct"
                          else f"{key}_unseen")
@@ -131,21 +158,20 @@ def unseen_body_part(args, say):
     def mean(m, k):
         return float(np.mean([r[k] for r in rows if r["method"] == m]))
 
-    lines = [f"{'method':26s} {'vertex mm':>9s} {'drape rel':>9s} {'MDC':>7s}"]
-    shown = ["direct", "garment_contact", "garment_contact_unseen"]
-    if args.placement:
-        shown += ["garment_placed_contact", "garment_placed_contact_unseen"]
+    lines = [f"{'method':30s} {'vertex mm':>9s} {'drape rel':>9s} {'MDC':>7s} {'inside':>6s}"]
+    shown = [m for m in UNSEEN_RUNS if any(r["method"] == m for r in rows)]
     for m in shown:
-        lines.append(f"{m:26s} {1000 * mean(m, 'vertex_error_mean'):9.1f} {mean(m, 'drape_error_relative'):9.3f} "
-                     f"{mean(m, 'mdc'):7.4f}")
-    ratio = mean("garment_contact_unseen", "vertex_error_mean") / mean("garment_contact", "vertex_error_mean")
-    lines.append(f"vertex error, body unseen / body in training: {ratio:.2f}")
-    if args.placement:
-        ratio_p = mean("garment_placed_contact_unseen", "vertex_error_mean") / mean("garment_placed_contact",
-                                                                                   "vertex_error_mean")
-        lines.append(f"with the learned placement, body unseen / body in training: {ratio_p:.2f}")
-        info["ratio_placed"] = ratio_p
-    info.update(rows=rows, ratio=ratio, text="\n".join(lines))
+        for name in ([m] if m == "direct" else [m, f"{m}_unseen"]):
+            lines.append(f"{name:30s} {1000 * mean(name, 'vertex_error_mean'):9.1f} "
+                         f"{mean(name, 'drape_error_relative'):9.3f} {mean(name, 'mdc'):7.4f} "
+                         f"{sum(r['penetrating_vertices'] for r in rows if r['method'] == name):6d}")
+    ratios = {m: mean(f"{m}_unseen", "vertex_error_mean") / mean(m, "vertex_error_mean")
+              for m in shown if m != "direct"}
+    for m, x in ratios.items():
+        lines.append(f"vertex error, body unseen / body in training, {m}: {x:.2f}")
+    info.update(rows=rows, ratio=ratios["garment_contact"], ratios=ratios, text="\n".join(lines))
+    if "garment_placed_contact" in ratios:
+        info["ratio_placed"] = ratios["garment_placed_contact"]
     return info
 
 
@@ -173,6 +199,9 @@ def main(argv=None):
     ap.add_argument("--targets", default="pear,heavy,hourglass")
     ap.add_argument("--extra", default="", help="extra training garments of --data, comma-separated")
     ap.add_argument("--unseen", default="hourglass")
+    ap.add_argument("--validation", default="",
+                    help="demo: test on these training garments instead (held out with their _loose and _tight "
+                         "variants), to choose settings without the test garments")
     ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
     ap.add_argument("--methods", default=",".join(DEMO_METHODS),
                     help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
@@ -183,11 +212,18 @@ def main(argv=None):
                     help="unseen_body: also the garment model with the learned placement")
     ap.add_argument("--placement-nolabel", action="store_true",
                     help="unseen_body: the placement model without the target label (body features only)")
+    ap.add_argument("--placement-body-offset", action="store_true",
+                    help="unseen_body: the placement model also sees the target's offset from the source body")
+    ap.add_argument("--placement-blend", action="store_true",
+                    help="unseen_body: an unseen body gets the blend of the placements predicted on the training "
+                         "bodies, by its label weights (placement.BlendedPlacement)")
     ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
                     help="passes over the samples of the placement model")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
                     help="smoothing length of the placement (its training targets and predictions), as a share "
                          "of the body scale")
+    ap.add_argument("--field-share", type=float, default=0.5,
+                    help="unseen_body: the garment model's field share of garment_half_placed")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json")
@@ -198,6 +234,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     args.extra = [g for g in args.extra.split(",") if g]
+    args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
     t0 = time.perf_counter()
 
@@ -213,7 +250,7 @@ def main(argv=None):
         if args.json:
             write_json_atomic(args.json, out)
     for key in args.methods:
-        print(f"{key:26s} {METHODS[key].label}")
+        print(f"{key:26s} {experiment.method_of(key).label}")
     return 0
 
 

@@ -177,3 +177,64 @@ def test_placement_model_files_of_another_version_or_kind_are_refused(trained, t
         load_placement_model(pickled)
     with pytest.raises(ModelError, match="placement model, not a field model"):
         model.body_field("pear")
+
+
+def test_body_offset_features_of_a_shifted_and_an_inflated_sphere():
+    from garment_transfer.placement import body_offset_features
+
+    V, F = icosphere(2)
+    X = body_offset_features(V, V + np.array([0.4, -0.2, 0.1]), F, shares=(0.3,))
+    assert X.shape == (F.shape[0], 6)
+    np.testing.assert_allclose(X, 0.0, atol=1e-12)
+    # Grown by 10% about its centre: every triangle moved outward along its normal, not along the surface.
+    X = body_offset_features(V, 1.1 * V, F, shares=())
+    centroids = V[F].mean(axis=1)
+    from garment_transfer.embedding import body_scale
+
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    np.testing.assert_allclose(X[:, 2], 0.1 * np.einsum("ij,ij->i", centroids, n) / body_scale(V), rtol=1e-9)
+    assert (X[:, 2] > 0).all()
+    assert np.abs(X[:, :2]).max() < 0.1 * X[:, 2].min()
+
+
+def test_placement_model_with_the_body_offset(trained, tiny, tmp_path):
+    from garment_transfer.garment_training import train_placement_model
+    from garment_transfer.placement import BODY_OFFSET_SHARES, load_placement_model
+
+    _, _, tables = trained
+    model, info = train_placement_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1,
+                                        body_offset=True)
+    assert model.metadata["body_offset_shares"] == list(BODY_OFFSET_SHARES)
+    assert model.arrays["input_mean"].shape == (model.n_inputs(model.metadata),)
+    assert info["losses"][-1] < 0.85 * info["losses"][0]
+    path = tmp_path / "offset.npz"
+    model.save(path)
+    loaded = load_placement_model(path)
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    C = loaded.frame_offsets(binding, src, tgt, g, "pear")
+    np.testing.assert_array_equal(C, model.frame_offsets(binding, src, tgt, g, "pear"))
+    assert np.isfinite(C).all() and np.abs(C).max() > 0
+
+
+def test_blended_placement_of_a_body_between_two_training_bodies(trained, tiny):
+    from garment_transfer.placement import BlendedPlacement
+
+    model, _, _ = trained
+    blend = BlendedPlacement(model)
+    ds = load_dataset(tiny)
+    src, g = ds.body("src"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    bodies = [src.with_vertices(np.asarray(model.arrays["label_bodies"][k], dtype=np.float64)) for k in range(2)]
+    own = [model.frame_offsets(binding, src, b, g, t) for b, t in zip(bodies, TARGETS)]
+    # A training body by label, or by shape alone: the model's own prediction.
+    np.testing.assert_array_equal(blend.frame_offsets(binding, src, bodies[1], g, TARGETS[1]), own[1])
+    np.testing.assert_allclose(blend.frame_offsets(binding, src, bodies[1], g), own[1], atol=1e-9)
+    # Halfway between them: halfway between their placements (not the network at a mixed label).
+    mid = src.with_vertices(0.5 * (bodies[0].V + bodies[1].V))
+    np.testing.assert_allclose(blend.frame_offsets(binding, src, mid, g), 0.5 * (own[0] + own[1]), atol=1e-9)
+    assert np.abs(own[0] - own[1]).max() > 1e-4
+    r = transfer_garment(src, mid, g, placement=blend)
+    np.testing.assert_allclose(r.V, transfer_garment(src, mid, g, placement=0.5 * (own[0] + own[1])).V, atol=1e-9)
