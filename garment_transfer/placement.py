@@ -341,7 +341,8 @@ class BlendedPlacement:
 
     The network sees every training body with its own label and features only; a new body's mixed label
     and features are inputs it never saw. The blend stays between the placements it learned. A training
-    body (by label) gets the model's own prediction.
+    body (by label, or by a shape its label weights give wholly to one training body) gets the model's own
+    prediction.
 
     Parameters
     ----------
@@ -360,6 +361,11 @@ class BlendedPlacement:
         model.check_source_body(source_body)
         require_same_topology(source_body, target_body)
         weights = label_weights(target_body.V, model.arrays["label_bodies"])
+        if weights.max() >= 1.0 - 1e-6:
+            # A training body by its shape (the stored bodies are float32: within 1e-6 of one-hot): the
+            # network's own prediction on it.
+            label = model.targets[int(np.argmax(weights))]
+            return model.frame_offsets(binding, source_body, target_body, garment, label)
         y = np.zeros((source_body.F.shape[0], 3))
         for k, wk in enumerate(weights):
             if wk > 1e-6:

@@ -9,7 +9,7 @@ from garment_transfer.dataset import load_dataset
 from garment_transfer.errors import ModelError
 from garment_transfer.garment_model import GarmentFitModel
 from garment_transfer.model_files import DEFAULT_FIELD_SHARE, read_model_file, save_garment_fit_bundle
-from garment_transfer.placement import PlacementModel
+from garment_transfer.placement import BlendedPlacement, PlacementModel
 from garment_transfer.registration import transfer_to_any_body
 from garment_transfer.transfer import transfer_garment
 from test_dataset import make_tiny_dataset
@@ -64,13 +64,19 @@ def test_the_file_transfers_as_the_core_with_the_same_models(bundle):
     src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
     field, placed, _ = parts_by_hand(path)
     expect = transfer_garment(src, tgt, garment, method="model", model=field.with_field_share(0.5),
-                              placement=placed).V
+                              placement=BlendedPlacement(placed)).V
     model = read_model_file(path)
     # The command line's call: transfer_to_any_body, the same mesh.
     got, registration = transfer_to_any_body(src, tgt, garment, method="model", model=model.model,
                                              placement=model.placement)
     assert registration is None
     np.testing.assert_allclose(got.V, expect, rtol=0, atol=1e-12)
+    # On a training body named by its label the blend is the network's own placement.
+    labelled = transfer_garment(src, tgt, garment, method="model", model=field.with_field_share(0.5),
+                                placement=placed, target="pear").V
+    np.testing.assert_allclose(transfer_garment(src, tgt, garment, method="model", model=model.model,
+                                                placement=model.placement, target="pear").V,
+                               labelled, rtol=0, atol=1e-12)
     # The share and the placement each change the result: the comparison above could fail.
     whole = transfer_garment(src, tgt, garment, method="model", model=read_model_file(path, 1.0).model,
                              placement=placed).V
