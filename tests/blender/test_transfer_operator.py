@@ -210,7 +210,7 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
 
     # A placement model alone is refused, naming the file, and nothing in the scene changes.
     placement_alone = tmp_path / "placement_alone.npz"
-    loaded.placement.save(placement_alone)
+    loaded.placement.model.save(placement_alone)
     settings.method = 'MODEL'
     settings.model_path = str(placement_alone)
     assert "placement_alone.npz: holds a placement model alone" in settings.model_status
