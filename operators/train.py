@@ -1,4 +1,5 @@
-"""Train a shared deformation model from a dataset folder, without freezing Blender.
+"""Train a model from a dataset folder (the shared deformation model, or the garment fit model with its
+placement), without freezing Blender.
 
 ``invoke`` runs modally: a timer advances a step generator, the window shows progress, Esc cancels.
 ``execute`` drains the same generator, so scripts, tests and background mode take the same path.
@@ -102,16 +103,23 @@ def training_plan(settings):
     targets = targets or [b for b in dataset.bodies if b != source]
     if not targets:
         raise DatasetError(folder, f"has no body besides the source body {source!r} to train for")
+    if settings.train_kind == 'GARMENT':
+        return dict(dataset_dir=folder, source=source, targets=targets, out=out, kind="garment")
     return dict(dataset_dir=folder, source=source, targets=targets, epochs=settings.train_epochs,
                 latent=settings.train_latent, out=out)
 
 
 def training_call(plan):
-    """A function of a progress callback that trains and saves the model of ``plan``."""
+    """A function of a progress callback that trains and saves the model of ``plan`` (the garment fit model
+    and its placement, in one file, for ``kind="garment"``; else the shared deformation model)."""
+    from ..garment_transfer.garment_training import train_garment_fit_from_dataset
     from ..garment_transfer.training import train_from_dataset
 
+    options = {k: v for k, v in plan.items() if k != "kind"}
+    train = train_garment_fit_from_dataset if plan.get("kind") == "garment" else train_from_dataset
+
     def call(progress):
-        return train_from_dataset(progress=progress, **plan)
+        return train(progress=progress, **options)
 
     return call
 
@@ -186,11 +194,17 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
         settings.train_progress = 100.0
         settings.model_path = self._plan["out"]
         settings.method = 'MODEL'
-        loss = info.get("final_loss")
-        loss_text = f", loss {loss:.4g}" if isinstance(loss, (int, float)) else ""
-        self.report({'INFO'}, f"Model for {', '.join(self._plan['targets'])} (source "
-                              f"{self._plan['source']}) saved to {self._plan['out']}: "
-                              f"{info.get('epochs')} epochs{loss_text}, "
+        if self._plan.get("kind") == "garment":
+            parts = [f"{name} {part['epochs']} passes, loss {part['final_loss']:.4g}"
+                     for name, part in (("field", info.get("field")), ("placement", info.get("placement")))
+                     if part]
+            what, detail = "Garment fit model", "; ".join(parts)
+        else:
+            loss = info.get("final_loss")
+            loss_text = f", loss {loss:.4g}" if isinstance(loss, (int, float)) else ""
+            what, detail = "Model", f"{info.get('epochs')} epochs{loss_text}"
+        self.report({'INFO'}, f"{what} for {', '.join(self._plan['targets'])} (source "
+                              f"{self._plan['source']}) saved to {self._plan['out']}: {detail}, "
                               f"{info.get('seconds', 0.0):.1f} s")
         return {'FINISHED'}
 

@@ -166,8 +166,11 @@ class VIEW3D_PT_garment_transfer_training(GarmentPanel, bpy.types.Panel):
         layout.prop(settings, "dataset_source")
         layout.prop(settings, "dataset_targets")
         layout.prop(settings, "train_output")
-        layout.prop(settings, "train_epochs")
-        layout.prop(settings, "train_latent")
+        layout.prop(settings, "train_kind")
+        if settings.train_kind == 'SHARED':
+            # The garment kind trains for its measured passes (the core's defaults).
+            layout.prop(settings, "train_epochs")
+            layout.prop(settings, "train_latent")
         if not torch_available():
             box = layout.box()
             box.label(text="Training needs PyTorch (not installed)", icon='ERROR')

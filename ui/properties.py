@@ -158,6 +158,13 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     train_output: StringProperty(
         name="Save Model As", subtype='FILE_PATH', default="//garment_model.npz",
         description="Where to write the trained model (.npz)")
+    train_kind: EnumProperty(
+        name="Model",
+        items=[('SHARED', "Shared Deformation", "The paper's shared deformation model: one field per target body"),
+               ('GARMENT', "Garment Fit + Placement",
+                "The garment fit model and its learned placement in one file: a field and a hang of each "
+                "garment's own (better on unseen garments on the training bodies; docs/garment-model.md)")],
+        default='SHARED')
     train_epochs: IntProperty(name="Epochs", default=300, min=1, soft_max=5000)
     train_latent: IntProperty(name="Latent Size", default=30, min=1, soft_max=256,
                               description="Size of the shared deformation space")

@@ -79,6 +79,22 @@ def test_train_writes_a_model_the_transfer_then_uses(dressed, tmp_path):
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
 
 
+def test_train_the_garment_fit_model_with_its_placement(dressed, tmp_path, extension):
+    pytest.importorskip("torch", reason=NO_TORCH)
+    settings = dressed.settings
+    settings.dataset_path = str(make_tiny_dataset(dressed.makehuman, tmp_path / "ds",
+                                                  garments=("female_casualsuit01", "male_casualsuit04")))
+    settings.dataset_source = "female_average"
+    settings.train_output = str(tmp_path / "garment")
+    settings.train_kind = 'GARMENT'
+    assert bpy.ops.garment_transfer.train() == {'FINISHED'}
+    assert settings.method == 'MODEL' and settings.model_path.endswith("garment.npz")
+    read = extension.garment_transfer.model_files.read_model_file(tmp_path / "garment.npz")
+    assert read.kind == "garment" and read.has_placement and read.targets == ["female_pear"]
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert settings.last_model == "Model: garment fit model (garment.npz), field share 0.5, learned placement"
+
+
 def test_cancelled_training_writes_nothing(dressed, tmp_path, extension):
     pytest.importorskip("torch", reason=NO_TORCH)
     train = extension.operators.train

@@ -54,6 +54,20 @@ def test_panels_draw_existing_properties_and_operators(extension, method):
     settings.garment = None
 
 
+def test_training_panel_shows_epochs_and_latent_for_the_shared_kind_only(extension):
+    settings = bpy.context.scene.garment_transfer
+    drawn = {}
+    for kind in ("SHARED", "GARMENT"):
+        settings.train_kind = kind
+        calls = []
+        bpy.types.VIEW3D_PT_garment_transfer_training.draw(SimpleNamespace(layout=RecordingLayout(calls)),
+                                                           bpy.context)
+        drawn[kind] = {args[1] for name, args, _ in calls if name == "prop"}
+    settings.train_kind = 'SHARED'
+    assert {"train_kind", "train_epochs", "train_latent"} <= drawn["SHARED"]
+    assert "train_kind" in drawn["GARMENT"] and not {"train_epochs", "train_latent"} & drawn["GARMENT"]
+
+
 def test_training_panel_says_when_torch_is_missing(extension, monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "torch", None)
     calls = []
