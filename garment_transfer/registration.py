@@ -501,11 +501,8 @@ class ArapFit:
         # Uniform weights: the regulariser (squared edge misfits) and the data terms (squared
         # distances) are both lengths squared, so their balance does not depend on the units.
         e0 = self.X0[self.i] - self.X0[self.j]
-        w = np.ones(self.i.shape[0])
-        self.w = w
-        W = sp.coo_matrix((np.concatenate([w, w]), (np.concatenate([self.i, self.j]),
-                                                   np.concatenate([self.j, self.i]))), shape=(n, n)).tocsr()
-        self.L = (sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W).tocsr()
+        self.w = np.ones(self.i.shape[0])
+        self.L = self._laplacian(self.w)
         self.e0 = e0
         k = self.i.shape[0]
         # Edge-to-vertex sums as sparse products: np.add.at is 10x slower on these sizes.
@@ -696,7 +693,7 @@ def _finer_than_target(X, F, i, j, surface: TriangleSurface):
         np.bincount(ends, minlength=n), 1)
     _, _, tri, _ = surface.closest(X)
     T, G = surface.V, surface.F
-    area = 0.5 * np.linalg.norm(np.cross(T[G[tri, 1]] - T[G[tri, 0]], T[G[tri, 2]] - T[G[tri, 0]]), axis=1)
+    area = triangle_normals(T, G[tri])[1]
     ratio = np.sqrt(4.0 * area / np.sqrt(3.0)) / np.maximum(own, 1e-300)
     fine = ratio > COARSE_FINE
     return fine[i] | fine[j]
