@@ -197,9 +197,14 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
     dev = (Q - np.eye(3)).reshape(-1, 9)
     c = triangle_centroids(source_V, F)
     area = triangle_normals(np.asarray(source_V, dtype=np.float64), F)[1]
-    scale = body_scale(source_V)
-    parts = [dev] + [_neighbourhood_mean(c, dev, s * scale, area + 1e-300) for s in shares]
-    return np.concatenate(parts, axis=1), dev
+    return with_neighbourhood_means(dev, c, area, body_scale(source_V), shares), dev
+
+
+def with_neighbourhood_means(values, centroids, area, scale, shares):
+    """``values`` (M,k) per body triangle, then their area-weighted means over the neighbourhoods of each
+    radius ``share * scale``: (M, k * (1 + len(shares))) float64."""
+    parts = [values] + [_neighbourhood_mean(centroids, values, s * scale, area + 1e-300) for s in shares]
+    return np.concatenate(parts, axis=1)
 
 
 #: The last few ``target_features`` of the models' inputs, by content: the field model and the placement

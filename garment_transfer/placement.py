@@ -169,7 +169,7 @@ def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
     -------
     (M, 3 * (1 + len(shares))) float64
     """
-    from .garment_model import _neighbourhood_mean
+    from .garment_model import with_neighbourhood_means
 
     S_V = np.asarray(source_V, dtype=np.float64)
     T_V = np.asarray(target_V, dtype=np.float64)
@@ -181,8 +181,7 @@ def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
     d -= (area[:, None] * d).sum(axis=0) / max(area.sum(), 1e-300)
     scale = body_scale(S_V)
     local = np.einsum("mij,mj->mi", _orthonormal_frames(S_V, F), d) / scale
-    parts = [local] + [_neighbourhood_mean(cs, local, s * scale, area + 1e-300) for s in shares]
-    return np.concatenate(parts, axis=1)
+    return with_neighbourhood_means(local, cs, area, scale, shares)
 
 
 def unrotate(source_V, target_V, F):
