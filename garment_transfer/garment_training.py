@@ -218,14 +218,14 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
 
     from .placement import FORMAT as PFORMAT
     from .placement import FORMAT_VERSION as PVERSION
-    from .placement import BODY_OFFSET_SHARES, SMOOTHING_SHARE, PlacementModel, body_offset_features
+    from .placement import (BODY_OFFSET_SHARES, CONTEXT_COLUMNS, SMOOTHING_SHARE, PlacementModel,
+                            body_offset_features)
 
     t0 = time.perf_counter()
     if threads:
         torch.set_num_threads(int(threads))
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
-    from .placement import CONTEXT_COLUMNS
 
     own = np.array(tables["garment_X"], dtype=np.float32)
     context = np.array(tables["garment_context"], dtype=np.float32)

@@ -28,7 +28,6 @@ multigrid for one target and for very large garments (``python -m lab.speed`` me
 from __future__ import annotations
 
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -36,6 +35,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .mesh import degenerate_triangles, edge_lengths_mean
+from .proximity import THREADS
 
 logger = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ CHEBYSHEV_LOWER = 0.1
 CHEBYSHEV_UPPER = 1.2
 SPECTRUM_STEPS = 10
 #: Threads solving the coordinates by multigrid at once (one per coordinate at most).
-SOLVE_THREADS = min(3, max(1, os.cpu_count() or 1))
+SOLVE_THREADS = min(3, THREADS)
 METHODS = ("factor", "multigrid")
 
 
