@@ -58,6 +58,11 @@ CHEBYSHEV_LOWER = 0.1
 #: ... and where it ends, as a multiple of the estimate of that eigenvalue, found in this many steps.
 CHEBYSHEV_UPPER = 1.2
 SPECTRUM_STEPS = 10
+#: The prolongator's Jacobi damping (over the largest eigenvalue of D^-1 A), and the hierarchy's
+#: limits: a level this small is solved directly; at most this many levels above it.
+PROLONGATION_OMEGA = 4.0 / 3.0
+COARSE_MAX = 10
+LEVELS_MAX = 9
 #: Threads solving the coordinates by multigrid at once (one per coordinate at most).
 SOLVE_THREADS = min(3, THREADS)
 METHODS = ("factor", "multigrid")
@@ -273,18 +278,66 @@ def _hierarchy(K):
     return Multigrid(K)
 
 
+def _dot(u, v):
+    # Not np.dot: BLAS, whose threads would spin on the cores the other work uses.
+    return float(np.einsum("i,i->", u, v))
+
+
+def largest_eigenvalue(A, steps, scale=None):
+    """An estimate from below of the largest eigenvalue of a symmetric positive semidefinite matrix,
+    by ``steps`` Lanczos steps from a fixed start (the same answer every time).
+
+    Parameters
+    ----------
+    A : (n,n) sparse
+    steps : int
+    scale : (n,) float, optional
+        Estimate that of ``S A S`` for ``S = diag(scale)`` instead (with ``scale = D^-1/2``, the
+        largest eigenvalue of ``D^-1 A``).
+
+    Returns
+    -------
+    float
+    """
+    def apply(x):
+        return A @ x if scale is None else scale * (A @ (scale * x))
+
+    q = np.random.default_rng(0).random(A.shape[0])
+    q /= np.sqrt(_dot(q, q))
+    previous = np.zeros_like(q)
+    alpha, beta = [], [0.0]
+    for _ in range(min(steps, A.shape[0])):
+        w = apply(q)
+        a = _dot(q, w)
+        w -= a * q + beta[-1] * previous
+        alpha.append(a)
+        b = np.sqrt(_dot(w, w))
+        if not b > 1e-12 * abs(a):
+            break
+        beta.append(b)
+        previous, q = q, w / b
+    k = len(alpha)
+    T = np.diag(alpha) + np.diag(beta[1:k], 1) + np.diag(beta[1:k], -1)
+    return float(np.linalg.eigvalsh(T)[-1])
+
+
 class Multigrid:
     """Conjugate gradients preconditioned by a multigrid V-cycle, for a symmetric positive definite K.
 
-    The levels are pyamg's smoothed aggregation (strength of connection off, theta 0: every garment
-    edge couples its vertices; without the smoothing of the candidate vectors the hierarchy builds in
-    0.12 s instead of 0.16 s at 78K vertices for the same iteration count). The cycle and the iteration
+    The levels are smoothed aggregation built here from pyamg's aggregation and tentative prolongator
+    (strength of connection off, theta 0: every garment edge couples its vertices); the prolongator's
+    Jacobi step and the smoother take their largest eigenvalues from our own Lanczos search
+    (``largest_eigenvalue``), which calls no BLAS and starts from a fixed vector, and every level is
+    kept in CSR. At 78K vertices the hierarchy builds in 0.06-0.08 s against 0.12 s for pyamg's
+    ``smoothed_aggregation_solver`` with the same options, whose searches (Arnoldi, with BLAS) took
+    half its time and left OpenBLAS's threads spinning on the second core, for the same iteration
+    counts (``python -m lab.multigrid``). The cycle and the iteration
     are ours, so that everything a solve does is scipy's sparse products and numpy's vector operations:
     they release the GIL, so the coordinates are solved on threads at once, and none calls BLAS, whose
     threads would wait on the cores those use. The smoother is a Chebyshev polynomial of each level's
     matrix rather than pyamg's default symmetric Gauss-Seidel: as many iterations (10-12 per coordinate
-    to 1e-8 at 78K vertices, 12-15 at 500K) and cheaper ones (the three coordinates at 78K: 0.17 s
-    against 0.32 s on one core, 0.11 s on two; at 500K 1.6 s against 2.7 s, and 1.0 s).
+    to 1e-8 at 78K vertices, 12-15 at 500K) and cheaper ones (the three coordinates at 78K: 0.15 s
+    against 0.36 s on one core, 0.08 s on two; at 500K 1.2 s against 2.7 s, and 0.8 s).
 
     Parameters
     ----------
@@ -292,25 +345,35 @@ class Multigrid:
     """
 
     def __init__(self, K):
-        import pyamg
+        from pyamg.aggregation.aggregate import standard_aggregation
+        from pyamg.aggregation.tentative import fit_candidates
         from pyamg.relaxation.chebyshev import chebyshev_polynomial_coefficients
-        from pyamg.util.linalg import approximate_spectral_radius
+        from pyamg.strength import symmetric_strength_of_connection
 
         self.K = sp.csr_matrix(K)
-        levels = pyamg.smoothed_aggregation_solver(self.K, symmetry="hermitian",
-                                                   strength=("symmetric", {"theta": 0.0}),
-                                                   improve_candidates=None).levels
+        A = self.K
+        candidates = np.ones((A.shape[0], 1))
         self.levels = []
-        for level in levels[:-1]:
-            # The polynomial's interval needs the level's largest eigenvalue: ten Lanczos steps find 95%
-            # of it (pyamg's default search, 99%, takes three times as long: 0.07 s at 78K vertices), and
-            # the interval reaches past it.
-            start = np.random.default_rng(0).random((level.A.shape[0], 1))
-            rho = approximate_spectral_radius(level.A, maxiter=SPECTRUM_STEPS, restart=0, initial_guess=start)
+        while A.shape[0] > COARSE_MAX and len(self.levels) < LEVELS_MAX:
+            aggregates = standard_aggregation(symmetric_strength_of_connection(A, theta=0.0))[0]
+            if aggregates.shape[1] in (0, A.shape[0]):
+                break
+            T, candidates = fit_candidates(aggregates, candidates)
+            T = sp.csr_matrix(T)
+            # The tentative prolongator smoothed by one damped Jacobi step, omega over the largest
+            # eigenvalue of D^-1 A (as pyamg's smoothed aggregation does, with a search of our own).
+            inverse_diagonal = 1.0 / A.diagonal()
+            rho = largest_eigenvalue(A, SPECTRUM_STEPS, np.sqrt(inverse_diagonal))
+            P = (T - sp.diags(inverse_diagonal * (PROLONGATION_OMEGA / rho)) @ (A @ T)).tocsr()
+            R = P.T.tocsr()
+            # The smoother's interval reaches past the estimate of A's largest eigenvalue (a Lanczos
+            # estimate is below it).
+            rho = largest_eigenvalue(A, SPECTRUM_STEPS)
             coefficients = -chebyshev_polynomial_coefficients(CHEBYSHEV_LOWER * rho, CHEBYSHEV_UPPER * rho,
                                                               CHEBYSHEV_DEGREE)[:-1]
-            self.levels.append((level.A, level.R, level.P, coefficients))
-        self.coarse = np.linalg.pinv(np.asarray(levels[-1].A.toarray(), dtype=np.float64))
+            self.levels.append((A, R, P, coefficients))
+            A = (R @ A @ P).tocsr()
+        self.coarse = np.linalg.pinv(A.toarray())
 
     def _smooth(self, A, coefficients, r):
         """p(A) r, the smoother's correction for the residual r (Horner's rule)."""
@@ -348,27 +411,23 @@ class Multigrid:
         -------
         x : (n,) float64
         """
-        def dot(u, v):
-            # Not np.dot: BLAS (below)
-            return float(np.einsum("i,i->", u, v))
-
         x = np.array(x0, dtype=np.float64)
         r = b - self.K @ x
-        target = tol * np.sqrt(dot(b, b))
+        target = tol * np.sqrt(_dot(b, b))
         z = self.cycle(r)
         p = z
-        rz = dot(r, z)
+        rz = _dot(r, z)
         for _ in range(maxiter):
-            norm = np.sqrt(dot(r, r))
+            norm = np.sqrt(_dot(r, r))
             if residuals is not None:
                 residuals.append(norm)
             if norm <= target:
                 break
             Kp = self.K @ p
-            alpha = rz / dot(p, Kp)
+            alpha = rz / _dot(p, Kp)
             x += alpha * p
             r -= alpha * Kp
             z = self.cycle(r)
-            rz, previous = dot(r, z), rz
+            rz, previous = _dot(r, z), rz
             p = z + (rz / previous) * p
         return x

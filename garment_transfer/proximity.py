@@ -83,28 +83,34 @@ def closest_on_triangles(P, A, B, C):
         return np.divide(num, den, out=np.zeros_like(num), where=den != 0)
 
     denom = va + vb + vc
-    # Inside the face all three are >= 0 but for rounding: clipped, so coordinates never go negative.
-    bary = np.stack([ratio(va, denom), ratio(vb, denom), ratio(vc, denom)], axis=1).clip(0.0, None)
-    bary /= np.where(bary.sum(axis=1) > 0, bary.sum(axis=1), 1.0)[:, None]
-    # Regions in reverse order of precedence: each later rule overrides the earlier ones.
-    rules = []
-    m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    t = ratio(d4 - d3, (d4 - d3) + (d5 - d6))
-    rules.append((m, np.stack([np.zeros_like(t), 1 - t, t], axis=1)))
-    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    t = ratio(d2, d2 - d6)
-    rules.append((m, np.stack([1 - t, np.zeros_like(t), t], axis=1)))
-    m = (d6 >= 0) & (d5 <= d6)
-    rules.append((m, np.array([0.0, 0.0, 1.0])))
-    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    t = ratio(d1, d1 - d3)
-    rules.append((m, np.stack([1 - t, t, np.zeros_like(t)], axis=1)))
-    m = (d3 >= 0) & (d4 <= d3)
-    rules.append((m, np.array([0.0, 1.0, 0.0])))
-    m = (d1 <= 0) & (d2 <= 0)
-    rules.append((m, np.array([1.0, 0.0, 0.0])))
-    for mask, value in rules:
-        bary = np.where(mask[:, None], value, bary)
+    bary = np.empty_like(P)
+    # The regions in reverse order of precedence: a point in several takes the last one's answer.
+    # Each region's answer is computed on its own points only.
+    edge_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    edge_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    corner_c = (d6 >= 0) & (d5 <= d6)
+    edge_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    corner_b = (d3 >= 0) & (d4 <= d3)
+    corner_a = (d1 <= 0) & (d2 <= 0)
+    face = ~(edge_bc | edge_ac | corner_c | edge_ab | corner_b | corner_a)
+    if face.any():
+        # Inside the face all three are >= 0 but for rounding: clipped, so coordinates never go negative.
+        f = np.stack([va[face], vb[face], vc[face]], axis=1)
+        f = ratio(f, denom[face, None]).clip(0.0, None)
+        total = f.sum(axis=1)
+        bary[face] = f / np.where(total > 0, total, 1.0)[:, None]
+    m = edge_bc
+    t = ratio((d4 - d3)[m], (d4 - d3)[m] + (d5 - d6)[m])
+    bary[m] = np.stack([np.zeros_like(t), 1 - t, t], axis=1)
+    m = edge_ac
+    t = ratio(d2[m], d2[m] - d6[m])
+    bary[m] = np.stack([1 - t, np.zeros_like(t), t], axis=1)
+    bary[corner_c] = (0.0, 0.0, 1.0)
+    m = edge_ab
+    t = ratio(d1[m], d1[m] - d3[m])
+    bary[m] = np.stack([1 - t, t, np.zeros_like(t)], axis=1)
+    bary[corner_b] = (0.0, 1.0, 0.0)
+    bary[corner_a] = (1.0, 0.0, 0.0)
     # va + vb + vc = |ab x ac|^2: a (nearly) flat triangle is three segments, whose regions the
     # rules above cannot tell apart.
     flat = denom <= 1e-14 * np.einsum("ij,ij->i", ab, ab) * np.einsum("ij,ij->i", ac, ac)

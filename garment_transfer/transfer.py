@@ -227,18 +227,21 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     length = stiffness if stiffness else STIFFNESS_SHARE * scale
     method = solver_method or choose_method(garment.n_vertices, reused)
 
-    def make_solver(distance):
+    def make_solver(distance, with_adjacency=False):
         started = time.perf_counter()
         w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
         solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
                                method=method)
         seconds["factor"] = time.perf_counter() - started
-        return solver
+        # The penetration fix's vertex graph, while the main thread binds (otherwise built on first use).
+        adjacency = penetration.vertex_adjacency(garment.n_vertices, garment.F) if with_adjacency else None
+        return solver, adjacency
 
     with ThreadPoolExecutor(1) as pool:
         # Anchors everywhere do not depend on the binding: the solver is built on a thread while the
         # garment is bound (both are mostly compiled code that releases the GIL).
-        early = pool.submit(make_solver, None) if need_solver and anchoring == "everywhere" and THREADS > 1 else None
+        early = (pool.submit(make_solver, None, True) if need_solver and anchoring == "everywhere" and THREADS > 1
+                 else None)
         surface = TriangleSurface(source_body.V, source_body.F)
         binding = bind(garment.V, source_body.V, source_body.F, surface)
         _check_placement(source_body, garment, surface, binding)
@@ -251,13 +254,14 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         else:
             index, weights = cloth_to_body(source_body.V, source_body.F, garment.V, garment.F, k=1)
         seconds["embed"] = time.perf_counter() - t
-        solver = None
+        solver = adjacency = None
         if early is not None:
-            solver = early.result()
+            solver, adjacency = early.result()
         elif need_solver:
-            solver = make_solver(binding.distance)
+            solver, adjacency = make_solver(binding.distance)
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
-                           edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring)
+                           edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring,
+                           _adjacency=adjacency)
 
 
 def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None,

@@ -1,5 +1,7 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from garment_transfer.gradients import deformation_gradients, triangle_frames
 from garment_transfer.obj import read_obj
@@ -223,3 +225,45 @@ def test_nested_dissection_is_a_permutation_whose_factor_solves_exactly():
     # Degenerate input: every vertex at one point still gives a permutation.
     same = poisson.nested_dissection(np.zeros((n, 3)), K)
     np.testing.assert_array_equal(np.sort(same), np.arange(n))
+
+
+def test_largest_eigenvalue_is_exact_with_as_many_steps_as_rows():
+    from garment_transfer.poisson import largest_eigenvalue
+
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(30, 30))
+    A = sp.csr_matrix(M @ M.T + np.eye(30))
+    assert largest_eigenvalue(A, 30) == pytest.approx(np.linalg.eigvalsh(A.toarray())[-1], rel=1e-9)
+    # Scaled by D^-1/2 on both sides: the largest eigenvalue of D^-1 A (a Jacobi step's).
+    d = A.diagonal()
+    exact = np.max(np.linalg.eigvals(A.toarray() / d[:, None]).real)
+    assert largest_eigenvalue(A, 30, 1 / np.sqrt(d)) == pytest.approx(exact, rel=1e-9)
+
+
+def test_largest_eigenvalue_of_a_garment_system_is_estimated_from_below():
+    # Ten steps on a real system: below the largest eigenvalue (the smoother's interval reaches past
+    # it by CHEBYSHEV_UPPER) and close to it; the same answer every time.
+    from garment_transfer import poisson
+
+    V, F, _ = _garment_pair()
+    K = PoissonSolver(V, F, 1e-3, method="multigrid").K
+    exact = spla.eigsh(K, k=1, which="LA", return_eigenvectors=False)[0]
+    estimate = poisson.largest_eigenvalue(K, poisson.SPECTRUM_STEPS)
+    assert 0.8 * exact < estimate <= exact * (1 + 1e-12)
+    assert poisson.CHEBYSHEV_UPPER * estimate > exact
+    assert poisson.largest_eigenvalue(K, poisson.SPECTRUM_STEPS) == estimate
+
+
+def test_multigrid_levels_are_galerkin_products():
+    # Each coarse level is R A P of the level above with R = P^T, so the V-cycle is symmetric; the levels
+    # shrink down to a small coarsest system solved directly.
+    V, F, _ = _garment_pair()
+    hierarchy = PoissonSolver(V, F, 1e-3, method="multigrid").hierarchy
+    levels = hierarchy.levels
+    assert len(levels) >= 2
+    for (A, R, P, _), below in zip(levels, levels[1:] + [(None,) * 4]):
+        assert abs(R - P.T).max() == 0
+        coarse = below[0] if below[0] is not None else np.linalg.pinv(hierarchy.coarse)
+        np.testing.assert_allclose(sp.csr_matrix(coarse).toarray() if sp.issparse(coarse) else coarse,
+                                   (R @ A @ P).toarray(), rtol=0, atol=1e-9 * abs(A).max())
+        assert P.shape[1] < P.shape[0] / 2
