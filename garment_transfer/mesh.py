@@ -189,9 +189,11 @@ def edge_lengths_mean(V, F) -> float:
     """Mean edge length of the triangles F over V (a length scale for tolerances)."""
     if len(F) == 0:
         return 0.0
-    P = V[F]
-    e = P[:, [1, 2, 0]] - P
-    return float(np.mean(np.sqrt(np.einsum("mkj,mkj->mk", e, e))))
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    length = np.empty(F.shape)
+    for k, e in enumerate((b - a, c - b, a - c)):
+        length[:, k] = np.sqrt(np.einsum("mj,mj->m", e, e))
+    return float(np.mean(length))
 
 
 def triangle_normals(V, F):
@@ -214,9 +216,11 @@ def degenerate_triangles(V, F, edge_length=None):
 
     ``edge_length``: the mesh's ``edge_lengths_mean``, if known.
     """
-    _, area = triangle_normals(V, F)
+    a = V[F[:, 0]]
+    cross = np.cross(V[F[:, 1]] - a, V[F[:, 2]] - a)
     h = edge_lengths_mean(V, F) if edge_length is None else edge_length
-    return 2.0 * area <= DEGENERATE_AREA * max(h, 1e-300) ** 2
+    # Twice the area against the bound, both squared.
+    return np.einsum("mj,mj->m", cross, cross) <= (DEGENERATE_AREA * max(h, 1e-300) ** 2) ** 2
 
 
 def mesh_report(mesh: Mesh) -> dict:

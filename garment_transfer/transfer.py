@@ -219,15 +219,18 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         raise ValueError(f"anchoring must be one of {', '.join(ANCHORINGS)}, got {anchoring!r}")
     seconds = {}
     t = time.perf_counter()
-    h = edge_lengths_mean(garment.V, garment.F)
-    degenerate = degenerate_triangles(garment.V, garment.F, edge_length=h)
-    if degenerate.all():
-        raise MeshError(garment.name, "every face has zero area")
     scale = body_scale(source_body.V)
     length = stiffness if stiffness else STIFFNESS_SHARE * scale
     method = solver_method or choose_method(garment.n_vertices, reused)
 
-    def make_solver(distance, with_adjacency=False):
+    def garment_facts():
+        h = edge_lengths_mean(garment.V, garment.F)
+        degenerate = degenerate_triangles(garment.V, garment.F, edge_length=h)
+        if degenerate.all():
+            raise MeshError(garment.name, "every face has zero area")
+        return h, degenerate
+
+    def make_solver(distance, h, degenerate, with_adjacency=False):
         started = time.perf_counter()
         w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
         solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
@@ -237,14 +240,26 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         adjacency = penetration.vertex_adjacency(garment.n_vertices, garment.F) if with_adjacency else None
         return solver, adjacency
 
+    def beside_binding():
+        h, degenerate = garment_facts()
+        return (h, degenerate, *make_solver(None, h, degenerate, with_adjacency=True))
+
     with ThreadPoolExecutor(1) as pool:
-        # Anchors everywhere do not depend on the binding: the solver is built on a thread while the
-        # garment is bound (both are mostly compiled code that releases the GIL).
-        early = (pool.submit(make_solver, None, True) if need_solver and anchoring == "everywhere" and THREADS > 1
-                 else None)
-        surface = TriangleSurface(source_body.V, source_body.F)
-        binding = bind(garment.V, source_body.V, source_body.F, surface)
-        _check_placement(source_body, garment, surface, binding)
+        # Anchors everywhere do not depend on the binding: the garment's own facts and the solver are
+        # made on a thread while the garment is bound (mostly compiled code that releases the GIL).
+        early = None
+        if need_solver and anchoring == "everywhere" and THREADS > 1:
+            early = pool.submit(beside_binding)
+        else:
+            h, degenerate = garment_facts()
+        try:
+            surface = TriangleSurface(source_body.V, source_body.F)
+            binding = bind(garment.V, source_body.V, source_body.F, surface)
+            _check_placement(source_body, garment, surface, binding)
+        except Exception:
+            if early is not None:
+                early.result()  # a garment with no area is refused for that first
+            raise
         seconds["bind"] = time.perf_counter() - t
         index = weights = matrix = None
         t = time.perf_counter()
@@ -256,9 +271,9 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         seconds["embed"] = time.perf_counter() - t
         solver = adjacency = None
         if early is not None:
-            solver, adjacency = early.result()
+            h, degenerate, solver, adjacency = early.result()
         elif need_solver:
-            solver, adjacency = make_solver(binding.distance)
+            solver, adjacency = make_solver(binding.distance, h, degenerate)
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
                            edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring,
                            _adjacency=adjacency)

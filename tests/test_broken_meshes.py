@@ -113,6 +113,19 @@ def test_all_zero_area_garment_is_refused(bodies):
         transfer_garment(src, tgt, g)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_zero_area_is_named_before_distance_from_the_body(bodies, monkeypatch, threads):
+    # With several cores the garment's area is checked on a thread while it is bound; a garment that is
+    # both flat and far away is still refused for its area first, as on one core.
+    from garment_transfer import transfer
+
+    monkeypatch.setattr(transfer, "THREADS", threads)
+    src, tgt = bodies
+    g = mesh_from_triangles([[90.0, 0, 0], [90.0, 0, 0], [90.0, 0, 0]], [[0, 1, 2]], name="far_flat.obj")
+    with pytest.raises(MeshError, match="far_flat.obj: every face has zero area"):
+        transfer_garment(src, tgt, g)
+
+
 @pytest.mark.parametrize("text, problem", [
     ("v 0 0 0\nv 1 0 0\nv 0 1", "line 3: the file ends in the middle of a record.*cut off"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2", "line 5: the file ends in the middle of a record"),
