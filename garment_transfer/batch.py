@@ -679,7 +679,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         try:
             target_body = _INPUTS.mesh(t.body, t.name)
             result = transfer_garment(source_body, target_body, garment, method=s.method,
-                                      model=model and model.model, placement=model and model.placement,
+                                      **(model.transfer_arguments() if model else {}),
                                       target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
                                       interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
             reference = _read_garment(t.reference) if t.reference is not None else None

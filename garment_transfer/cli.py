@@ -103,7 +103,7 @@ def cmd_transfer(args):
     shape_basis = _shape_basis_for(args, source_body)
     result, registration = transfer_to_any_body(
         source_body, target_body, garment, cache=not args.no_cache, shape_basis=shape_basis,
-        method=args.method, model=model and model.model, placement=model and model.placement,
+        method=args.method, **(model.transfer_arguments() if model else {}),
         target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
         interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
     t = time.perf_counter()
@@ -240,7 +240,7 @@ def cmd_transfer_outfit(args):
     model = _model_for(args)
     load = time.perf_counter() - t
     result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
-                             model=model and model.model, placement=model and model.placement,
+                             **(model.transfer_arguments() if model else {}),
                              target=args.target, interpolate=not args.no_interpolate)
     t = time.perf_counter()
     on = f"{os.path.basename(args.target_body)} ({args.method})"

@@ -374,11 +374,18 @@ def load_model(path) -> SharedDeformationModel:
     name = os.fspath(path)
     if metadata.get("format") != FORMAT:
         raise ModelError(name, "is not a garment transfer model (metadata 'format' differs)")
-    version = metadata.get("format_version")
-    if version != FORMAT_VERSION:
-        raise ModelError(name, f"has format version {version}; this version of garment_transfer reads "
-                               f"version {FORMAT_VERSION}")
+    need_format_version(name, metadata, FORMAT_VERSION)
     return SharedDeformationModel(arrays, metadata, name)
+
+
+def need_format_version(path, metadata, version, what="it"):
+    """A ModelError naming the file (and ``what`` in it, e.g. "its placement model") unless the metadata's
+    ``format_version`` is ``version``."""
+    have = metadata.get("format_version")
+    if have != version:
+        where = "" if what == "it" else f"{what} "
+        raise ModelError(path, f"{where}has format version {have}; this version of garment_transfer reads "
+                               f"version {version}")
 
 
 def read_model_arrays(path):

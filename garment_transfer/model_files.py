@@ -81,6 +81,10 @@ class ModelFile:
         """The training targets' labels."""
         return list(self.model.targets)
 
+    def transfer_arguments(self) -> dict:
+        """``transfer_garment``'s ``model`` and ``placement`` (also ``transfer_outfit``'s)."""
+        return {"model": self.model, "placement": self.placement}
+
     def with_field_share(self, share):
         """The same file with another share of the garment fit model's field (a ModelError for the shared
         model, which has none)."""
@@ -160,7 +164,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
     from . import garment_model, placement
     from .model import FORMAT as SHARED_FORMAT
     from .model import FORMAT_VERSION as SHARED_VERSION
-    from .model import SharedDeformationModel, read_model_arrays
+    from .model import SharedDeformationModel, need_format_version, read_model_arrays
 
     path = os.fspath(path)
     arrays, metadata = read_model_arrays(path)
@@ -169,7 +173,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         if field_share is not None:
             raise ModelError(path, "holds the paper's shared deformation model, which has no field share "
                                    "(that is for a garment fit model)")
-        _need_version(path, metadata, SHARED_VERSION)
+        need_format_version(path, metadata, SHARED_VERSION)
         model = _build(path, SharedDeformationModel, arrays, metadata)
         return ModelFile(path, "shared", model, metadata={"dataset": metadata.get("dataset"),
                                                           "targets": model.targets})
@@ -177,7 +181,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"the field share must be between 0 and 1, got {share}")
     if fmt == garment_model.FORMAT:
-        _need_version(path, metadata, garment_model.FORMAT_VERSION)
+        need_format_version(path, metadata, garment_model.FORMAT_VERSION)
         model = _build(path, garment_model.GarmentFitModel, arrays, metadata)
         return ModelFile(path, "garment", model.with_field_share(share), field_share=share,
                          metadata={"dataset": metadata.get("dataset"), "targets": model.targets})
@@ -186,7 +190,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
                                "the garment fit model and its placement in one file")
     if fmt != BUNDLE_FORMAT:
         raise ModelError(path, f"is not a garment transfer model (metadata 'format' is {fmt!r})")
-    _need_version(path, metadata, BUNDLE_VERSION)
+    need_format_version(path, metadata, BUNDLE_VERSION)
     parts = {}
     for prefix in ("field", "placement"):
         md = metadata.get(prefix)
@@ -202,7 +206,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         module = garment_model if prefix == "field" else placement
         if md.get("format") != module.FORMAT:
             raise ModelError(path, f"its {prefix!r} part is not a {prefix} model (format {md.get('format')!r})")
-        _need_version(path, md, module.FORMAT_VERSION, f"its {prefix} model")
+        need_format_version(path, md, module.FORMAT_VERSION, f"its {prefix} model")
         parts[prefix] = own
     strays = sorted(k for k in arrays if k.split(".", 1)[0] not in parts)
     if strays:
@@ -227,14 +231,6 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
 def _same_source(field_model, placement_model):
     """Whether the two models were trained on the same source body mesh (its faces' hash)."""
     return placement_model.metadata["source"].get("faces_hash") == field_model.metadata["source"].get("faces_hash")
-
-
-def _need_version(path, metadata, version, what="it"):
-    have = metadata.get("format_version")
-    if have != version:
-        where = "" if what == "it" else f"{what} "
-        raise ModelError(path, f"{where}has format version {have}; this version of garment_transfer reads "
-                               f"version {version}")
 
 
 def _build(path, cls, arrays, metadata):

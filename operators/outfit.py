@@ -96,8 +96,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
         automatic = OFFSET_SHARE * body_scale(source_framed.V)
         offsets = [automatic if o is None else o for o in offsets]
     outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], offsets=offsets,
-                              method=method.lower(), model=model and model.model,
-                              placement=model and model.placement, target=target_label or None,
+                              method=method.lower(), **(model.transfer_arguments() if model else {}),
+                              target=target_label or None,
                               progress=progress)
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]

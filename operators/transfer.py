@@ -141,8 +141,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
                                           f"has {source.n_vertices} (a modifier changes the vertex count): "
                                           "turn off Fit With Shape Keys or Use Evaluated")
     outcome, registration = transfer_to_any_body(
-        framed(source), framed(target), framed(cloth), method=method.lower(), model=model and model.model,
-        placement=model and model.placement, target=target_label or None, offset=offset,
+        framed(source), framed(target), framed(cloth), method=method.lower(),
+        **(model.transfer_arguments() if model else {}), target=target_label or None, offset=offset,
         fix_penetration=fix_penetration, progress=progress,
         shape_basis=None if deltas is None else deltas @ frame.T,
         shape_bounds=SHAPE_BOUNDS if bounds is None else bounds)
