@@ -43,7 +43,8 @@ from .errors import DatasetError, GarmentTransferError
 log = logging.getLogger(__name__)
 
 METHODS = ("direct", "model", "surface")
-SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness", "field_share")
+SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness", "field_share",
+                "placement")
 ENTRY_KEYS = ("name", "file", "source", "targets", "labels", "references", *SETTING_KEYS)
 TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels")
 CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seconds", "mdc",
@@ -87,6 +88,8 @@ class Settings:
     stiffness: float | None = None
     #: For a garment fit model file: the share of its field (None: ``model_files.DEFAULT_FIELD_SHARE``).
     field_share: float | None = None
+    #: For a garment fit model file: whether its learned placement is used (where the file holds one).
+    placement: bool = True
 
 
 @dataclass(frozen=True)
@@ -477,9 +480,11 @@ def _settings_record(s: Settings) -> dict:
     # The model's path may differ between machines; its content is in the inputs' digests.
     d = asdict(s)
     d["model"] = None if s.model is None else os.path.basename(s.model)
+    # Unset (or the default), these are not part of the key: results of catalogues without them keep theirs.
     if d["field_share"] is None:
-        # Unset, it is not part of the key: results of catalogues without it keep theirs.
         del d["field_share"]
+    if d["placement"]:
+        del d["placement"]
     return d
 
 
@@ -565,11 +570,12 @@ class _Inputs:
 
         return self._get(path, ("mesh", name), lambda: read_obj(path, name=name))
 
-    def model(self, path, field_share=None):
+    def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
         from .model_files import read_model_file
 
-        return self._get(path, ("model", field_share), lambda: read_model_file(path, field_share=field_share))
+        return self._get(path, ("model", field_share, use_placement),
+                         lambda: read_model_file(path, field_share=field_share, use_placement=use_placement))
 
     def _get(self, path, what, make):
         key = (self._stat(path), what)
@@ -663,7 +669,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
     try:
         source_body = _INPUTS.mesh(job.source_file, job.source)
         garment = _read_garment(job.file)
-        model = _INPUTS.model(s.model, s.field_share) if s.method == "model" else None
+        model = _INPUTS.model(s.model, s.field_share, s.placement) if s.method == "model" else None
         prepared = prepare_garment(source_body, garment, interpolate=s.interpolate,
                                    stiffness=s.stiffness, need_solver=s.method != "surface")
     except Exception as exc:  # noqa: BLE001 - any failure of the garment is recorded for its pairs

@@ -131,6 +131,7 @@ BAD_ENTRIES = [
     ({"file": "s3://bucket/top.obj"}, "garments[1] 'top' file", "URLs are not read"),
     ({"fix_penetration": "yes"}, "garments[1] 'top'", "must be true or false"),
     ({"field_share": 1.5}, "garments[1] 'top'", "field_share must be a number from 0 to 1"),
+    ({"placement": "no"}, "garments[1] 'top'", "placement must be true or false"),
 ]
 
 
@@ -255,6 +256,18 @@ def test_a_garment_fit_model_file_with_its_placement_and_a_field_share(tmp_path)
     record = json.loads((out / "top" / "pear.json").read_text())
     assert record["field_share"] == 1.0 and record["settings"]["field_share"] == 1.0
     assert np.abs(read_obj(out / "top" / "pear.obj").V - expected).max() > 1e-5
+    # The file's placement left out: the result is the transfer without it, and it is done again.
+    cat = read_catalogue(ds, source="src", targets=["pear"], garments=["top"],
+                         settings={"method": "model", "model": str(model), "placement": False})
+    s = run_batch(cat, out, workers=1)
+    assert s.counts["done"] == 1
+    record = json.loads((out / "top" / "pear.json").read_text())
+    assert record["placement"] is False and record["settings"]["placement"] is False
+    unplaced = transfer_garment(read_obj(ds / "bodies" / "src.obj"), read_obj(ds / "bodies" / "pear.obj"),
+                                read_obj(ds / "garments" / "top" / "src.obj"), method="model",
+                                model=loaded.model, target="pear").V
+    np.testing.assert_allclose(read_obj(out / "top" / "pear.obj").V, unplaced, rtol=1e-8, atol=1e-9)
+    assert np.abs(unplaced - expected).max() > 1e-5
 
 
 def test_a_broken_garment_and_a_missing_body_fail_and_the_rest_is_done(dataset, tmp_path, capsys):
