@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .transfer import chosen_model, result_name
+from .transfer import chosen_model, model_text, result_name
 
 
 def outfit_garments(settings):
@@ -64,7 +64,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     results : list of bpy.types.Object
         The new objects, innermost first.
     outcome : OutfitResult
-        From the core (each layer's positions, seconds, per-layer info).
+        From the core (each layer's positions, seconds, per-layer info); ``outcome.model_text`` says which
+        model was used.
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
@@ -101,6 +102,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
                               progress=progress)
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]
+    outcome.model_text = model_text(model)
     design = [mdc(c.V, V, c.F) for c, V in zip(cloths, outcome.V)]
     results = []
     try:
@@ -162,6 +164,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
             obj.select_set(obj in results)
         context.view_layer.objects.active = results[-1]
         settings.last_outfit = " / ".join(r.name for r in results)
+        settings.last_outfit_model = outcome.model_text
         self.report({'INFO'}, outfit_message(results, outcome, design, elapsed))
         return {'FINISHED'}
 

@@ -124,6 +124,8 @@ class VIEW3D_PT_garment_transfer_outfit(GarmentPanel, bpy.types.Panel):
         layout.operator("garment_transfer.transfer_outfit", icon='MOD_CLOTH')
         if settings.last_outfit:
             layout.label(text=f"Last: {settings.last_outfit}", icon='CHECKMARK')
+            if settings.last_outfit_model:
+                layout.label(text=settings.last_outfit_model, icon='NETWORK_DRIVE')
 
 
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):

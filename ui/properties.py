@@ -102,6 +102,7 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
                     "Direct) to the model's (1). With the learned placement, half kept the design (MDC) at "
                     "Direct's and its vertex error at 0.63x Direct's on unseen test garments")
     last_model: StringProperty(name="Last Model")
+    last_outfit_model: StringProperty(name="Last Outfit Model")
     target_label: StringProperty(
         name="Target", description="Which of the model's target bodies the target body is")
     auto_offset: BoolProperty(

@@ -238,3 +238,30 @@ def test_undo_takes_the_outfit_and_a_reordering_back(outfit):
     assert sorted(o.name for o in bpy.data.objects) == names and layers() == [INNER, OUTER]
     assert bpy.ops.ed.undo() == {'FINISHED'}
     assert layers() == [OUTER, INNER]
+
+
+def test_outfit_with_a_model_file_says_which_model_it_used(outfit, extension, tmp_path):
+    pytest.importorskip("torch", reason="training a model needs torch")
+    import importlib
+
+    core_name = extension.__name__ + ".garment_transfer"
+    training = importlib.import_module(core_name + ".training")
+    model_files = importlib.import_module(core_name + ".model_files")
+    path = tmp_path / "shared.npz"
+    training.train_from_dataset(DEMO_DATA, "banana", ["pear"], garments=["aline_skirt", "tank_top"], epochs=5,
+                                latent=2, out=path)
+    o, settings = outfit.objects, outfit.settings
+    set_layers(settings, [o[INNER], o[OUTER]])
+    settings.method = 'MODEL'
+    settings.model_path = str(path)
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    assert settings.last_outfit_model == "Model: " + model_files.read_model_file(path).describe()
+    assert settings.last_outfit_model.startswith("Model: ") and "shared.npz" in settings.last_outfit_model
+    calls = []
+    bpy.types.VIEW3D_PT_garment_transfer_outfit.draw(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    assert settings.last_outfit_model in [k.get("text") for kind, _, k in calls if kind == "label"]
+    # The transfer panel's own line is the single transfer's, left as it was.
+    assert settings.last_model == ""
+    settings.method = 'DIRECT'
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    assert settings.last_outfit_model == ""
