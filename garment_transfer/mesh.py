@@ -211,6 +211,26 @@ def triangle_normals(V, F):
     return N, 0.5 * dbl
 
 
+def edge_length_and_degenerate(V, F):
+    """``edge_lengths_mean`` and ``degenerate_triangles`` together, from one gathering of the corners.
+
+    Returns
+    -------
+    h : float
+    degenerate : (m,) bool
+    """
+    if len(F) == 0:
+        return 0.0, np.zeros(0, bool)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    ab, bc, ca = b - a, c - b, a - c
+    length = np.empty(F.shape)
+    for k, e in enumerate((ab, bc, ca)):
+        length[:, k] = np.sqrt(np.einsum("mj,mj->m", e, e))
+    h = float(np.mean(length))
+    cross = np.cross(ab, -ca)
+    return h, np.einsum("mj,mj->m", cross, cross) <= (DEGENERATE_AREA * max(h, 1e-300) ** 2) ** 2
+
+
 def degenerate_triangles(V, F, edge_length=None):
     """(m,) bool: triangles whose area is negligible for the mesh's scale.
 

@@ -30,7 +30,7 @@ from .binding import Binding, bind, carry
 from .embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
 from .errors import Cancelled, MeshError, ModelError, SettingError
 from .gradients import deformation_gradients
-from .mesh import Mesh, degenerate_triangles, edge_lengths_mean, require_same_topology
+from .mesh import Mesh, edge_length_and_degenerate, require_same_topology
 from . import clearance, penetration
 from .poisson import PoissonSolver, anchor_weight_for, choose_method
 from .proximity import THREADS, TriangleSurface
@@ -224,8 +224,7 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     method = solver_method or choose_method(garment.n_vertices, reused)
 
     def garment_facts():
-        h = edge_lengths_mean(garment.V, garment.F)
-        degenerate = degenerate_triangles(garment.V, garment.F, edge_length=h)
+        h, degenerate = edge_length_and_degenerate(garment.V, garment.F)
         if degenerate.all():
             raise MeshError(garment.name, "every face has zero area")
         return h, degenerate

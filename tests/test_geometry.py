@@ -162,3 +162,19 @@ def test_closest_on_threads_equals_one_piece(monkeypatch):
     parts = TriangleSurface(V, F).closest(P)
     for a, b in zip(whole, parts):
         np.testing.assert_array_equal(a, b)
+
+
+def test_edge_length_and_degenerate_equal_the_separate_functions():
+    from garment_transfer.mesh import degenerate_triangles, edge_length_and_degenerate, edge_lengths_mean
+
+    rng = np.random.default_rng(4)
+    V = rng.normal(size=(300, 3))
+    F = rng.integers(0, 300, size=(900, 3))
+    F[:40, 2] = F[:40, 1]                                  # zero area
+    V[F[40:60, 2]] = 0.5 * (V[F[40:60, 0]] + V[F[40:60, 1]])  # collinear corners
+    h, degenerate = edge_length_and_degenerate(V, F)
+    assert h == edge_lengths_mean(V, F)
+    np.testing.assert_array_equal(degenerate, degenerate_triangles(V, F))
+    assert degenerate[:40].all() and degenerate.sum() >= 40
+    h0, none = edge_length_and_degenerate(V, F[:0])
+    assert h0 == 0.0 and none.shape == (0,)
