@@ -20,7 +20,10 @@ Parts (``--parts``, default all):
   gets the blend of the placements predicted on the training bodies; ``--placement-body-offset``: the
   placement model also sees the target's offset from the source body). ``--data``/``--extra`` as for demo.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
-  turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``).
+  turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
+  garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
+  that ``python -m lab.makehuman_drape --out DIR`` writes measures against the same garments simulated by
+  Blender's cloth solver instead (the reference rows are then named ``simulation``).
 
 Usage::
 
@@ -185,12 +188,16 @@ def makehuman_part(args, say):
     held = args.makehuman_garments or ds.garments
     folds = [([g for g in ds.garments if g != h], [h]) for h in held]
     methods = [m for m in args.methods if m in MH_METHODS]
+    # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
+    # simulated by the cloth solver (its manifest says so).
+    reference = "simulation" if "placed_by" in ds.manifest else "fitted"
     res = run_experiment(folder, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS), folds, methods, args.epochs,
-                         reference="fitted", seed=args.seed, threads=args.threads,
+                         reference=reference, seed=args.seed, threads=args.threads,
                          progress=lambda f, s: say(f"makehuman: {s}"))
     # Decimetres: vertex errors in mm are 100 x.
-    text, table = summarise(res["rows"], methods, "fitted", list(MAKEHUMAN_TARGETS), scale=100.0)
-    return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text, "held_out": held}
+    text, table = summarise(res["rows"], methods, reference, list(MAKEHUMAN_TARGETS), scale=100.0)
+    return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text, "held_out": held,
+            "reference": reference, "folder": str(folder)}
 
 
 def main(argv=None):

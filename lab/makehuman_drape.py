@@ -1,0 +1,139 @@
+"""MakeHuman garments simulated by Blender's cloth solver: a reference that is not body-driven.
+
+The MakeHuman fixtures' garments are placed on every body by MakeHuman's proxy fitting (each vertex a
+barycentric point of three body vertices plus a scaled offset), which is a body-driven deformation,
+the kind `direct` transfer itself makes. This drapes each fixture garment with Blender's cloth solver
+(``operators/cloth.py``'s ``drape_garment``, the demo data's solver and settings) on the source body
+``female_average``, then follows the body as it morphs into each target body, and writes the results
+in the fixtures' own layout, units and axes (decimetres, Y up), so any study that reads the fixtures
+reads these instead (``GARMENT_TRANSFER_MAKEHUMAN=DIR``).
+
+The bodies are copied unchanged; ``garments/<garment>/<body>.obj`` is the garment settled on that body
+(on ``female_average`` too: the simulated garment replaces the proxy fit there, so source and targets
+are one simulation). Garments are simulated in metres, Z up (the solver's gravity and collision
+distances are physical). Pinned: the garment vertices in contact with the body (within 1 cm) around
+the waist (52% to 62% of the body's height from the soles), so trousers hold on the hips; pinned
+vertices follow the body as it morphs. Tops hang on the shoulders.
+
+Run (needs the ``bpy`` module; the project's ``.venv`` has it)::
+
+    nice python -m lab.makehuman_drape --out DIR [--garments g1 g2 ...] [--targets b1 b2 ...]
+
+Each garment is written as soon as it is done (atomically), and a garment already written is skipped,
+so an interrupted run continues where it stopped. ``DIR/drape_log.json`` records seconds, vertices and
+the penetration fix per garment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from garment_transfer.obj import obj_text, read_obj, write_text_atomic
+from garment_transfer.proximity import TriangleSurface
+
+from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN, makehuman_folder
+
+METRES_PER_UNIT = 0.1           # the fixtures are in decimetres
+PIN_BAND = (0.52, 0.62)         # share of the body's height from the soles: the waist and hips
+PIN_CONTACT = 0.01              # metres from the body
+
+
+def to_blender(V):
+    """Fixture coordinates (decimetres, Y up, +Z forward) to metres, Z up, -Y forward."""
+    V = np.asarray(V, dtype=np.float64) * METRES_PER_UNIT
+    return np.column_stack([V[:, 0], -V[:, 2], V[:, 1]])
+
+
+def from_blender(V):
+    V = np.asarray(V, dtype=np.float64) / METRES_PER_UNIT
+    return np.column_stack([V[:, 0], V[:, 2], -V[:, 1]])
+
+
+def waist_pins(G, body_V, body_F):
+    """Garment vertices within PIN_CONTACT of the body inside PIN_BAND of its height (metres, Z up)."""
+    z = body_V[:, 2]
+    share = (G[:, 2] - z.min()) / np.ptp(z)
+    band = (share >= PIN_BAND[0]) & (share <= PIN_BAND[1])
+    d = np.abs(TriangleSurface(body_V, body_F).signed_distance(G)[0])
+    return np.flatnonzero(band & (d <= PIN_CONTACT))
+
+
+def drape(folder, out, garment, targets, say):
+    from lab.blender.make_demo_data import load_cloth
+
+    cloth = load_cloth()
+    bodies = {b: read_obj(folder / "bodies" / f"{b}.obj", name=b) for b in (MAKEHUMAN_SOURCE, *targets)}
+    source = bodies[MAKEHUMAN_SOURCE]
+    g = read_obj(folder / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj", name=garment)
+    bV = to_blender(source.V)
+    gV = to_blender(g.V)
+    pins = waist_pins(gV, bV, source.F)
+    report = []
+    t = time.perf_counter()
+    shapes = cloth.drape_garment(gV, g.polygons(), bV, source.F, [to_blender(bodies[b].V) for b in targets],
+                                 pin_group=pins, frames=15, morph_frames=15, source_frames=30, report=report)
+    secs = time.perf_counter() - t
+    dest = out / "garments" / garment
+    dest.mkdir(parents=True, exist_ok=True)
+    # The targets first, the source last: a garment folder with its source file is complete.
+    for body, S in list(zip(targets, shapes[1:])) + [(MAKEHUMAN_SOURCE, shapes[0])]:
+        write_text_atomic(dest / f"{body}.obj",
+                          obj_text(g.with_vertices(from_blender(S)),
+                                   header=f"{garment} draped by Blender's cloth solver on {body} "
+                                          f"(lab.makehuman_drape)", digits=7))
+    entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size),
+             "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
+             "inside_after_fix": [r["inside_after"] for r in report]}
+    say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
+        f"{entry['inside_before_fix']}/{entry['inside_after_fix']}")
+    return entry
+
+
+def main(argv=None):
+    folder = makehuman_folder() or SHARED_MAKEHUMAN
+    manifest = json.loads((folder / "manifest.json").read_text())
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="folder for the simulated fixtures")
+    ap.add_argument("--garments", nargs="+", default=manifest["garments"])
+    ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    if out.resolve() == folder.resolve():
+        ap.error(f"--out {out} is the fixtures' own folder; give another")
+    (out / "bodies").mkdir(parents=True, exist_ok=True)
+    for b in (MAKEHUMAN_SOURCE, *args.targets):
+        if not (out / "bodies" / f"{b}.obj").exists():
+            shutil.copyfile(folder / "bodies" / f"{b}.obj", out / "bodies" / f"{b}.obj")
+    t0 = time.perf_counter()
+
+    def say(text):
+        print(f"[{time.perf_counter() - t0:7.1f}s] {text}", flush=True)
+
+    log_path = out / "drape_log.json"
+    log = json.loads(log_path.read_text()) if log_path.exists() else {}
+    for garment in args.garments:
+        if (out / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj").exists() and garment in log:
+            say(f"{garment}: already draped, skipped")
+            continue
+        log[garment] = drape(folder, out, garment, args.targets, say)
+        write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
+    done = [g for g in args.garments if g in log]
+    m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done,
+             placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "
+                       f"{MAKEHUMAN_SOURCE}")
+    write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")
+    if (folder / "LICENSE.md").exists():
+        shutil.copyfile(folder / "LICENSE.md", out / "LICENSE.md")
+    say(f"wrote {out}: {len(done)} garments")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
