@@ -66,7 +66,7 @@ def waist_pins(G, body_V, body_F):
 
 
 def drape(folder, out, garment, targets, say):
-    from lab.blender.make_demo_data import load_cloth
+    from .blender.make_demo_data import load_cloth
 
     cloth = load_cloth()
     bodies = {b: read_obj(folder / "bodies" / f"{b}.obj", name=b) for b in (MAKEHUMAN_SOURCE, *targets)}
