@@ -1,0 +1,63 @@
+"""lab.makehuman_drape: a MakeHuman fixture garment draped by Blender's cloth solver on the source body and
+a target body, written in the fixtures' layout, units and axes; the fixtures themselves untouched."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.lab
+
+GARMENT = "male_casualsuit04"       # the smallest fixture garment (1,696 vertices)
+
+
+def test_axes_round_trip_exactly():
+    from lab.makehuman_drape import from_blender, to_blender
+
+    V = np.random.default_rng(0).normal(size=(50, 3))
+    B = to_blender(V)
+    assert np.allclose(B[:, 2], 0.1 * V[:, 1]) and np.allclose(B[:, 1], -0.1 * V[:, 2])   # Y up -> Z up
+    assert np.allclose(from_blender(B), V, atol=1e-12)
+
+
+def test_drape_writes_a_simulated_garment_in_the_fixtures_layout(tmp_path, makehuman):
+    from garment_transfer.obj import read_obj
+    from garment_transfer.proximity import TriangleSurface
+    from lab.makehuman_drape import main
+
+    folder = makehuman
+    before = {p: p.stat().st_mtime_ns for p in folder.rglob("*.obj")}
+    out = tmp_path / "sim"
+    assert main(["--out", str(out), "--garments", GARMENT, "--targets", "female_pear"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["garments"] == [GARMENT] and manifest["bodies"] == ["female_average", "female_pear"]
+    assert "cloth solver" in manifest["placed_by"] and manifest["units"] == "decimetres"
+    for body in ("female_average", "female_pear"):
+        proxy = read_obj(folder / "garments" / GARMENT / f"{body}.obj")
+        sim = read_obj(out / "garments" / GARMENT / f"{body}.obj")
+        assert np.array_equal(sim.face_vertices, proxy.face_vertices) and sim.V.shape == proxy.V.shape
+        body_mesh = read_obj(out / "bodies" / f"{body}.obj")
+        assert np.array_equal(body_mesh.V, read_obj(folder / "bodies" / f"{body}.obj").V)
+        # Decimetres, Y up: near the proxy fit (within a few cm), moved by the simulation, outside the body.
+        d = np.linalg.norm(sim.V - proxy.V, axis=1)
+        assert 0.01 < d.mean() < 0.3
+        assert TriangleSurface(body_mesh.V, body_mesh.F).signed_distance(sim.V)[0].min() >= 0.0
+    log = json.loads((out / "drape_log.json").read_text())
+    assert log[GARMENT]["pinned"] > 0 and log[GARMENT]["inside_after_fix"] == [0, 0]
+    # A second run finds the garment done and leaves its files as they are.
+    stamp = (out / "garments" / GARMENT / "female_pear.obj").stat().st_mtime_ns
+    assert main(["--out", str(out), "--garments", GARMENT, "--targets", "female_pear"]) == 0
+    assert (out / "garments" / GARMENT / "female_pear.obj").stat().st_mtime_ns == stamp
+    assert {p: p.stat().st_mtime_ns for p in folder.rglob("*.obj")} == before
+
+
+def test_the_fixtures_folder_is_refused_as_the_output(capsys, makehuman):
+    from lab.makehuman_drape import main
+
+    folder = makehuman
+    with pytest.raises(SystemExit) as e:
+        main(["--out", str(folder), "--garments", GARMENT])
+    assert e.value.code == 2
+    assert "fixtures' own folder" in capsys.readouterr().err
