@@ -19,6 +19,9 @@ Run (needs the ``bpy`` module; the project's ``.venv`` has it)::
 
     nice python -m lab.makehuman_drape --out DIR [--garments g1 g2 ...] [--targets b1 b2 ...]
 
+``--figure PNG`` also renders the first garment on the source body and on the last target, MakeHuman's
+proxy fit beside the simulation (Cycles on the CPU, ``lab/blender/render_columns.py``).
+
 Each garment is written as soon as it is done (atomically), and a garment already written is skipped,
 so an interrupted run continues where it stopped. ``DIR/drape_log.json`` records seconds, vertices and
 the penetration fix per garment.
@@ -29,7 +32,9 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -96,6 +101,26 @@ def drape(folder, out, garment, targets, say):
     return entry
 
 
+def figure(folder, out, garment, target, png):
+    """MakeHuman's proxy fit and the simulation of ``garment``, on the source body and on ``target``."""
+    def column(label, body, kind, garments):
+        return {"label": label, "meshes": [{"obj": str(folder / "bodies" / f"{body}.obj"), "kind": "body",
+                                            "scale": METRES_PER_UNIT, "up": "Y"}]
+                + [{"obj": str(g / "garments" / garment / f"{body}.obj"), "kind": kind,
+                    "scale": METRES_PER_UNIT, "up": "Y"} for g in garments]}
+
+    spec = {"size": [1600, 560], "columns": [
+        column("proxy fit, source", MAKEHUMAN_SOURCE, "source", [folder]),
+        column("simulated, source", MAKEHUMAN_SOURCE, "simulation", [out]),
+        column("proxy fit, target", target, "source", [folder]),
+        column("simulated, target", target, "simulation", [out])]}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "spec.json"
+        path.write_text(json.dumps(spec))
+        return subprocess.run([sys.executable, "-m", "lab.blender.render_columns", "--spec", str(path),
+                               "--out", str(png)]).returncode
+
+
 def main(argv=None):
     folder = makehuman_folder() or SHARED_MAKEHUMAN
     manifest = json.loads((folder / "manifest.json").read_text())
@@ -103,6 +128,7 @@ def main(argv=None):
     ap.add_argument("--out", required=True, help="folder for the simulated fixtures")
     ap.add_argument("--garments", nargs="+", default=manifest["garments"])
     ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
+    ap.add_argument("--figure", help="PNG: the first garment, proxy fit and simulation, source and last target")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if out.resolve() == folder.resolve():
@@ -124,7 +150,7 @@ def main(argv=None):
             continue
         log[garment] = drape(folder, out, garment, args.targets, say)
         write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
-    done = [g for g in args.garments if g in log]
+    done = [g for g in manifest["garments"] if g in log]        # every garment draped so far
     m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done,
              placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "
                        f"{MAKEHUMAN_SOURCE}")
@@ -132,6 +158,8 @@ def main(argv=None):
     if (folder / "LICENSE.md").exists():
         shutil.copyfile(folder / "LICENSE.md", out / "LICENSE.md")
     say(f"wrote {out}: {len(done)} garments")
+    if args.figure:
+        return figure(folder, out, args.garments[0], args.targets[-1], args.figure)
     return 0
 
 
