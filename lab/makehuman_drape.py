@@ -12,8 +12,9 @@ The bodies are copied unchanged; ``garments/<garment>/<body>.obj`` is the garmen
 (on ``female_average`` too: the simulated garment replaces the proxy fit there, so source and targets
 are one simulation). Garments are simulated in metres, Z up (the solver's gravity and collision
 distances are physical). Pinned: the garment vertices in contact with the body (within 1 cm) around
-the waist (52% to 62% of the body's height from the soles), so trousers hold on the hips; pinned
-vertices follow the body as it morphs. Tops hang on the shoulders.
+the waist (52% to 62% of the body's height from the soles), so trousers hold on the hips, and a
+separate piece with none of those (a belt) around the waist; pinned vertices follow the body as it
+morphs. Tops hang on the shoulders.
 
 Run (needs the ``bpy`` module; the project's ``.venv`` has it)::
 
@@ -61,13 +62,31 @@ def from_blender(V):
     return np.column_stack([V[:, 0], V[:, 2], -V[:, 1]])
 
 
-def waist_pins(G, body_V, body_F):
-    """Garment vertices within PIN_CONTACT of the body inside PIN_BAND of its height (metres, Z up)."""
+def waist_pins(G, F, body_V, body_F):
+    """Pinned garment vertices (metres, Z up): those within PIN_CONTACT of the body inside PIN_BAND of its
+    height; a separate piece of the garment with none of those (a belt on a skirt) has its vertices
+    inside the band pinned, or else its tenth nearest the body, so that no piece falls off."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     z = body_V[:, 2]
     share = (G[:, 2] - z.min()) / np.ptp(z)
     band = (share >= PIN_BAND[0]) & (share <= PIN_BAND[1])
     d = np.abs(TriangleSurface(body_V, body_F).signed_distance(G)[0])
-    return np.flatnonzero(band & (d <= PIN_CONTACT))
+    pinned = band & (d <= PIN_CONTACT)
+    n = G.shape[0]
+    edges = coo_matrix((np.ones(F.size), (F.ravel(), np.roll(F, 1, axis=1).ravel())), shape=(n, n))
+    pieces = connected_components(edges, directed=False)[1]
+    for p in np.unique(pieces):
+        piece = pieces == p
+        if pinned[piece].any():
+            continue
+        if (piece & band).any():
+            pinned |= piece & band
+        else:
+            idx = np.flatnonzero(piece)
+            pinned[idx[d[idx] <= np.quantile(d[idx], 0.1)]] = True
+    return np.flatnonzero(pinned)
 
 
 def drape(folder, out, garment, targets, say):
@@ -79,7 +98,7 @@ def drape(folder, out, garment, targets, say):
     g = read_obj(folder / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj", name=garment)
     bV = to_blender(source.V)
     gV = to_blender(g.V)
-    pins = waist_pins(gV, bV, source.F)
+    pins = waist_pins(gV, g.F, bV, source.F)
     report = []
     t = time.perf_counter()
     shapes = cloth.drape_garment(gV, g.polygons(), bV, source.F, [to_blender(bodies[b].V) for b in targets],

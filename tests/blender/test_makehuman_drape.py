@@ -61,3 +61,22 @@ def test_the_fixtures_folder_is_refused_as_the_output(capsys, makehuman):
         main(["--out", str(folder), "--garments", GARMENT])
     assert e.value.code == 2
     assert "fixtures' own folder" in capsys.readouterr().err
+
+
+def test_every_piece_of_a_garment_is_pinned(makehuman):
+    """female_casualsuit02's belt lies on the skirt, not on the body: it is pinned as a piece of its own."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from garment_transfer.obj import read_obj
+    from lab.makehuman_drape import to_blender, waist_pins
+
+    body = read_obj(makehuman / "bodies" / "female_average.obj")
+    g = read_obj(makehuman / "garments" / "female_casualsuit02" / "female_average.obj")
+    pins = waist_pins(to_blender(g.V), g.F, to_blender(body.V), body.F)
+    n = g.n_vertices
+    edges = coo_matrix((np.ones(g.F.size), (g.F.ravel(), np.roll(g.F, 1, axis=1).ravel())), shape=(n, n))
+    count, pieces = connected_components(edges, directed=False)
+    assert count == 3
+    assert all(np.isin(np.flatnonzero(pieces == p), pins).any() for p in range(count))
+    assert pins.size < n // 4
