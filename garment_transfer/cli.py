@@ -300,12 +300,14 @@ def _train_garment(args, targets, garments):
     summary = train_garment_fit_from_dataset(
         args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
         placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
-        progress=stderr_progress("train"), threads=args.threads)
+        progress=stderr_progress("train"), threads=args.threads, placement_members=args.placement_members)
     parts = [f"field {summary['field']['epochs']} passes over {summary['field']['samples']} samples, final loss "
              f"{summary['field']['final_loss']:.4g}"]
     if summary["placement"]:
+        members = summary["placement"].get("members", 1)
         parts.append(f"placement {summary['placement']['epochs']} passes over {summary['placement']['samples']} "
-                     f"samples, final loss {summary['placement']['final_loss']:.4g}")
+                     f"samples{f' for each of {members} members' if members > 1 else ''}, final loss "
+                     f"{summary['placement']['final_loss']:.4g}")
     what = "garment fit model and learned placement" if summary["placement"] else "garment fit model"
     _emit(args, summary, [f"wrote {args.out}: {what}; {'; '.join(parts)}; {summary['seconds']:.1f} s"])
 
@@ -317,6 +319,7 @@ def cmd_batch(args):
 
 
 def build_parser():
+    from .garment_training import PLACEMENT_MEMBERS
     from .model_files import DEFAULT_FIELD_SHARE
 
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
@@ -441,6 +444,9 @@ def build_parser():
     r.add_argument("--unmasked", action="store_true", help="shared only: the paper's unmasked loss")
     r.add_argument("--placement-epochs", type=number_option(int, 1, what="a whole number"), default=None,
                    help="garment only: passes over the placement model's samples (default 30)")
+    r.add_argument("--placement-members", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="garment only: placement models trained with seeds seed, seed+1, ... and averaged "
+                        f"(default {PLACEMENT_MEMBERS}, chosen on held-out training garments; 1: one model)")
     r.add_argument("--no-placement", action="store_true",
                    help="garment only: train the garment fit model alone, without the learned placement")
     r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
@@ -468,6 +474,7 @@ def share_option(text):
 def _check_train_options(parser, args):
     """Options of one kind given for the other are usage errors, not silently ignored."""
     other = {"shared": [("--placement-epochs", args.placement_epochs is not None),
+                        ("--placement-members", args.placement_members is not None),
                         ("--no-placement", args.no_placement)],
              "garment": [("--latent", args.latent is not None), ("--unmasked", args.unmasked)]}[args.kind]
     wrong = [name for name, given in other if given]
@@ -477,6 +484,10 @@ def _check_train_options(parser, args):
         from .garment_training import PLACEMENT_EPOCHS
 
         args.placement_epochs = PLACEMENT_EPOCHS
+    if args.kind == "garment" and args.placement_members is None:
+        from .garment_training import PLACEMENT_MEMBERS
+
+        args.placement_members = PLACEMENT_MEMBERS
 
 
 def main(argv=None):

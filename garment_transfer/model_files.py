@@ -15,6 +15,11 @@ A bundle is an ``.npz`` of plain arrays, the field model's prefixed ``field.`` a
      "field": <the garment fit model's metadata>, "placement": <the placement model's metadata> or null,
      "dataset": {"folder", "units", "up_axis"}, "source": {...}, "targets": [...]}
 
+A learned placement of several members (``placement.PlacementEnsemble``: networks trained alike with
+other seeds, their predictions averaged) is written as format version 2: ``"placement_members": N`` and
+``"placement"`` the list of the N members' metadata, member i's arrays prefixed ``placement.<i>.``. A
+single placement model is written as version 1 (as before), and both versions are read.
+
 It is read with ``allow_pickle=False`` only; its parts are checked as the single-model files are
 (their own formats and versions), and must have been trained on the same source body.
 
@@ -31,7 +36,11 @@ import numpy as np
 from .errors import ModelError
 
 BUNDLE_FORMAT = "garment_transfer.garment_fit_bundle"
+#: The version written with a single placement model (or none); ``ENSEMBLE_BUNDLE_VERSION`` with several.
 BUNDLE_VERSION = 1
+ENSEMBLE_BUNDLE_VERSION = 2
+#: Placement members a bundle may hold (a damaged count is refused before anything is built).
+MAX_PLACEMENT_MEMBERS = 64
 #: The share of the garment fit model's field used by default (``GarmentFitModel.with_field_share``):
 #: with the learned placement, half the field kept MDC at 0.93x direct transfer's with 0.63x its vertex
 #: error on the demo's unseen test garments on pear (0.96x and 0.57x on heavy), where the whole field
@@ -54,8 +63,9 @@ class ModelFile:
     model : SharedDeformationModel or GarmentFitModel
         ``transfer_garment``'s ``model`` (the garment fit model with ``field_share`` applied).
     placement : placement.BlendedPlacement or None
-        ``transfer_garment``'s ``placement``: the file's learned placement (blended over its training
-        bodies for a body it was not trained on), unless left out.
+        ``transfer_garment``'s ``placement``: the file's learned placement (a ``PlacementModel`` or a
+        ``PlacementEnsemble``, blended over its training bodies for a body it was not trained on), unless
+        left out.
     field_share : float or None
         The share of the garment fit model's field (None for the shared model).
     has_placement : bool
@@ -121,7 +131,7 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
     ----------
     path : str or Path
     field_model : garment_model.GarmentFitModel
-    placement_model : placement.PlacementModel, optional
+    placement_model : placement.PlacementModel or placement.PlacementEnsemble, optional
         Trained on the same source body.
     dataset : dict, optional
         ``folder``, ``units``, ``up_axis`` of the training data (the Blender layer reads the up axis).
@@ -133,13 +143,25 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
     if placement_model is not None and not _same_source(field_model, placement_model):
         raise ModelError(os.fspath(path), "the field and placement models were trained on different source bodies")
     arrays = {f"field.{k}": np.asarray(v) for k, v in field_model.arrays.items()}
-    if placement_model is not None:
-        arrays.update({f"placement.{k}": np.asarray(v) for k, v in placement_model.arrays.items()})
-    metadata = {"format": BUNDLE_FORMAT, "format_version": BUNDLE_VERSION,
-                "field": field_model.metadata,
-                "placement": None if placement_model is None else placement_model.metadata,
+    members = getattr(placement_model, "members", None)
+    if members is not None and len(members) > MAX_PLACEMENT_MEMBERS:
+        raise ModelError(os.fspath(path), f"the placement has {len(members)} members; a model file holds at most "
+                                          f"{MAX_PLACEMENT_MEMBERS}")
+    version, placement_md = BUNDLE_VERSION, None
+    if members is not None and len(members) > 1:
+        for i, m in enumerate(members):
+            arrays.update({f"placement.{i}.{k}": np.asarray(v) for k, v in m.arrays.items()})
+        version, placement_md = ENSEMBLE_BUNDLE_VERSION, [m.metadata for m in members]
+    elif placement_model is not None:
+        single = placement_model if members is None else members[0]
+        arrays.update({f"placement.{k}": np.asarray(v) for k, v in single.arrays.items()})
+        placement_md = single.metadata
+    metadata = {"format": BUNDLE_FORMAT, "format_version": version,
+                "field": field_model.metadata, "placement": placement_md,
                 "dataset": dataset or field_model.metadata.get("dataset"),
                 "source": field_model.metadata["source"], "targets": list(field_model.targets)}
+    if version == ENSEMBLE_BUNDLE_VERSION:
+        metadata["placement_members"] = len(members)
     save_npz_atomic(path, arrays, metadata, inputs=inputs)
 
 
@@ -190,35 +212,47 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
                                "the garment fit model and its placement in one file")
     if fmt != BUNDLE_FORMAT:
         raise ModelError(path, f"is not a garment transfer model (metadata 'format' is {fmt!r})")
-    need_format_version(path, metadata, BUNDLE_VERSION)
+    version = metadata.get("format_version")
+    if version not in (BUNDLE_VERSION, ENSEMBLE_BUNDLE_VERSION):
+        raise ModelError(path, f"has format version {version}; this version of garment_transfer reads versions "
+                               f"{BUNDLE_VERSION} and {ENSEMBLE_BUNDLE_VERSION}")
+    members = _placement_members(path, metadata, version)
+    # (prefix of the arrays, metadata, module, what): the field model and each placement member.
+    specs = [("field", metadata.get("field"), garment_model, "field")]
+    if members is None:
+        specs.append(("placement", metadata.get("placement"), placement, "placement"))
+    else:
+        specs += [(f"placement.{i}", md, placement, f"placement member {i}")
+                  for i, md in enumerate(metadata["placement"])]
     parts = {}
-    for prefix in ("field", "placement"):
-        md = metadata.get(prefix)
+    for prefix, md, module, what in specs:
         own = {k[len(prefix) + 1:]: v for k, v in arrays.items() if k.startswith(prefix + ".")}
-        if md is None:
+        if md is None and prefix in ("field", "placement"):
             if prefix == "field":
                 raise ModelError(path, "has no garment fit model ('field' metadata)")
             if own:
                 raise ModelError(path, "has placement arrays but no placement metadata")
             continue
         if not isinstance(md, dict):
-            raise ModelError(path, f"its {prefix!r} metadata is not a table")
-        module = garment_model if prefix == "field" else placement
+            raise ModelError(path, f"its {what!r} metadata is not a table")
+        kind = "field" if prefix == "field" else "placement"
         if md.get("format") != module.FORMAT:
-            raise ModelError(path, f"its {prefix!r} part is not a {prefix} model (format {md.get('format')!r})")
-        need_format_version(path, md, module.FORMAT_VERSION, f"its {prefix} model")
-        parts[prefix] = own
-    strays = sorted(k for k in arrays if k.split(".", 1)[0] not in parts)
+            raise ModelError(path, f"its {what!r} part is not a {kind} model (format {md.get('format')!r})")
+        need_format_version(path, md, module.FORMAT_VERSION, f"its {what} model")
+        if kind == "placement" and "smoothing_share" not in md:
+            raise ModelError(path, f"its {what} metadata lacks 'smoothing_share'")
+        parts[prefix] = (own, md)
+    strays = sorted(k for k in arrays if not any(k.startswith(p + ".") for p in parts))
     if strays:
         raise ModelError(path, f"has arrays of no part: {', '.join(strays[:5])}")
-    model = _build(path, garment_model.GarmentFitModel, parts["field"], metadata["field"])
+    model = _build(path, garment_model.GarmentFitModel, *parts.pop("field"))
     placed = None
-    if "placement" in parts:
-        if "smoothing_share" not in metadata["placement"]:
-            raise ModelError(path, "its placement metadata lacks 'smoothing_share'")
-        placed = _build(path, placement.PlacementModel, parts["placement"], metadata["placement"])
-        if not _same_source(model, placed):
+    if parts:
+        built = [_build(path, placement.PlacementModel, own, md) for own, md in parts.values()]
+        if not all(_same_source(model, m) for m in built):
             raise ModelError(path, "its field and placement models were trained on different source bodies")
+        # One member: the model itself (the same prediction as an ensemble of one).
+        placed = built[0] if members is None else placement.PlacementEnsemble(built, path)
     # A body the placement was not trained on gets the blend of its training bodies' placements (on the
     # demo's hourglass held out: 1.23x the error of a training body against 1.48x for the network's own
     # prediction at the mixed label); a training body gets the network's own.
@@ -226,6 +260,27 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
     return ModelFile(path, "garment", model.with_field_share(share), used,
                      field_share=share, has_placement=placed is not None,
                      metadata={"dataset": metadata.get("dataset"), "targets": model.targets})
+
+
+def _placement_members(path, metadata, version):
+    """How many placement members a bundle holds: None for version 1 (one placement model or none); for
+    version 2 the checked ``placement_members``, which its ``placement`` metadata list must match."""
+    count = metadata.get("placement_members")
+    if version == BUNDLE_VERSION:
+        if count is not None:
+            raise ModelError(path, f"has 'placement_members' ({count!r}), which format version {BUNDLE_VERSION} "
+                                   "does not have")
+        return None
+    if isinstance(count, bool) or not isinstance(count, int) or not 2 <= count <= MAX_PLACEMENT_MEMBERS:
+        raise ModelError(path, f"has a bad 'placement_members' ({count!r}): a format version "
+                               f"{ENSEMBLE_BUNDLE_VERSION} file holds 2 to {MAX_PLACEMENT_MEMBERS} placement "
+                               "members")
+    listed = metadata.get("placement")
+    if not isinstance(listed, list) or len(listed) != count:
+        have = f"{len(listed)} entries" if isinstance(listed, list) else type(listed).__name__
+        raise ModelError(path, f"says it holds {count} placement members, but its 'placement' metadata has "
+                               f"{have}")
+    return count
 
 
 def _same_source(field_model, placement_model):

@@ -18,7 +18,8 @@ garment's context around each triangle (``garment_context``). Its three outputs 
 *unrotated* frame, ``y = S[a]^T T[a] d`` (S, T: the triangle's frames on the source and target bodies),
 in which neighbouring triangles agree, so that it can be learned and smoothed; ``C = S y``. File:
 ``.npz`` of plain arrays plus JSON metadata of format ``garment_transfer.garment_placement_model``, read
-with ``allow_pickle=False``.
+with ``allow_pickle=False``. ``PlacementEnsemble`` averages several such models trained with other seeds
+(``garment_training.train_placement_ensemble``); ``model_files`` stores them in one file.
 """
 
 from __future__ import annotations
@@ -328,8 +329,99 @@ class PlacementModel(GarmentFitModel):
         sel = w > 0
         X, _, _ = self.inputs(source_body, target_body, garment, target)
         y = np.zeros((M, 3))
-        y[sel] = self.forward(X[sel]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
+        y[sel] = self.raw_offsets(X[sel])
         length = float(self.metadata["smoothing_share"]) * body_scale(source_body.V)
+        return smooth_on_body(y, w, source_body.V, F, length)
+
+    def raw_offsets(self, X):
+        """The network's unrotated offsets for inputs ``X (n,P)``, before smoothing: ``(n,3)`` float64."""
+        return self.forward(X) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
+
+
+#: Metadata that decide a placement model's inputs and smoothing: the members of a ``PlacementEnsemble``
+#: must agree on them.
+ENSEMBLE_SHARED_METADATA = ("targets", "source", "use_label", "garment_inputs", "garment_features",
+                            "neighbourhood_shares", "cover_distance", "context_shares", "body_offset_shares",
+                            "smoothing_share")
+
+
+class PlacementEnsemble:
+    """Several placement models trained alike (other seeds): the prediction is the mean of theirs.
+
+    Each member predicts the unrotated offset ``y`` of the bound triangles from the same inputs; the mean
+    is smoothed once (the smoothing is linear: the same as the mean of the members' smoothed offsets).
+    Used where a ``PlacementModel`` is: ``transfer_garment``'s ``placement``, ``BlendedPlacement``.
+
+    Parameters
+    ----------
+    members : sequence of PlacementModel
+        At least one; the same targets, source body, inputs and smoothing (``ENSEMBLE_SHARED_METADATA``)
+        and the same label bodies.
+    name : str, optional
+        For messages (default the first member's).
+
+    Raises
+    ------
+    ModelError
+        Naming the member that differs from the first.
+    """
+
+    def __init__(self, members, name=None):
+        members = list(members)
+        if not members:
+            raise ValueError("a placement ensemble needs at least one member")
+        first = members[0]
+        for m in members:
+            if not isinstance(m, PlacementModel):
+                raise TypeError(f"a placement ensemble's members must be PlacementModel, got {type(m).__name__}")
+        for i, m in enumerate(members[1:], 1):
+            which = f"placement member {i} differs from member 0" + ("" if m.name == first.name else
+                                                                       f" ({first.name})")
+            for key in ENSEMBLE_SHARED_METADATA:
+                if m.metadata.get(key) != first.metadata.get(key):
+                    raise ModelError(m.name, f"{which} in {key!r}: {m.metadata.get(key)!r} against "
+                                             f"{first.metadata.get(key)!r}; an ensemble's members must share it")
+            if not np.array_equal(m.arrays["label_bodies"], first.arrays["label_bodies"]):
+                raise ModelError(m.name, f"{which} in its label bodies")
+        self.members = members
+        self.name = first.name if name is None else name
+
+    @property
+    def metadata(self):
+        return self.members[0].metadata
+
+    @property
+    def arrays(self):
+        return self.members[0].arrays
+
+    @property
+    def targets(self) -> list:
+        return self.members[0].targets
+
+    def check_source_body(self, mesh):
+        self.members[0].check_source_body(mesh)
+
+    def label_weights_for(self, target_body: Mesh, target=None):
+        return self.members[0].label_weights_for(target_body, target)
+
+    def frame_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """``PlacementModel.frame_offsets`` of the mean of the members."""
+        self.check_source_body(source_body)
+        y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
+        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+
+    def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+        """``PlacementModel.unrotated_offsets`` of the mean of the members: (M,3) float64."""
+        first = self.members[0]
+        F = source_body.F
+        M = F.shape[0]
+        w = bound_counts(binding, M)
+        sel = w > 0
+        X, _, _ = first.inputs(source_body, target_body, garment, target)
+        X = X[sel]
+        y = np.zeros((M, 3))
+        y[sel] = sum(m.raw_offsets(X) for m in self.members) / len(self.members)
+        length = float(first.metadata["smoothing_share"]) * body_scale(source_body.V)
         return smooth_on_body(y, w, source_body.V, F, length)
 
 
@@ -345,10 +437,10 @@ class BlendedPlacement:
 
     Parameters
     ----------
-    model : PlacementModel
+    model : PlacementModel or PlacementEnsemble
     """
 
-    def __init__(self, model: PlacementModel):
+    def __init__(self, model):
         self.model = model
         self.name = model.name
 
@@ -378,7 +470,7 @@ def anchor_offsets(placement, binding: Binding, source_body: Mesh, target_body: 
 
     Parameters
     ----------
-    placement : PlacementModel or (M,3) array
+    placement : PlacementModel, PlacementEnsemble, BlendedPlacement or (M,3) array
         A model, or the offsets per body triangle in its frame on the target (``true_offsets``).
 
     Returns

@@ -339,7 +339,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         After the penetration fix, remove every edge-triangle crossing between garment and body
         and undo the self-intersections the source garment does not have by giving the cloth
         there its source shape (``clearance.separate``; only with ``fix_penetration``).
-    placement : placement.PlacementModel or (M,3) array, optional
+    placement : placement.PlacementModel, PlacementEnsemble or BlendedPlacement, or (M,3) array, optional
         Move the anchors from where the body carries the garment by a learned placement (or given
         offsets per source body triangle, in the triangle's frame on the target: ``placement.true_offsets``).
 

@@ -19,6 +19,8 @@ Parts (``--parts``, default all):
   own field, the garment model's and half of it (``--field-share``); ``--placement-blend``: an unseen body
   gets the blend of the placements predicted on the training bodies; ``--placement-body-offset``: the
   placement model also sees the target's offset from the source body). ``--data``/``--extra`` as for demo.
+* ``--placement-members N`` (demo and unseen_body): the learned placement is the mean of N placement models
+  trained with seeds seed .. seed+N-1 (``placement.PlacementEnsemble``); 1 (default): one model.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
   garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
@@ -42,8 +44,7 @@ from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import (placement_tables, train_garment_model, train_placement_model,
-                                               training_tables)
+from garment_transfer.garment_training import placement_tables, train_garment_model, training_tables
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -123,9 +124,9 @@ def unseen_body_part(args, say):
         placer = None
         if args.placement:
             placement_tables(ds, source, targets, train, tables)
-            placer, _ = train_placement_model(tables, targets, epochs=experiment.PLACEMENT_EPOCHS, seed=args.seed,
-                                              threads=args.threads, use_label=not args.placement_nolabel,
-                                              body_offset=args.placement_body_offset)
+            placer, _ = experiment.train_placement(tables, targets, seed=args.seed, threads=args.threads,
+                                                   use_label=not args.placement_nolabel,
+                                                   body_offset=args.placement_body_offset)
             if args.placement_blend:
                 placer = placement.BlendedPlacement(placer)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
@@ -227,6 +228,9 @@ def main(argv=None):
                          "bodies, by its label weights (placement.BlendedPlacement)")
     ap.add_argument("--placement-epochs", type=int, default=experiment.PLACEMENT_EPOCHS,
                     help="passes over the samples of the placement model")
+    ap.add_argument("--placement-members", type=int, default=experiment.PLACEMENT_MEMBERS,
+                    help="placement models trained with seeds seed, seed+1, ... and averaged "
+                         "(placement.PlacementEnsemble); 1: one model")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
                     help="smoothing length of the placement (its training targets and predictions), as a share "
                          "of the body scale")
@@ -241,6 +245,7 @@ def main(argv=None):
     experiment.GARMENT_EPOCHS = args.garment_epochs
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
+    experiment.PLACEMENT_MEMBERS = args.placement_members
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]

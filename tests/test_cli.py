@@ -125,6 +125,11 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     summary = json.loads(p.stdout)
     assert summary["kind"] == "garment" and summary["field"]["epochs"] == 3
     assert summary["placement"]["epochs"] == 10 and "train:" in p.stderr
+    # The default placement: several members, averaged, in the one file.
+    from garment_transfer.garment_training import PLACEMENT_MEMBERS
+    from garment_transfer.placement import PlacementEnsemble
+
+    assert PLACEMENT_MEMBERS > 1 and summary["placement"]["members"] == PLACEMENT_MEMBERS
     assert sorted(f.name for f in tmp_path.iterdir()) == ["ds", "garment.npz"]     # no temporary file left
 
     src, tgt, garment = (ds / "bodies" / "src.obj", ds / "bodies" / "pear.obj",
@@ -137,6 +142,8 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert (data["method"], data["model"], data["model_kind"], data["field_share"], data["placement"]) == \
         ("model", str(model), "garment", 0.5, True)
     loaded = read_model_file(model)
+    assert isinstance(loaded.placement.model, PlacementEnsemble)
+    assert len(loaded.placement.model.members) == PLACEMENT_MEMBERS
     expect = transfer_garment(read_obj(src), read_obj(tgt), read_obj(garment), method="model", model=loaded.model,
                               placement=loaded.placement).V
     # The same to the last digit of the file (9 significant digits).
@@ -185,6 +192,12 @@ def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
     p = run("train", "--kind", "garment", "--latent", "4", "--dataset", ds, "--source", "src", "--targets", "pear",
             "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--latent is not for train --kind garment" in p.stderr
+    p = run("train", "--placement-members", "3", "--dataset", ds, "--source", "src", "--targets", "pear",
+            "--out", tmp_path / "m.npz")
+    assert p.returncode == 2 and "--placement-members is not for train --kind shared" in p.stderr
+    p = run("train", "--kind", "garment", "--placement-members", "0", "--dataset", ds, "--source", "src",
+            "--targets", "pear", "--out", tmp_path / "m.npz")
+    assert p.returncode == 2 and "--placement-members" in p.stderr and not (tmp_path / "m.npz").exists()
     p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "pear,nobody",
             "--out", tmp_path / "m.npz")
     assert p.returncode == 1 and "nobody" in p.stderr and not (tmp_path / "m.npz").exists()

@@ -27,7 +27,19 @@ def bundle(tmp_path_factory):
     ds = make_tiny_dataset(folder / "ds")
     path = folder / "garment.npz"
     info = train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3,
-                                          placement_epochs=10, seed=1, out=path, threads=1)
+                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=1)
+    return ds, path, info
+
+
+@pytest.fixture(scope="module")
+def ensemble_bundle(bundle):
+    """The same training with two placement members: a file of format version 2."""
+    from garment_transfer.garment_training import train_garment_fit_from_dataset
+
+    ds, single, _ = bundle
+    path = single.parent / "ensemble.npz"
+    info = train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3,
+                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=2)
     return ds, path, info
 
 
@@ -100,8 +112,10 @@ def rewrite(path, out, metadata=None, drop=(), add=None):
 def test_wrong_or_damaged_files_are_refused_naming_them(bundle, tmp_path):
     _, path, _ = bundle
     cases = {
-        "newer.npz": (lambda p: rewrite(path, p, lambda md: md.update(format_version=2)),
-                      "has format version 2; this version of garment_transfer reads version 1"),
+        "newer.npz": (lambda p: rewrite(path, p, lambda md: md.update(format_version=3)),
+                      "has format version 3; this version of garment_transfer reads versions 1 and 2"),
+        "v1_members.npz": (lambda p: rewrite(path, p, lambda md: md.update(placement_members=1)),
+                           "has 'placement_members' (1), which format version 1 does not have"),
         "newer_part.npz": (lambda p: rewrite(path, p, lambda md: md["placement"].update(format_version=7)),
                            "its placement model has format version 7"),
         "stray.npz": (lambda p: rewrite(path, p, add={"extra": np.zeros(3)}), "has arrays of no part: extra"),
@@ -188,3 +202,87 @@ def test_one_transfer_computes_the_target_body_s_features_once(bundle, monkeypat
     assert not X.flags.writeable and not dev.flags.writeable
     gm._target_features_cached(src.V, 1.01 * tgt.V, src.F, shares)    # another body: computed
     assert len(calls) == 2
+
+
+def test_a_placement_of_several_members_round_trips_through_one_file(bundle, ensemble_bundle):
+    from garment_transfer.placement import PlacementEnsemble
+
+    ds, path, info = ensemble_bundle
+    assert info["placement"]["members"] == 2 and info["placement"]["epochs"] == 10
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    md = json.loads(str(arrays.pop("metadata")))
+    assert md["format_version"] == 2 and md["placement_members"] == 2 and len(md["placement"]) == 2
+    assert not any(k.startswith("placement.W") for k in arrays)
+    members = [PlacementModel({k[len(f"placement.{i}."):]: v for k, v in arrays.items()
+                               if k.startswith(f"placement.{i}.")}, md["placement"][i], f"member {i}")
+               for i in range(2)]
+    assert [m.metadata["training"]["seed"] for m in members] == [1, 2]
+    model = read_model_file(path)
+    assert isinstance(model.placement, BlendedPlacement) and isinstance(model.placement.model, PlacementEnsemble)
+    read = model.placement.model.members
+    assert len(read) == 2 and model.has_placement and model.placement.model.name == str(path)
+    for got, want in zip(read, members):
+        assert got.metadata == want.metadata and all(np.array_equal(got.arrays[k], want.arrays[k])
+                                                     for k in want.arrays)
+    # The first member is the single-placement file's model (same seed and data).
+    _, single, _ = parts_by_hand(bundle[1])
+    assert all(np.array_equal(read[0].arrays[k], single.arrays[k]) for k in single.arrays)
+    ds = load_dataset(ds)
+    src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    field = GarmentFitModel({k[6:]: v for k, v in arrays.items() if k.startswith("field.")}, md["field"], "field")
+    expect = transfer_garment(src, tgt, garment, method="model", model=field.with_field_share(0.5),
+                              placement=BlendedPlacement(PlacementEnsemble(members))).V
+    got = transfer_garment(src, tgt, garment, method="model", **model.transfer_arguments()).V
+    np.testing.assert_allclose(got, expect, rtol=0, atol=1e-12)
+    alone = transfer_garment(src, tgt, garment, method="model", model=field.with_field_share(0.5),
+                             placement=BlendedPlacement(members[0])).V
+    assert np.abs(alone - expect).max() > 1e-6 * np.ptp(src.V, axis=0).max()
+    # Written again from what was read: the same file contents.
+    again = path.parent / "again.npz"
+    save_garment_fit_bundle(again, model.model, model.placement.model, dataset=md["dataset"])
+    with np.load(again, allow_pickle=False) as npz:
+        assert sorted(npz.files) == sorted([*arrays, "metadata"])
+        assert json.loads(str(npz["metadata"])) == md
+    # An ensemble of one member is written as the single model (format version 1).
+    one = path.parent / "one.npz"
+    save_garment_fit_bundle(one, field, PlacementEnsemble(members[:1]))
+    with np.load(one, allow_pickle=False) as npz:
+        assert json.loads(str(npz["metadata"]))["format_version"] == 1 and "placement.W0" in npz.files
+    assert isinstance(read_model_file(one).placement.model, PlacementModel)
+
+
+def test_a_bad_count_of_placement_members_is_refused_naming_the_file(ensemble_bundle, tmp_path):
+    _, path, _ = ensemble_bundle
+
+    def member(i, **changes):
+        return lambda md: md["placement"][i].update(changes)
+
+    cases = {
+        "more.npz": (lambda md: md.update(placement_members=3), "says it holds 3 placement members, but its "
+                                                                "'placement' metadata has 2 entries"),
+        "one.npz": (lambda md: md.update(placement_members=1), "has a bad 'placement_members' (1)"),
+        "text.npz": (lambda md: md.update(placement_members="2"), "has a bad 'placement_members' ('2')"),
+        "flag.npz": (lambda md: md.update(placement_members=True), "has a bad 'placement_members' (True)"),
+        "none.npz": (lambda md: md.pop("placement_members"), "has a bad 'placement_members' (None)"),
+        "not_list.npz": (lambda md: md.update(placement=md["placement"][0]),
+                         "says it holds 2 placement members, but its 'placement' metadata has dict"),
+        "null_member.npz": (lambda md: md["placement"].__setitem__(1, None),
+                            "its 'placement member 1' metadata is not a table"),
+        "other_member.npz": (member(1, smoothing_share=0.5),
+                             "placement member 1 differs from member 0 in 'smoothing_share'"),
+        "old_member.npz": (member(0, format_version=7), "its placement member 0 model has format version 7"),
+    }
+    for name, (change, problem) in cases.items():
+        bad = rewrite(path, tmp_path / name, change)
+        with pytest.raises(ModelError) as exc:
+            read_model_file(bad)
+        assert str(exc.value).startswith(str(bad)) and problem in str(exc.value), (name, str(exc.value))
+    # Arrays of a member the file does not list, or a member without its arrays.
+    for name, kw, problem in (("stray.npz", {"add": {"placement.2.W0": np.zeros(3)}},
+                               "has arrays of no part: placement.2.W0"),
+                              ("short.npz", {"drop": ("placement.1.W0",)}, "array 'W0' is missing")):
+        bad = rewrite(path, tmp_path / name, **kw)
+        with pytest.raises(ModelError) as exc:
+            read_model_file(bad)
+        assert str(exc.value).startswith(str(bad)) and problem in str(exc.value), (name, str(exc.value))

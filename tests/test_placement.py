@@ -238,3 +238,66 @@ def test_blended_placement_of_a_body_between_two_training_bodies(trained, tiny):
     assert np.abs(own[0] - own[1]).max() > 1e-4
     r = transfer_garment(src, mid, g, placement=blend)
     np.testing.assert_allclose(r.V, transfer_garment(src, mid, g, placement=0.5 * (own[0] + own[1])).V, atol=1e-9)
+
+
+def test_an_ensemble_of_identical_members_is_the_single_model(trained, tiny):
+    from garment_transfer.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
+
+    model, _, _ = trained
+    same = PlacementEnsemble([model, PlacementModel(model.arrays, model.metadata, "copy"), model])
+    assert same.targets == model.targets and same.name == model.name
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    mid = src.with_vertices(0.5 * (ds.body("similar").V + tgt.V))
+    for body, label in ((tgt, "pear"), (mid, None)):
+        C = model.frame_offsets(binding, src, body, g, label)
+        assert np.abs(C).max() > 1e-4
+        np.testing.assert_allclose(same.frame_offsets(binding, src, body, g, label), C, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(BlendedPlacement(same).frame_offsets(binding, src, body, g, label),
+                                   BlendedPlacement(model).frame_offsets(binding, src, body, g, label),
+                                   rtol=0, atol=1e-12)
+    np.testing.assert_allclose(transfer_garment(src, tgt, g, placement=same, target="pear").V,
+                               transfer_garment(src, tgt, g, placement=model, target="pear").V, rtol=0, atol=1e-12)
+
+
+def test_an_ensemble_predicts_the_mean_of_its_members_trained_with_successive_seeds(trained, tiny):
+    from garment_transfer.garment_training import train_placement_ensemble
+    from garment_transfer.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
+
+    model, _, tables = trained
+    ensemble, info = train_placement_ensemble(tables, TARGETS, 2, seed=1, hidden=(16,), epochs=30, batch=256,
+                                              threads=1)
+    assert isinstance(ensemble, PlacementEnsemble) and len(ensemble.members) == 2 and info["members"] == 2
+    assert len(info["losses"]) == 30 and info["samples"] == int((tables["bound"] > 0).sum()) * len(TARGETS)
+    first, second = ensemble.members
+    # The first member is the single model of the same seed; the second another network.
+    assert all(np.array_equal(first.arrays[k], model.arrays[k]) for k in model.arrays)
+    assert first.metadata["training"]["seed"] == 1 and second.metadata["training"]["seed"] == 2
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    mid = src.with_vertices(0.5 * (ds.body("similar").V + tgt.V))
+    for body, label in ((tgt, "pear"), (mid, None)):
+        own = [m.frame_offsets(binding, src, body, g, label) for m in (first, second)]
+        assert np.abs(own[0] - own[1]).max() > 1e-4
+        np.testing.assert_allclose(ensemble.frame_offsets(binding, src, body, g, label), 0.5 * (own[0] + own[1]),
+                                   rtol=0, atol=1e-12)
+    blended = [BlendedPlacement(m).frame_offsets(binding, src, mid, g) for m in (first, second)]
+    np.testing.assert_allclose(BlendedPlacement(ensemble).frame_offsets(binding, src, mid, g),
+                               0.5 * (blended[0] + blended[1]), rtol=0, atol=1e-12)
+    single, single_info = train_placement_ensemble(tables, TARGETS, 1, seed=1, hidden=(16,), epochs=30, batch=256,
+                                                   threads=1)
+    assert isinstance(single, PlacementModel) and single_info["members"] == 1
+    assert all(np.array_equal(single.arrays[k], model.arrays[k]) for k in model.arrays)
+    # Members must agree on their inputs and smoothing, and at least one is needed.
+    other = PlacementModel(second.arrays, {**second.metadata, "smoothing_share": 0.5}, "other.npz")
+    with pytest.raises(ModelError, match=r"other.npz: placement member 1 differs from member 0 \(placement model\) "
+                                         r"in 'smoothing_share'"):
+        PlacementEnsemble([first, other])
+    with pytest.raises(ValueError, match="at least one member"):
+        PlacementEnsemble([])
+    with pytest.raises(ValueError, match="whole number >= 1 of members, got 0"):
+        train_placement_ensemble(tables, TARGETS, 0)
+    with pytest.raises(ValueError, match="whole number >= 1 of members, got 1.5"):
+        train_placement_ensemble(tables, TARGETS, 1.5)

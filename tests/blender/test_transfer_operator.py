@@ -210,7 +210,8 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
 
     # A placement model alone is refused, naming the file, and nothing in the scene changes.
     placement_alone = tmp_path / "placement_alone.npz"
-    loaded.placement.model.save(placement_alone)
+    placed = loaded.placement.model          # the default: an ensemble of placement networks; one of them
+    getattr(placed, "members", [placed])[0].save(placement_alone)
     settings.method = 'MODEL'
     settings.model_path = str(placement_alone)
     assert "placement_alone.npz: holds a placement model alone" in settings.model_status
