@@ -1111,6 +1111,15 @@ SHAPE_SAMPLES = 3000
 #: two male bodies in the basis) it removed 20% by borrowing another body's proportions, and used it
 #: doubled the error (1.7 to 3.9 mm).
 SHAPE_MIN_EXPLAINED = 0.5
+#: A body model's basis (``body_model=True``): a sparse prior instead of the ridge. Each weight costs
+#: ``SHAPE_SPARSITY`` of the height times the RMS length of its delta per unit (an L1 penalty, solved
+#: by coordinate descent), so a slider is moved only where it explains a misfit of about that size:
+#: a body model has hundreds of near-collinear sliders, and a ridge or no prior lets the surface fit
+#: spread the target over many of them (wrong regional weights, measured in docs/registration.md).
+#: Then the sliders it moved are refitted with a tenth of the penalty (the L1 shrinks the weights).
+SHAPE_SPARSITY = 1e-4
+SHAPE_REFIT_SHARE = 0.1
+SHAPE_REFIT_ITERATIONS = 15
 
 
 def check_shape_basis(basis, n_vertices, name="shape basis"):
@@ -1204,9 +1213,47 @@ def _plane_rows(J, r, Nn, rho):
     return A.reshape(-1, J.shape[2]), b.ravel()
 
 
+def _sparse_step(H, g, w, lo, hi, mu, kw, sweeps=100, tol=1e-6):
+    """One Gauss-Newton step with an L1 prior: z minimising z^T H z + 2 g^T z + 2 sum_k mu_k |w_k + z_k|
+    with lo <= w + z_w <= hi, z = (z_w (kw,), the rigid motion (6,)). The rigid part is eliminated
+    (its Schur complement), the weights by cyclic coordinate descent: sweeps over the weights that are
+    not 0 until they settle, then one over all of them, until a whole sweep moves nothing.
+    """
+    Hww, Hwr, Hrr = H[:kw, :kw], H[:kw, kw:], H[kw:, kw:]
+    Ki = np.linalg.inv(Hrr)
+    Hs = Hww - Hwr @ Ki @ Hwr.T
+    q = g[:kw] - Hwr @ Ki @ g[kw:] - Hs @ w
+    x = w.copy()
+    grad = Hs @ x + q
+    d = np.maximum(np.diag(Hs).copy(), 1e-300)
+
+    def sweep(indices):
+        moved = 0.0
+        for j in indices:
+            gj = grad[j] - d[j] * x[j]
+            xn = 0.0 if abs(gj) <= mu[j] else (np.sign(gj) * mu[j] - gj) / d[j]
+            xn = min(max(xn, lo[j]), hi[j])
+            delta = xn - x[j]
+            if delta != 0.0:
+                grad[:] += Hs[:, j] * delta
+                x[j] = xn
+                moved = max(moved, abs(delta))
+        return moved
+
+    everything = range(kw)
+    for _ in range(sweeps):
+        if sweep(everything) < tol:
+            break
+        for _ in range(sweeps):
+            if sweep(np.flatnonzero(x).tolist()) < tol:
+                break
+    zw = x - w
+    return np.concatenate([zw, -Ki @ (g[kw:] + Hwr.T @ zw)])
+
+
 def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SHAPE_RIDGE,
               iterations=SHAPE_ITERATIONS, samples=SHAPE_SAMPLES, min_explained=SHAPE_MIN_EXPLAINED,
-              normal_cos=0.5, max_share=0.05, seed=0, surface=None):
+              normal_cos=0.5, max_share=0.05, seed=0, surface=None, sparsity=None, rigid=False):
     """Weights of a linear shape space of the source body, fitted with a similarity to the target.
 
     The model is ``Y = s R (X0 + sum_k w_k D_k) + t``. ICP-style alternation: closest-point pairs
@@ -1242,6 +1289,14 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         of the source itself (after the global similarity); otherwise the weights returned are 0.
     surface : TriangleSurface, optional
         The target surface (target_V, target_F) already built (its search tree is reused).
+    sparsity : float, optional
+        For a body model's basis: an L1 prior instead of the ridge (``SHAPE_SPARSITY``: each weight
+        costs this share of the height times its delta's RMS length per unit), then the weights it
+        moved refitted with ``SHAPE_REFIT_SHARE`` of it for ``SHAPE_REFIT_ITERATIONS`` steps.
+    rigid : bool
+        Keep the scale at 1 (the similarity is a rigid motion): the basis must explain the target's
+        size (a body model's height sliders; the alignment has already put the target in the source's
+        units). With the height rule of the global fit, a height slider and the scale trade.
 
     Returns
     -------
@@ -1290,6 +1345,11 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     P_global = surface_samples(target_V, target_F, min(X0.shape[0], 8000), seed=seed)[0]
     scale, R, t = _global_similarity(X0, F, surface, P_global)
     start = (scale, R.copy(), t.copy())
+    if rigid:
+        t = t + (scale - 1.0) * R @ X0[np.unique(F)].mean(axis=0)
+        scale = 1.0
+    rms = np.sqrt(np.mean(np.sum(Da ** 2, axis=2), axis=1))
+    refit = None
     cs, Cs, _ = surface_moments(X0, F)
     axis = principal_frame(Cs)[0][:, 0]
     used = np.unique(F)
@@ -1300,7 +1360,15 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     info = {"iterations": 0}
     order_s, order_p = coherent_order(Sv @ X0), coherent_order(P)
     kw = w.size
-    for it in range(iterations):
+    total = iterations + (SHAPE_REFIT_ITERATIONS if sparsity else 0)
+    it = 0
+    while it < total:
+        if sparsity and refit is None and it >= iterations:
+            refit = np.abs(w) > 0
+            if not refit.any():
+                break
+        cols = np.arange(kw) if refit is None else np.flatnonzero(refit)
+        kc = cols.size
         X = X0 + np.tensordot(w, Da, axes=1)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
@@ -1316,14 +1384,14 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         T_pts = ((np.vstack([C[ok1], P[ok2]]) - t) @ R) / scale
         Nn = np.vstack([Nt[ok1], Np[ok2]]) @ R
         model = np.vstack([Sv[ok1] @ X, B @ X])
-        Jw = np.concatenate([SD[ok1], np.stack([B @ d for d in Da], axis=2)])       # (p,3,k)
+        Jw = np.concatenate([SD[ok1][:, :, cols], np.stack([B @ Da[j] for j in cols], axis=2)])  # (p,3,kc)
         # The scale follows the blend's height (the global fit's scale), linear in the weights through
         # the two extreme vertices: a change dw scales the blend about its centre by -dh/h.
-        h = float((X[top] - X[bottom]) @ axis)
-        dh = (Da[:, top] - Da[:, bottom]) @ axis                                   # (k,)
-        cx = X[used].mean(axis=0)
-        model_c = model - cx
-        Jw = Jw - model_c[:, :, None] * (dh / h)[None, None, :]
+        if not rigid:
+            h = float((X[top] - X[bottom]) @ axis)
+            dh = (Da[cols, top] - Da[cols, bottom]) @ axis                         # (kc,)
+            cx = X[used].mean(axis=0)
+            Jw = Jw - (model - cx)[:, :, None] * (dh / h)[None, None, :]
         c = T_pts.mean(axis=0)
         v = T_pts - c
         Jr = np.zeros((v.shape[0], 3, 3))
@@ -1335,17 +1403,27 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         H = A.T @ A
         g = A.T @ b
         energy = float(b @ b)
-        lam = ridge * energy
-        H[:kw, :kw] += lam * np.eye(kw)
-        g[:kw] += lam * w
-        H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
-        # Bounded least squares of the quadratic: |L^T z + L^-1 g|^2 with H = L L^T.
-        L = np.linalg.cholesky(H)
-        low = np.concatenate([lo - w, np.full(6, -np.inf)])
-        high = np.concatenate([hi - w, np.full(6, np.inf)])
-        z = lsq_linear(L.T, -np.linalg.solve(L, g), bounds=(low, high), method="bvls", tol=1e-14).x
-        dw, omega, tau = z[:kw], z[kw:kw + 3], z[kw + 3:]
-        w = np.clip(w + dw, lo, hi)
+        if sparsity:
+            # The L1 prior, per unit of each delta's RMS length (a regional slider costs its reach).
+            H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
+            mu = sparsity * height * v.shape[0] * rms[cols]
+            if refit is not None:
+                mu = SHAPE_REFIT_SHARE * mu
+            z = _sparse_step(H, g, w[cols], lo[cols], hi[cols], mu, kc)
+            dw, omega, tau = z[:kc], z[kc:kc + 3], z[kc + 3:]
+            w[cols] = np.clip(w[cols] + dw, lo[cols], hi[cols])
+        else:
+            lam = ridge * energy
+            H[:kw, :kw] += lam * np.eye(kw)
+            g[:kw] += lam * w
+            H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
+            # Bounded least squares of the quadratic: |L^T z + L^-1 g|^2 with H = L L^T.
+            L = np.linalg.cholesky(H)
+            low = np.concatenate([lo - w, np.full(6, -np.inf)])
+            high = np.concatenate([hi - w, np.full(6, np.inf)])
+            z = lsq_linear(L.T, -np.linalg.solve(L, g), bounds=(low, high), method="bvls", tol=1e-14).x
+            dw, omega, tau = z[:kw], z[kw:kw + 3], z[kw + 3:]
+            w = np.clip(w + dw, lo, hi)
         log.debug("shape fit step %d: weights %s, energy %.4g, omega %.3g, tau %.3g", it,
                   np.round(w, 4).tolist(), energy, np.abs(omega).max(), np.abs(tau).max() / height)
         # Target-to-source map x = R^T (y - t) / s composed with x -> Rd (x - c) + c + tau.
@@ -1355,23 +1433,34 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         X = X0 + np.tensordot(w, Da, axes=1)
         heights = X[used] @ axis
         top, bottom = used[np.argmax(heights)], used[np.argmin(heights)]
-        scale_new = span_t / float(np.ptp(heights))
-        # The new scale about the blend's centre; then its extents along the axis on the target's.
-        cx = X[used].mean(axis=0)
-        t_new = t_new + (scale - scale_new) * R_new @ cx
-        ends = (scale_new * X[used] @ R_new.T + t_new) @ axis
-        t_new = t_new + (mid_t - 0.5 * (ends.min() + ends.max())) * axis
+        if rigid:
+            scale_new = scale
+        else:
+            scale_new = span_t / float(np.ptp(heights))
+            # The new scale about the blend's centre; then its extents along the axis on the target's.
+            cx = X[used].mean(axis=0)
+            t_new = t_new + (scale - scale_new) * R_new @ cx
+            ends = (scale_new * X[used] @ R_new.T + t_new) @ axis
+            t_new = t_new + (mid_t - 0.5 * (ends.min() + ends.max())) * axis
         done = (np.abs(dw).max() < 1e-5 and np.abs(R_new - R).max() < 1e-6
                 and np.abs(t_new - t).max() < 1e-6 * height)
         scale, R, t = scale_new, R_new, t_new
         info = {"iterations": it + 1, "scale": float(scale), "energy": energy / max(b.size, 1),
                 "energy_start": info.get("energy_start", energy / max(b.size, 1)),
                 "rms": float(np.sqrt(0.5 * (np.mean(d1[ok1] ** 2) + np.mean(d2[ok2] ** 2))))}
+        it += 1
         if done:
-            break
+            if not sparsity or refit is not None:
+                break
+            # The sparse fit has settled: refit the weights it moved.
+            refit = np.abs(w) > 0
+            if not refit.any():
+                break
+            total = it + SHAPE_REFIT_ITERATIONS
     weights[active] = w
     info["fitted_weights"] = weights.tolist()
     info["similarity"] = start
+    info["final_similarity"] = (float(scale), R, t)
     info["explained"] = float(1.0 - info["energy"] / max(info["energy_start"], 1e-300))
     info["used"] = info["explained"] >= min_explained
     log.info("shape fit: weights %s after %d steps (rms %.3g), %.0f%% of the misfit explained%s",
@@ -1529,7 +1618,7 @@ def _cache_save(folder, key, reg: Registration):
 # --- the whole stage --------------------------------------------------------------------------
 
 def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None, progress=None,
-             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS) -> Registration:
+             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
     """Fit the source body onto the target body (any mesh, units and axes; a similar pose).
 
     Parameters
@@ -1557,6 +1646,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         correspondence that the surfaces alone do not give (along the limbs, around the torso).
     shape_bounds : (2,) or (k,2) float
         Bounds of the weights (1 = one delta's worth); ``SHAPE_BOUNDS`` by default.
+    body_model : bool
+        The basis is a body model's sliders (``body_model.makehuman_shape_basis``): fitted with the
+        sparse prior (``SHAPE_SPARSITY``) and the size from the model (``rigid``), see ``fit_shape``.
 
     Returns
     -------
@@ -1581,6 +1673,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
                                    "shape": list(shape_basis.shape), "low": lo.tolist(), "high": hi.tolist(),
                                    "ridge": SHAPE_RIDGE, "iterations": SHAPE_ITERATIONS,
                                    "min_explained": SHAPE_MIN_EXPLAINED, "samples": SHAPE_SAMPLES}
+        if body_model:
+            settings["shape_basis"].update({"body_model": True, "sparsity": SHAPE_SPARSITY,
+                                            "refit": [SHAPE_REFIT_SHARE, SHAPE_REFIT_ITERATIONS]})
     folder = cache_folder() if cache is True else (cache or None)
     key = cache_key(source, target, settings) if folder else None
     if folder:
@@ -1602,7 +1697,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     start, weights, similarity = source.V, None, None
     if shape_basis is not None:
         weights, start, shape_info = fit_shape(source.V, source.F, shape_basis, T, target.F,
-                                               bounds=shape_bounds, surface=surface)
+                                               bounds=shape_bounds, surface=surface,
+                                               sparsity=SHAPE_SPARSITY if body_model else None,
+                                               rigid=bool(body_model))
         if not shape_info["used"]:
             # The non-rigid fit starts from the source itself: the shape fit's first step was its global fit.
             similarity = shape_info.get("similarity")
@@ -1640,7 +1737,7 @@ def same_mesh(a: Mesh, b: Mesh) -> bool:
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
                          limits=None, registration: Registration | None = None, progress=None,
-                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, **options):
+                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
     The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
@@ -1661,6 +1758,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     shape_basis : (k,n,3) float, optional
         See ``register`` (used only when the target is another mesh).
     shape_bounds : (2,) or (k,2) float
+        See ``register``.
+    body_model : bool
         See ``register``.
     **options
         Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
@@ -1686,7 +1785,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
 
     reg = registration or register(source_body, target_body, cache=cache, limits=limits,
                                    progress=sub(0.0, 0.6), shape_basis=shape_basis,
-                                   shape_bounds=shape_bounds)
+                                   shape_bounds=shape_bounds, body_model=body_model)
     options = dict(options)
     if options.get("offset") is not None:
         options["offset"] = options["offset"] * reg.alignment.scale
