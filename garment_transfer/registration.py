@@ -1119,7 +1119,9 @@ SHAPE_MIN_EXPLAINED = 0.5
 #: Then the sliders it moved are refitted with a tenth of the penalty (the L1 shrinks the weights).
 SHAPE_SPARSITY = 1e-4
 SHAPE_REFIT_SHARE = 0.1
-SHAPE_REFIT_ITERATIONS = 15
+SHAPE_REFIT_ITERATIONS = 8
+#: Steps of the sparse fit before the refit (at most; it stops when the weights settle).
+SHAPE_MODEL_ITERATIONS = 15
 
 
 def check_shape_basis(basis, n_vertices, name="shape basis"):
@@ -1244,6 +1246,20 @@ def _sparse_step(H, g, w, lo, hi, mu, kw, sweeps=100, tol=1e-6):
     for _ in range(sweeps):
         if sweep(everything) < tol:
             break
+        # The weights that are not 0 and inside their bounds, with their signs as they are: one linear
+        # solve gives their optimum; kept when the signs and bounds hold, else coordinate sweeps.
+        act = (x != 0.0) & (x > lo) & (x < hi)
+        if act.any():
+            sgn = np.sign(x[act])
+            rest = ~act
+            try:
+                xa = np.linalg.solve(Hs[np.ix_(act, act)], -(q[act] + sgn * mu[act] + Hs[np.ix_(act, rest)] @ x[rest]))
+            except np.linalg.LinAlgError:
+                xa = None
+            if xa is not None and np.all(np.sign(xa) == sgn) and np.all(xa >= lo[act]) and np.all(xa <= hi[act]):
+                x[act] = xa
+                grad = Hs @ x + q
+                continue
         for _ in range(sweeps):
             if sweep(np.flatnonzero(x).tolist()) < tol:
                 break
@@ -1361,6 +1377,7 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     order_s, order_p = coherent_order(Sv @ X0), coherent_order(P)
     kw = w.size
     total = iterations + (SHAPE_REFIT_ITERATIONS if sparsity else 0)
+    Dmat = Da.reshape(kw, -1)
     it = 0
     while it < total:
         if sparsity and refit is None and it >= iterations:
@@ -1369,7 +1386,8 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
                 break
         cols = np.arange(kw) if refit is None else np.flatnonzero(refit)
         kc = cols.size
-        X = X0 + np.tensordot(w, Da, axes=1)
+        nz = np.flatnonzero(w)
+        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
         C, ok1, d1, Nt = _pairs_to_target(Sv @ Y, triangle_normals(Y, F[stri])[0], surface, normal_cos, max_dist,
@@ -1384,35 +1402,74 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         T_pts = ((np.vstack([C[ok1], P[ok2]]) - t) @ R) / scale
         Nn = np.vstack([Nt[ok1], Np[ok2]]) @ R
         model = np.vstack([Sv[ok1] @ X, B @ X])
-        Jw = np.concatenate([SD[ok1][:, :, cols], np.stack([B @ Da[j] for j in cols], axis=2)])  # (p,3,kc)
         # The scale follows the blend's height (the global fit's scale), linear in the weights through
         # the two extreme vertices: a change dw scales the blend about its centre by -dh/h.
         if not rigid:
             h = float((X[top] - X[bottom]) @ axis)
             dh = (Da[cols, top] - Da[cols, bottom]) @ axis                         # (kc,)
             cx = X[used].mean(axis=0)
-            Jw = Jw - (model - cx)[:, :, None] * (dh / h)[None, None, :]
+
+        def weight_jacobian(sel):
+            """(p,3,len(sel)): the model points' derivatives by the weights cols[sel]."""
+            Jw = np.concatenate([SD[ok1][:, :, cols[sel]], np.stack([B @ Da[j] for j in cols[sel]], axis=2)
+                                 if len(sel) else np.zeros((B.shape[0], 3, 0))])
+            if not rigid:
+                Jw = Jw - (model - cx)[:, :, None] * (dh[sel] / h)[None, None, :]
+            return Jw
+
         c = T_pts.mean(axis=0)
         v = T_pts - c
-        Jr = np.zeros((v.shape[0], 3, 3))
+        Jr = np.zeros((v.shape[0], 3, 6))
         Jr[:, 0, 1], Jr[:, 0, 2], Jr[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
         Jr[:, 1, 0], Jr[:, 2, 0], Jr[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-        J = np.concatenate([Jw, Jr, np.broadcast_to(-np.eye(3), (v.shape[0], 3, 3))], axis=2)
+        Jr[:, :, 3:] = -np.eye(3)
         r0 = model - T_pts
-        A, b = _plane_rows(J, r0, Nn, rho)
-        H = A.T @ A
-        g = A.T @ b
-        energy = float(b @ b)
         if sparsity:
+            def metric(r):
+                return rho * r + (1.0 - rho) * Nn * np.einsum("pc,pc->p", Nn, r)[:, None]
+
+            n1, Sv1 = int(ok1.sum()), Sv[ok1]
+
+            def weight_gradient(res):
+                """J_w^T M res for every weight in cols, without forming J_w: through the vertices."""
+                m = metric(res)
+                G = Sv1.T @ m[:n1] + B.T @ m[n1:]
+                gr = (Dmat @ G.ravel()) if refit is None else (Dmat[cols] @ G.ravel())
+                if not rigid:
+                    gr = gr - (dh / h) * float(np.sum((model - cx) * m))
+                return gr
+
+            energy = float(np.sum(r0 * metric(r0)))
             # The L1 prior, per unit of each delta's RMS length (a regional slider costs its reach).
-            H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
             mu = sparsity * height * v.shape[0] * rms[cols]
             if refit is not None:
                 mu = SHAPE_REFIT_SHARE * mu
-            z = _sparse_step(H, g, w[cols], lo[cols], hi[cols], mu, kc)
-            dw, omega, tau = z[:kc], z[kc:kc + 3], z[kc + 3:]
-            w[cols] = np.clip(w[cols] + dw, lo[cols], hi[cols])
+            # Solved on a working set (the weights not 0 and those whose gradient nears their penalty),
+            # grown until no weight outside it would move: the same step as on all of them.
+            wc = w[cols]
+            ws = np.flatnonzero((wc != 0.0) | (np.abs(weight_gradient(r0)) > 0.5 * mu))
+            while True:
+                J = np.concatenate([weight_jacobian(ws), Jr], axis=2)
+                A, b = _plane_rows(J, r0, Nn, rho)
+                H = A.T @ A
+                H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
+                zs = _sparse_step(H, A.T @ b, wc[ws], lo[cols][ws], hi[cols][ws], mu[ws], ws.size)
+                grad = np.abs(weight_gradient(r0 + np.einsum("pck,k->pc", J, zs)))
+                out = np.ones(kc, bool)
+                out[ws] = False
+                grow = np.flatnonzero(out & (grad > mu * (1 + 1e-6)))
+                if grow.size == 0:
+                    break
+                ws = np.union1d(ws, grow)
+            dw = np.zeros(kc)
+            dw[ws] = zs[:ws.size]
+            omega, tau = zs[ws.size:ws.size + 3], zs[ws.size + 3:]
+            w[cols] = np.clip(wc + dw, lo[cols], hi[cols])
         else:
+            A, b = _plane_rows(np.concatenate([weight_jacobian(np.arange(kc)), Jr], axis=2), r0, Nn, rho)
+            energy = float(b @ b)
+            H = A.T @ A
+            g = A.T @ b
             lam = ridge * energy
             H[:kw, :kw] += lam * np.eye(kw)
             g[:kw] += lam * w
@@ -1430,7 +1487,8 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         Rd = _rodrigues(omega)
         R_new = R @ Rd.T
         t_new = t + scale * R @ (c - Rd.T @ (c + tau))
-        X = X0 + np.tensordot(w, Da, axes=1)
+        nz = np.flatnonzero(w)
+        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
         heights = X[used] @ axis
         top, bottom = used[np.argmax(heights)], used[np.argmin(heights)]
         if rigid:
@@ -1675,6 +1733,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
                                    "min_explained": SHAPE_MIN_EXPLAINED, "samples": SHAPE_SAMPLES}
         if body_model:
             settings["shape_basis"].update({"body_model": True, "sparsity": SHAPE_SPARSITY,
+                                            "iterations": SHAPE_MODEL_ITERATIONS,
                                             "refit": [SHAPE_REFIT_SHARE, SHAPE_REFIT_ITERATIONS]})
     folder = cache_folder() if cache is True else (cache or None)
     key = cache_key(source, target, settings) if folder else None
@@ -1699,7 +1758,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         weights, start, shape_info = fit_shape(source.V, source.F, shape_basis, T, target.F,
                                                bounds=shape_bounds, surface=surface,
                                                sparsity=SHAPE_SPARSITY if body_model else None,
-                                               rigid=bool(body_model))
+                                               rigid=bool(body_model),
+                                               iterations=SHAPE_MODEL_ITERATIONS if body_model else SHAPE_ITERATIONS)
         if not shape_info["used"]:
             # The non-rigid fit starts from the source itself: the shape fit's first step was its global fit.
             similarity = shape_info.get("similarity")
