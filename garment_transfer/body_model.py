@@ -196,7 +196,7 @@ def slider_columns(names, deltas):
     return out_names, np.stack(cols)
 
 
-def _units_and_up(source: Mesh, path):
+def _units_and_up(source: Mesh):
     """Source units per decimetre and its up axis, from its extents (an upright person)."""
     from .registration import units_scale
 
@@ -246,7 +246,7 @@ def makehuman_shape_basis(source: Mesh, path, groups=DEFAULT_GROUPS, exclude_gro
             source.name, f"has {source.n_vertices} vertices, but the targets of {path} are for MakeHuman's "
                          f"hm08 body ({HM08_BODY_VERTICES} vertices, exported without helper geometry): "
                          f"a body model basis needs a source body of that mesh")
-    units, up = _units_and_up(source, path)
+    units, up = _units_and_up(source)
     keep = [g for g in groups if g not in set(exclude_groups)]
     names, deltas = read_makehuman_targets(path, keep)
     names, cols = slider_columns(names, deltas)

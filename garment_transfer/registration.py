@@ -21,7 +21,9 @@ Stages:
    With a **shape basis** (``shape_basis``: deltas of the source body, such as its shape keys), the
    source is first fitted as a blend of them with a similarity (``fit_shape``: closest points both
    ways, bounded ridge least squares of the weights) and the stages below start from the blend, when
-   it explains at least half of the misfit.
+   it explains at least half of the misfit. A body model's sliders (``body_model=True``, e.g.
+   MakeHuman's targets from ``body_model.makehuman_shape_basis``) are fitted with a sparse (L1) prior
+   and the size from the model instead.
 3. **Non-rigid ICP** with an as-rigid-as-possible regulariser (Sorkine & Alexa 2007) on the source
    graph, its weight annealed from stiff to soft. Data terms both ways: every source vertex towards
    its closest target point, and target points towards their closest point on the current fit (this
@@ -1324,7 +1326,8 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         pairs, in the target's units), ``energy_start`` and ``energy`` (mean squared misfit per
         coordinate of the first and last pairs), ``explained`` (1 - their ratio), ``used`` (explained
         >= min_explained), ``fitted_weights`` (the weights found, used or not) and ``similarity``
-        (``(scale, R, t)``: the global similarity of X0 itself, as ``nonrigid_fit`` starts with).
+        (``(scale, R, t)``: the global similarity of X0 itself, as ``nonrigid_fit`` starts with);
+        ``final_similarity``: the last step's, which maps the blend onto the target.
     """
     from scipy.optimize import lsq_linear
 

@@ -287,7 +287,8 @@ def format_body_row(r):
             f"target p95 {res['to_target_p95']:.2f}/{res['from_target_p95']:.2f} mm; "
             f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU")
     if r.get("prior"):
-        line += (f"\n{'':>22}shape basis ({'body model: weights >= 0.02' if r['prior'] == 'makehuman' else 'leave-one-out'}) " + ", ".join(
+        kind = "body model: weights >= 0.02" if r["prior"] == "makehuman" else "leave-one-out"
+        line += (f"\n{'':>22}shape basis ({kind}) " + ", ".join(
             f"{b} {v:.3f}" for b, v in zip(r["basis"], r["shape_weights"])) +
             f"; {r['shape_explained']:.0%} of the misfit explained, {'used' if r['shape_used'] else 'not used'}; "
             + ", ".join(f"{k} {v:.2f} s" for k, v in r["seconds"].items()))

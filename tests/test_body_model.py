@@ -39,7 +39,8 @@ def write_archive(path, targets, extra=None):
     """A targets.npz as MakeHuman's: targets/<group>/<name>.index.npy (uint16) and .vector.npy (int16)."""
     with zipfile.ZipFile(path, "w") as zf:
         for name, (index, vector) in targets.items():
-            for suffix, arr in ((".index.npy", np.asarray(index, np.uint16)), (".vector.npy", np.asarray(vector, np.int16))):
+            for suffix, arr in ((".index.npy", np.asarray(index, np.uint16)),
+                                (".vector.npy", np.asarray(vector, np.int16))):
                 buf = io.BytesIO()
                 npformat.write_array(buf, arr, allow_pickle=True)
                 zf.writestr(f"targets/{name}{suffix}", buf.getvalue())
