@@ -100,9 +100,10 @@ def cmd_transfer(args):
     garment = read_obj(args.garment)
     model = _model_for(args)
     load = time.perf_counter() - t
-    shape_basis = _shape_basis_for(args, source_body)
+    shape = _shape_basis_for(args, source_body)
     result, registration = transfer_to_any_body(
-        source_body, target_body, garment, cache=not args.no_cache, shape_basis=shape_basis,
+        source_body, target_body, garment, cache=not args.no_cache,
+        **{k: v for k, v in shape.items() if not k.startswith("_")},
         method=args.method, **(model.transfer_arguments() if model else {}),
         target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
         interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
@@ -115,6 +116,8 @@ def cmd_transfer(args):
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
            "seconds": seconds, "penetrating_vertices": result.penetrating_vertices,
            "info": result.info, "registered": registration is not None, **_model_summary(model)}
+    if _shape_weights_named(shape, registration):
+        out["body_model_weights"] = _shape_weights_named(shape, registration)
     lines = [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
              f"{result.penetrating_vertices} inside the target body, "
              f"{result.seconds['total']:.3f} s (transfer)"]
@@ -135,13 +138,31 @@ def _registration_line(source, target, reg):
 
 
 def _shape_basis_for(args, source_body):
-    """The --shape-basis bodies as deltas of the source body, or None."""
+    """The shape basis options for ``register``: the --shape-basis bodies as deltas of the source body,
+    or --body-model's sliders; {} for neither."""
+    if getattr(args, "body_model", None):
+        if getattr(args, "shape_basis", None):
+            raise GarmentTransferError("--body-model and --shape-basis are two shape bases: give one")
+        from .body_model import makehuman_shape_basis
+
+        model = makehuman_shape_basis(source_body, args.body_model)
+        return {"shape_basis": model.basis, "shape_bounds": model.bounds, "body_model": True,
+                "_names": model.names}
     if not getattr(args, "shape_basis", None):
-        return None
+        return {}
     from .obj import read_obj
     from .registration import shape_basis_from_bodies
 
-    return shape_basis_from_bodies(source_body, [read_obj(path, name=path) for path in args.shape_basis])
+    return {"shape_basis": shape_basis_from_bodies(source_body, [read_obj(path, name=path)
+                                                                for path in args.shape_basis])}
+
+
+def _shape_weights_named(options, reg):
+    """{slider: weight} of a body model's fit, the sliders moved (|weight| >= 0.001); {} otherwise."""
+    names = options.get("_names")
+    if not names or reg is None or reg.shape_weights is None:
+        return {}
+    return {n: float(w) for n, w in zip(names, reg.shape_weights) if abs(w) >= 1e-3}
 
 
 def cmd_register(args):
@@ -150,14 +171,18 @@ def cmd_register(args):
 
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
-    shape_basis = _shape_basis_for(args, source_body)
-    reg = register(source_body, target_body, cache=not args.no_cache, shape_basis=shape_basis,
+    shape = _shape_basis_for(args, source_body)
+    reg = register(source_body, target_body, cache=not args.no_cache,
+                   **{k: v for k, v in shape.items() if not k.startswith("_")},
                    progress=stderr_progress("register") if args.verbose else None)
     write_obj(args.out, source_body, reg.V,
               header=f"Garment Transfer: {os.path.basename(args.source_body)} registered onto "
                      f"{os.path.basename(args.target_body)}")
     out = {"out": args.out, "source_body": args.source_body, "target_body": args.target_body,
            "vertices": source_body.n_vertices, "shape_basis": args.shape_basis or [], **reg.summary()}
+    if args.body_model:
+        out["body_model"] = args.body_model
+        out["body_model_weights"] = _shape_weights_named(shape, reg)
     _emit(args, out, [f"wrote {args.out}", _registration_line(args.source_body, args.target_body, reg)])
 
 
@@ -227,9 +252,9 @@ def cmd_transfer_outfit(args):
     from .outfit import transfer_outfit
 
     paths = outfit_out_paths(args.garment, args.out)
-    if args.shape_basis:
-        raise GarmentTransferError("--shape-basis is for one garment: an outfit needs a target body of the "
-                                   "source's mesh")
+    if args.shape_basis or args.body_model:
+        raise GarmentTransferError(f"{'--shape-basis' if args.shape_basis else '--body-model'} is for one garment: "
+                                   f"an outfit needs a target body of the source's mesh")
     if args.no_fix or args.no_crossing_pass:
         raise GarmentTransferError("an outfit of several layers is always separated: "
                                    "--no-fix and --no-crossing-pass apply to one garment only")
@@ -373,6 +398,10 @@ def build_parser():
                    help="OBJ files of the source body's mesh in other shapes (its shape keys, other bodies of "
                         "its mesh), same units and axes: when the target is another mesh, the source is first "
                         "fitted as a blend of them (docs/registration.md)")
+    t.add_argument("--body-model", metavar="TARGETS.npz",
+                   help="MakeHuman's targets archive (makehuman/data/targets.npz of the makehuman wheel: pip "
+                        "download --no-deps makehuman==1.3.2): its sliders as the shape basis of a source body "
+                        "of MakeHuman's hm08 mesh (docs/registration.md)")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 
@@ -404,6 +433,10 @@ def build_parser():
                    help="OBJ files of the source body's mesh in other shapes (its shape keys, other bodies of "
                         "its mesh), same units and axes: when the target is another mesh, the source is first "
                         "fitted as a blend of them (docs/registration.md)")
+    g.add_argument("--body-model", metavar="TARGETS.npz",
+                   help="MakeHuman's targets archive (makehuman/data/targets.npz of the makehuman wheel: pip "
+                        "download --no-deps makehuman==1.3.2): its sliders as the shape basis of a source body "
+                        "of MakeHuman's hm08 mesh (docs/registration.md)")
     g.add_argument("--json", action="store_true", help="print one JSON object")
     g.set_defaults(func=cmd_register)
 

@@ -21,7 +21,9 @@ Stages:
    With a **shape basis** (``shape_basis``: deltas of the source body, such as its shape keys), the
    source is first fitted as a blend of them with a similarity (``fit_shape``: closest points both
    ways, bounded ridge least squares of the weights) and the stages below start from the blend, when
-   it explains at least half of the misfit.
+   it explains at least half of the misfit. A body model's sliders (``body_model=True``, e.g.
+   MakeHuman's targets from ``body_model.makehuman_shape_basis``) are fitted with a sparse (L1) prior
+   and the size from the model instead.
 3. **Non-rigid ICP** with an as-rigid-as-possible regulariser (Sorkine & Alexa 2007) on the source
    graph, its weight annealed from stiff to soft. Data terms both ways: every source vertex towards
    its closest target point, and target points towards their closest point on the current fit (this
@@ -1111,6 +1113,17 @@ SHAPE_SAMPLES = 3000
 #: two male bodies in the basis) it removed 20% by borrowing another body's proportions, and used it
 #: doubled the error (1.7 to 3.9 mm).
 SHAPE_MIN_EXPLAINED = 0.5
+#: A body model's basis (``body_model=True``): a sparse prior instead of the ridge. Each weight costs
+#: ``SHAPE_SPARSITY`` of the height times the RMS length of its delta per unit (an L1 penalty, solved
+#: by coordinate descent), so a slider is moved only where it explains a misfit of about that size:
+#: a body model has hundreds of near-collinear sliders, and a ridge or no prior lets the surface fit
+#: spread the target over many of them (wrong regional weights, measured in docs/registration.md).
+#: Then the sliders it moved are refitted with a tenth of the penalty (the L1 shrinks the weights).
+SHAPE_SPARSITY = 1e-4
+SHAPE_REFIT_SHARE = 0.1
+SHAPE_REFIT_ITERATIONS = 8
+#: Steps of the sparse fit before the refit (at most; it stops when the weights settle).
+SHAPE_MODEL_ITERATIONS = 15
 
 
 def check_shape_basis(basis, n_vertices, name="shape basis"):
@@ -1204,9 +1217,61 @@ def _plane_rows(J, r, Nn, rho):
     return A.reshape(-1, J.shape[2]), b.ravel()
 
 
+def _sparse_step(H, g, w, lo, hi, mu, kw, sweeps=100, tol=1e-6):
+    """One Gauss-Newton step with an L1 prior: z minimising z^T H z + 2 g^T z + 2 sum_k mu_k |w_k + z_k|
+    with lo <= w + z_w <= hi, z = (z_w (kw,), the rigid motion (6,)). The rigid part is eliminated
+    (its Schur complement), the weights by cyclic coordinate descent: sweeps over the weights that are
+    not 0 until they settle, then one over all of them, until a whole sweep moves nothing.
+    """
+    Hww, Hwr, Hrr = H[:kw, :kw], H[:kw, kw:], H[kw:, kw:]
+    Ki = np.linalg.inv(Hrr)
+    Hs = Hww - Hwr @ Ki @ Hwr.T
+    q = g[:kw] - Hwr @ Ki @ g[kw:] - Hs @ w
+    x = w.copy()
+    grad = Hs @ x + q
+    d = np.maximum(np.diag(Hs).copy(), 1e-300)
+
+    def sweep(indices):
+        moved = 0.0
+        for j in indices:
+            gj = grad[j] - d[j] * x[j]
+            xn = 0.0 if abs(gj) <= mu[j] else (np.sign(gj) * mu[j] - gj) / d[j]
+            xn = min(max(xn, lo[j]), hi[j])
+            delta = xn - x[j]
+            if delta != 0.0:
+                grad[:] += Hs[:, j] * delta
+                x[j] = xn
+                moved = max(moved, abs(delta))
+        return moved
+
+    everything = range(kw)
+    for _ in range(sweeps):
+        if sweep(everything) < tol:
+            break
+        # The weights that are not 0 and inside their bounds, with their signs as they are: one linear
+        # solve gives their optimum; kept when the signs and bounds hold, else coordinate sweeps.
+        act = (x != 0.0) & (x > lo) & (x < hi)
+        if act.any():
+            sgn = np.sign(x[act])
+            rest = ~act
+            try:
+                xa = np.linalg.solve(Hs[np.ix_(act, act)], -(q[act] + sgn * mu[act] + Hs[np.ix_(act, rest)] @ x[rest]))
+            except np.linalg.LinAlgError:
+                xa = None
+            if xa is not None and np.all(np.sign(xa) == sgn) and np.all(xa >= lo[act]) and np.all(xa <= hi[act]):
+                x[act] = xa
+                grad = Hs @ x + q
+                continue
+        for _ in range(sweeps):
+            if sweep(np.flatnonzero(x).tolist()) < tol:
+                break
+    zw = x - w
+    return np.concatenate([zw, -Ki @ (g[kw:] + Hwr.T @ zw)])
+
+
 def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SHAPE_RIDGE,
               iterations=SHAPE_ITERATIONS, samples=SHAPE_SAMPLES, min_explained=SHAPE_MIN_EXPLAINED,
-              normal_cos=0.5, max_share=0.05, seed=0, surface=None):
+              normal_cos=0.5, max_share=0.05, seed=0, surface=None, sparsity=None, rigid=False):
     """Weights of a linear shape space of the source body, fitted with a similarity to the target.
 
     The model is ``Y = s R (X0 + sum_k w_k D_k) + t``. ICP-style alternation: closest-point pairs
@@ -1242,6 +1307,14 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         of the source itself (after the global similarity); otherwise the weights returned are 0.
     surface : TriangleSurface, optional
         The target surface (target_V, target_F) already built (its search tree is reused).
+    sparsity : float, optional
+        For a body model's basis: an L1 prior instead of the ridge (``SHAPE_SPARSITY``: each weight
+        costs this share of the height times its delta's RMS length per unit), then the weights it
+        moved refitted with ``SHAPE_REFIT_SHARE`` of it for ``SHAPE_REFIT_ITERATIONS`` steps.
+    rigid : bool
+        Keep the scale at 1 (the similarity is a rigid motion): the basis must explain the target's
+        size (a body model's height sliders; the alignment has already put the target in the source's
+        units). With the height rule of the global fit, a height slider and the scale trade.
 
     Returns
     -------
@@ -1253,7 +1326,8 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         pairs, in the target's units), ``energy_start`` and ``energy`` (mean squared misfit per
         coordinate of the first and last pairs), ``explained`` (1 - their ratio), ``used`` (explained
         >= min_explained), ``fitted_weights`` (the weights found, used or not) and ``similarity``
-        (``(scale, R, t)``: the global similarity of X0 itself, as ``nonrigid_fit`` starts with).
+        (``(scale, R, t)``: the global similarity of X0 itself, as ``nonrigid_fit`` starts with);
+        ``final_similarity``: the last step's, which maps the blend onto the target.
     """
     from scipy.optimize import lsq_linear
 
@@ -1290,6 +1364,11 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     P_global = surface_samples(target_V, target_F, min(X0.shape[0], 8000), seed=seed)[0]
     scale, R, t = _global_similarity(X0, F, surface, P_global)
     start = (scale, R.copy(), t.copy())
+    if rigid:
+        t = t + (scale - 1.0) * R @ X0[np.unique(F)].mean(axis=0)
+        scale = 1.0
+    rms = np.sqrt(np.mean(np.sum(Da ** 2, axis=2), axis=1))
+    refit = None
     cs, Cs, _ = surface_moments(X0, F)
     axis = principal_frame(Cs)[0][:, 0]
     used = np.unique(F)
@@ -1300,8 +1379,18 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     info = {"iterations": 0}
     order_s, order_p = coherent_order(Sv @ X0), coherent_order(P)
     kw = w.size
-    for it in range(iterations):
-        X = X0 + np.tensordot(w, Da, axes=1)
+    total = iterations + (SHAPE_REFIT_ITERATIONS if sparsity else 0)
+    Dmat = Da.reshape(kw, -1)
+    it = 0
+    while it < total:
+        if sparsity and refit is None and it >= iterations:
+            refit = np.abs(w) > 0
+            if not refit.any():
+                break
+        cols = np.arange(kw) if refit is None else np.flatnonzero(refit)
+        kc = cols.size
+        nz = np.flatnonzero(w)
+        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
         C, ok1, d1, Nt = _pairs_to_target(Sv @ Y, triangle_normals(Y, F[stri])[0], surface, normal_cos, max_dist,
@@ -1316,62 +1405,123 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         T_pts = ((np.vstack([C[ok1], P[ok2]]) - t) @ R) / scale
         Nn = np.vstack([Nt[ok1], Np[ok2]]) @ R
         model = np.vstack([Sv[ok1] @ X, B @ X])
-        Jw = np.concatenate([SD[ok1], np.stack([B @ d for d in Da], axis=2)])       # (p,3,k)
         # The scale follows the blend's height (the global fit's scale), linear in the weights through
         # the two extreme vertices: a change dw scales the blend about its centre by -dh/h.
-        h = float((X[top] - X[bottom]) @ axis)
-        dh = (Da[:, top] - Da[:, bottom]) @ axis                                   # (k,)
-        cx = X[used].mean(axis=0)
-        model_c = model - cx
-        Jw = Jw - model_c[:, :, None] * (dh / h)[None, None, :]
+        if not rigid:
+            h = float((X[top] - X[bottom]) @ axis)
+            dh = (Da[cols, top] - Da[cols, bottom]) @ axis                         # (kc,)
+            cx = X[used].mean(axis=0)
+
+        def weight_jacobian(sel):
+            """(p,3,len(sel)): the model points' derivatives by the weights cols[sel]."""
+            Jw = np.concatenate([SD[ok1][:, :, cols[sel]], np.stack([B @ Da[j] for j in cols[sel]], axis=2)
+                                 if len(sel) else np.zeros((B.shape[0], 3, 0))])
+            if not rigid:
+                Jw = Jw - (model - cx)[:, :, None] * (dh[sel] / h)[None, None, :]
+            return Jw
+
         c = T_pts.mean(axis=0)
         v = T_pts - c
-        Jr = np.zeros((v.shape[0], 3, 3))
+        Jr = np.zeros((v.shape[0], 3, 6))
         Jr[:, 0, 1], Jr[:, 0, 2], Jr[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
         Jr[:, 1, 0], Jr[:, 2, 0], Jr[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-        J = np.concatenate([Jw, Jr, np.broadcast_to(-np.eye(3), (v.shape[0], 3, 3))], axis=2)
+        Jr[:, :, 3:] = -np.eye(3)
         r0 = model - T_pts
-        A, b = _plane_rows(J, r0, Nn, rho)
-        H = A.T @ A
-        g = A.T @ b
-        energy = float(b @ b)
-        lam = ridge * energy
-        H[:kw, :kw] += lam * np.eye(kw)
-        g[:kw] += lam * w
-        H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
-        # Bounded least squares of the quadratic: |L^T z + L^-1 g|^2 with H = L L^T.
-        L = np.linalg.cholesky(H)
-        low = np.concatenate([lo - w, np.full(6, -np.inf)])
-        high = np.concatenate([hi - w, np.full(6, np.inf)])
-        z = lsq_linear(L.T, -np.linalg.solve(L, g), bounds=(low, high), method="bvls", tol=1e-14).x
-        dw, omega, tau = z[:kw], z[kw:kw + 3], z[kw + 3:]
-        w = np.clip(w + dw, lo, hi)
+        if sparsity:
+            def metric(r):
+                return rho * r + (1.0 - rho) * Nn * np.einsum("pc,pc->p", Nn, r)[:, None]
+
+            n1, Sv1 = int(ok1.sum()), Sv[ok1]
+
+            def weight_gradient(res):
+                """J_w^T M res for every weight in cols, without forming J_w: through the vertices."""
+                m = metric(res)
+                G = Sv1.T @ m[:n1] + B.T @ m[n1:]
+                gr = (Dmat @ G.ravel()) if refit is None else (Dmat[cols] @ G.ravel())
+                if not rigid:
+                    gr = gr - (dh / h) * float(np.sum((model - cx) * m))
+                return gr
+
+            energy = float(np.sum(r0 * metric(r0)))
+            # The L1 prior, per unit of each delta's RMS length (a regional slider costs its reach).
+            mu = sparsity * height * v.shape[0] * rms[cols]
+            if refit is not None:
+                mu = SHAPE_REFIT_SHARE * mu
+            # Solved on a working set (the weights not 0 and those whose gradient nears their penalty),
+            # grown until no weight outside it would move: the same step as on all of them.
+            wc = w[cols]
+            ws = np.flatnonzero((wc != 0.0) | (np.abs(weight_gradient(r0)) > 0.5 * mu))
+            while True:
+                J = np.concatenate([weight_jacobian(ws), Jr], axis=2)
+                A, b = _plane_rows(J, r0, Nn, rho)
+                H = A.T @ A
+                H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
+                zs = _sparse_step(H, A.T @ b, wc[ws], lo[cols][ws], hi[cols][ws], mu[ws], ws.size)
+                grad = np.abs(weight_gradient(r0 + np.einsum("pck,k->pc", J, zs)))
+                out = np.ones(kc, bool)
+                out[ws] = False
+                grow = np.flatnonzero(out & (grad > mu * (1 + 1e-6)))
+                if grow.size == 0:
+                    break
+                ws = np.union1d(ws, grow)
+            dw = np.zeros(kc)
+            dw[ws] = zs[:ws.size]
+            omega, tau = zs[ws.size:ws.size + 3], zs[ws.size + 3:]
+            w[cols] = np.clip(wc + dw, lo[cols], hi[cols])
+        else:
+            A, b = _plane_rows(np.concatenate([weight_jacobian(np.arange(kc)), Jr], axis=2), r0, Nn, rho)
+            energy = float(b @ b)
+            H = A.T @ A
+            g = A.T @ b
+            lam = ridge * energy
+            H[:kw, :kw] += lam * np.eye(kw)
+            g[:kw] += lam * w
+            H += 1e-12 * np.trace(H) / H.shape[0] * np.eye(H.shape[0])
+            # Bounded least squares of the quadratic: |L^T z + L^-1 g|^2 with H = L L^T.
+            L = np.linalg.cholesky(H)
+            low = np.concatenate([lo - w, np.full(6, -np.inf)])
+            high = np.concatenate([hi - w, np.full(6, np.inf)])
+            z = lsq_linear(L.T, -np.linalg.solve(L, g), bounds=(low, high), method="bvls", tol=1e-14).x
+            dw, omega, tau = z[:kw], z[kw:kw + 3], z[kw + 3:]
+            w = np.clip(w + dw, lo, hi)
         log.debug("shape fit step %d: weights %s, energy %.4g, omega %.3g, tau %.3g", it,
                   np.round(w, 4).tolist(), energy, np.abs(omega).max(), np.abs(tau).max() / height)
         # Target-to-source map x = R^T (y - t) / s composed with x -> Rd (x - c) + c + tau.
         Rd = _rodrigues(omega)
         R_new = R @ Rd.T
         t_new = t + scale * R @ (c - Rd.T @ (c + tau))
-        X = X0 + np.tensordot(w, Da, axes=1)
+        nz = np.flatnonzero(w)
+        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
         heights = X[used] @ axis
         top, bottom = used[np.argmax(heights)], used[np.argmin(heights)]
-        scale_new = span_t / float(np.ptp(heights))
-        # The new scale about the blend's centre; then its extents along the axis on the target's.
-        cx = X[used].mean(axis=0)
-        t_new = t_new + (scale - scale_new) * R_new @ cx
-        ends = (scale_new * X[used] @ R_new.T + t_new) @ axis
-        t_new = t_new + (mid_t - 0.5 * (ends.min() + ends.max())) * axis
+        if rigid:
+            scale_new = scale
+        else:
+            scale_new = span_t / float(np.ptp(heights))
+            # The new scale about the blend's centre; then its extents along the axis on the target's.
+            cx = X[used].mean(axis=0)
+            t_new = t_new + (scale - scale_new) * R_new @ cx
+            ends = (scale_new * X[used] @ R_new.T + t_new) @ axis
+            t_new = t_new + (mid_t - 0.5 * (ends.min() + ends.max())) * axis
         done = (np.abs(dw).max() < 1e-5 and np.abs(R_new - R).max() < 1e-6
                 and np.abs(t_new - t).max() < 1e-6 * height)
         scale, R, t = scale_new, R_new, t_new
         info = {"iterations": it + 1, "scale": float(scale), "energy": energy / max(b.size, 1),
                 "energy_start": info.get("energy_start", energy / max(b.size, 1)),
                 "rms": float(np.sqrt(0.5 * (np.mean(d1[ok1] ** 2) + np.mean(d2[ok2] ** 2))))}
+        it += 1
         if done:
-            break
+            if not sparsity or refit is not None:
+                break
+            # The sparse fit has settled: refit the weights it moved.
+            refit = np.abs(w) > 0
+            if not refit.any():
+                break
+            total = it + SHAPE_REFIT_ITERATIONS
     weights[active] = w
     info["fitted_weights"] = weights.tolist()
     info["similarity"] = start
+    info["final_similarity"] = (float(scale), R, t)
     info["explained"] = float(1.0 - info["energy"] / max(info["energy_start"], 1e-300))
     info["used"] = info["explained"] >= min_explained
     log.info("shape fit: weights %s after %d steps (rms %.3g), %.0f%% of the misfit explained%s",
@@ -1529,7 +1679,7 @@ def _cache_save(folder, key, reg: Registration):
 # --- the whole stage --------------------------------------------------------------------------
 
 def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None, progress=None,
-             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS) -> Registration:
+             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
     """Fit the source body onto the target body (any mesh, units and axes; a similar pose).
 
     Parameters
@@ -1557,6 +1707,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         correspondence that the surfaces alone do not give (along the limbs, around the torso).
     shape_bounds : (2,) or (k,2) float
         Bounds of the weights (1 = one delta's worth); ``SHAPE_BOUNDS`` by default.
+    body_model : bool
+        The basis is a body model's sliders (``body_model.makehuman_shape_basis``): fitted with the
+        sparse prior (``SHAPE_SPARSITY``) and the size from the model (``rigid``), see ``fit_shape``.
 
     Returns
     -------
@@ -1581,6 +1734,10 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
                                    "shape": list(shape_basis.shape), "low": lo.tolist(), "high": hi.tolist(),
                                    "ridge": SHAPE_RIDGE, "iterations": SHAPE_ITERATIONS,
                                    "min_explained": SHAPE_MIN_EXPLAINED, "samples": SHAPE_SAMPLES}
+        if body_model:
+            settings["shape_basis"].update({"body_model": True, "sparsity": SHAPE_SPARSITY,
+                                            "iterations": SHAPE_MODEL_ITERATIONS,
+                                            "refit": [SHAPE_REFIT_SHARE, SHAPE_REFIT_ITERATIONS]})
     folder = cache_folder() if cache is True else (cache or None)
     key = cache_key(source, target, settings) if folder else None
     if folder:
@@ -1602,7 +1759,10 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     start, weights, similarity = source.V, None, None
     if shape_basis is not None:
         weights, start, shape_info = fit_shape(source.V, source.F, shape_basis, T, target.F,
-                                               bounds=shape_bounds, surface=surface)
+                                               bounds=shape_bounds, surface=surface,
+                                               sparsity=SHAPE_SPARSITY if body_model else None,
+                                               rigid=bool(body_model),
+                                               iterations=SHAPE_MODEL_ITERATIONS if body_model else SHAPE_ITERATIONS)
         if not shape_info["used"]:
             # The non-rigid fit starts from the source itself: the shape fit's first step was its global fit.
             similarity = shape_info.get("similarity")
@@ -1640,7 +1800,7 @@ def same_mesh(a: Mesh, b: Mesh) -> bool:
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
                          limits=None, registration: Registration | None = None, progress=None,
-                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, **options):
+                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
     The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
@@ -1661,6 +1821,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     shape_basis : (k,n,3) float, optional
         See ``register`` (used only when the target is another mesh).
     shape_bounds : (2,) or (k,2) float
+        See ``register``.
+    body_model : bool
         See ``register``.
     **options
         Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
@@ -1686,7 +1848,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
 
     reg = registration or register(source_body, target_body, cache=cache, limits=limits,
                                    progress=sub(0.0, 0.6), shape_basis=shape_basis,
-                                   shape_bounds=shape_bounds)
+                                   shape_bounds=shape_bounds, body_model=body_model)
     options = dict(options)
     if options.get("offset") is not None:
         options["offset"] = options["offset"] * reg.alignment.scale

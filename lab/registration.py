@@ -18,6 +18,12 @@ Run ``python -m lab.registration [--quick] [--out DIR]``. It prints its figures 
    registered with a shape basis of the source's mesh: the other MakeHuman bodies less the source
    (``female_average``), never the target body itself (nor its re-mesh). The figures are given
    without and with it.
+6. **Body model** (``--prior makehuman``): the basis is MakeHuman's own targets
+   (``garment_transfer.body_model``), read from ``--body-model PATH/targets.npz`` or, by default,
+   from the ``makehuman`` wheel that ``pip download`` puts in ``$GARMENT_TRANSFER_LAB_CACHE`` (else
+   ``~/.cache/garment_transfer/lab``). The fixture bodies were made from these targets, so this is
+   an in-model test; ``--exclude-groups measure hip buttocks`` leaves out the groups that made the
+   female targets (an out-of-model test).
 
 Units: the MakeHuman files are in decimetres, so 1 unit = 100 mm.
 """
@@ -41,6 +47,8 @@ from garment_transfer.transfer import transfer_garment
 from .paths import DEMO_DATA as DEMO
 from .paths import MAKEHUMAN_SOURCE as SOURCE
 from .paths import SHARED_MAKEHUMAN, makehuman_folder
+
+MAKEHUMAN_WHEEL = "makehuman==1.3.2"
 
 MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN
 MM_PER_UNIT = 100.0
@@ -140,13 +148,49 @@ def leave_one_out_basis(source, target_name, bodies):
                                                    for b in names])
 
 
-def body_study(bodies, sizes, garments, prior="both", all_bodies=None):
+def makehuman_targets(path=None):
+    """MakeHuman's ``targets.npz``: ``path`` if given, else from the ``makehuman`` wheel, fetched once
+    with ``pip download`` into the lab's cache folder and unpacked there."""
+    import subprocess
+    import sys
+    import zipfile
+
+    if path:
+        return Path(path)
+    folder = Path(os.environ.get("GARMENT_TRANSFER_LAB_CACHE") or Path.home() / ".cache" / "garment_transfer" / "lab")
+    out = folder / "makehuman-targets.npz"
+    if out.is_file():
+        return out
+    folder.mkdir(parents=True, exist_ok=True)
+    wheels = sorted(folder.glob("makehuman-*.whl"))
+    if not wheels:
+        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", MAKEHUMAN_WHEEL, "-d", str(folder)],
+                       check=True)
+        wheels = sorted(folder.glob("makehuman-*.whl"))
+    with zipfile.ZipFile(wheels[-1]) as zf:
+        data = zf.read("makehuman/data/targets.npz")
+    tmp = out.with_suffix(".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, out)
+    return out
+
+
+def body_study(bodies, sizes, garments, prior="both", all_bodies=None, body_model=None, exclude_groups=()):
     source = read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj", name=SOURCE)
-    variants = {"off": [False], "on": [True], "both": [False, True]}[prior]
+    variants = {"off": [False], "on": [True], "both": [False, True], "makehuman": ["makehuman"]}[prior]
+    model = None
+    if prior == "makehuman":
+        from garment_transfer.body_model import makehuman_shape_basis
+
+        model = makehuman_shape_basis(source, makehuman_targets(body_model), exclude_groups=exclude_groups)
+        print(f"body model: {model.basis.shape[0]} sliders from {model.path}"
+              f"{' without ' + ', '.join(exclude_groups) if exclude_groups else ''}", flush=True)
     rows = []
     for name in bodies:
         truth = read_obj(MAKEHUMAN / "bodies" / f"{name}.obj", name=name)
         basis_names, basis = leave_one_out_basis(source, name, all_bodies or bodies)
+        if model is not None:
+            basis_names, basis = model.names, model.basis
         # The garments through the true target are the same for every variant.
         truths = {g: transfer_garment(source, truth, read_obj(MAKEHUMAN / "garments" / g / f"{SOURCE}.obj",
                                                               name=g), method="direct").V for g in garments}
@@ -157,7 +201,9 @@ def body_study(bodies, sizes, garments, prior="both", all_bodies=None):
                 if use_prior and basis is None:
                     continue
                 t, c = time.perf_counter(), time.process_time()
-                reg = register(source, target, cache=False, shape_basis=basis if use_prior else None)
+                reg = register(source, target, cache=False, shape_basis=basis if use_prior else None,
+                               shape_bounds=model.bounds if model is not None else (0.0, 1.0),
+                               body_model=model is not None)
                 wall, cpu = time.perf_counter() - t, time.process_time() - c
                 err = np.linalg.norm(reg.V - truth.V, axis=1)
                 row = {"target": name, "triangles": int(G.shape[0]), "vertices": int(U.shape[0]),
@@ -172,6 +218,11 @@ def body_study(bodies, sizes, garments, prior="both", all_bodies=None):
                 if use_prior:
                     row["basis"] = basis_names
                     row["shape_weights"] = [float(v) for v in reg.shape_weights]
+                    if model is not None:
+                        row["exclude_groups"] = list(exclude_groups)
+                        keep = np.flatnonzero(np.abs(reg.shape_weights) >= 0.02)
+                        row["basis"] = [basis_names[i] for i in keep]
+                        row["shape_weights"] = [float(reg.shape_weights[i]) for i in keep]
                     row["shape_explained"] = reg.quality["shape_explained"]
                     row["shape_used"] = bool(reg.quality["shape_used"])
                 rows.append(row)
@@ -188,7 +239,7 @@ def format_summary(rows):
              f"{'s':>5} weights (explained, used)"]
     keyed = {}
     for r in rows:
-        keyed.setdefault((r["target"], r["triangles"]), {})[r["prior"]] = r
+        keyed.setdefault((r["target"], r["triangles"]), {})[bool(r["prior"])] = r
 
     def cells(r):
         if r is None:
@@ -230,13 +281,14 @@ def garment_study(source, truths, target, reg, garments):
 def format_body_row(r):
     e, u = r["vertex_error_mm"], r["untransferred_mm"]
     res = r["residual_mm"]
-    prior = ", prior" if r.get("prior") else ""
+    prior = {True: ", prior", "makehuman": ", body model"}.get(r.get("prior"), "")
     line = (f"{r['target']:>20} {r['triangles']:>6} tris{prior}: vertex error mean {e['mean']:.2f} mm, p95 "
             f"{e['p95']:.2f}, max {e['max']:.1f} (untransferred mean {u['mean']:.2f}); residual to/from "
             f"target p95 {res['to_target_p95']:.2f}/{res['from_target_p95']:.2f} mm; "
             f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.1f} s CPU")
     if r.get("prior"):
-        line += (f"\n{'':>22}shape basis (leave-one-out) " + ", ".join(
+        kind = "body model: weights >= 0.02" if r["prior"] == "makehuman" else "leave-one-out"
+        line += (f"\n{'':>22}shape basis ({kind}) " + ", ".join(
             f"{b} {v:.3f}" for b, v in zip(r["basis"], r["shape_weights"])) +
             f"; {r['shape_explained']:.0%} of the misfit explained, {'used' if r['shape_used'] else 'not used'}; "
             + ", ".join(f"{k} {v:.2f} s" for k, v in r["seconds"].items()))
@@ -296,7 +348,7 @@ def family_study(garments, demo_garment):
     return rows
 
 
-def speed_study(repeats=3, prior="off", target_name="female_pear"):
+def speed_study(repeats=3, prior="off", target_name="female_pear", body_model=None):
     """Registration of the 13K-vertex source onto the 50K-triangle re-mesh of a body, timed (with the
     leave-one-out shape basis too when ``prior`` is ``on`` or ``both``)."""
     source = read_obj(MAKEHUMAN / "bodies" / f"{SOURCE}.obj", name=SOURCE)
@@ -305,11 +357,18 @@ def speed_study(repeats=3, prior="off", target_name="female_pear"):
     target = mesh_from_triangles(U, G, name=f"{target_name}_50k")
     manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
     names, basis = leave_one_out_basis(source, target_name, manifest["bodies"])
+    bounds, model = (0.0, 1.0), prior == "makehuman"
+    if model:
+        from garment_transfer.body_model import makehuman_shape_basis
+
+        m = makehuman_shape_basis(source, makehuman_targets(body_model))
+        names, basis, bounds = ["MakeHuman targets"], m.basis, m.bounds
     rows = []
     for i in range(repeats):
-        for use_prior in {"off": [False], "on": [True], "both": [False, True]}[prior]:
+        for use_prior in {"off": [False], "on": [True], "both": [False, True], "makehuman": [True]}[prior]:
             t, c = time.perf_counter(), time.process_time()
-            reg = register(source, target, cache=False, shape_basis=basis if use_prior else None)
+            reg = register(source, target, cache=False, shape_basis=basis if use_prior else None,
+                           shape_bounds=bounds, body_model=model)
             rows.append({"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
                          "stages": reg.seconds, "prior": use_prior})
             print(f"speed run {i}{' (prior: ' + ', '.join(names) + ')' if use_prior else ''}: "
@@ -325,8 +384,12 @@ def main(argv=None):
     p.add_argument("--out", help="folder for registration.json")
     p.add_argument("--speed", action="store_true", help="only the timing of the 50K-triangle registration")
     p.add_argument("--speed-target", default="female_pear", help="the body timed by --speed")
-    p.add_argument("--prior", choices=["off", "on", "both"], default="both",
-                   help="the leave-one-out shape basis (the other MakeHuman bodies): without it, with it, or both")
+    p.add_argument("--prior", choices=["off", "on", "both", "makehuman"], default="both",
+                   help="the leave-one-out shape basis (the other MakeHuman bodies): without it, with it, or both; "
+                        "makehuman: MakeHuman's own targets as a body model")
+    p.add_argument("--body-model", help="MakeHuman's targets.npz for --prior makehuman (default: fetched with pip)")
+    p.add_argument("--exclude-groups", nargs="+", default=[],
+                   help="target groups left out of the body model (an out-of-model test)")
     p.add_argument("--bodies", nargs="+", help="target bodies (default: all of the manifest)")
     p.add_argument("--sizes", nargs="+", type=int, help="re-mesh sizes in triangles (default 5000 50000)")
     p.add_argument("--garments", type=int, help="only the first N garments of the manifest")
@@ -335,7 +398,7 @@ def main(argv=None):
     if not MAKEHUMAN.is_dir():
         raise SystemExit(f"MakeHuman data not found at {MAKEHUMAN}")
     if args.speed:
-        speed_study(prior=args.prior, target_name=args.speed_target)
+        speed_study(prior=args.prior, target_name=args.speed_target, body_model=args.body_model)
         return 0
     manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
     bodies, garments, sizes = manifest["bodies"], manifest["garments"], [5000, 50000]
@@ -346,7 +409,8 @@ def main(argv=None):
     garments = garments[:args.garments] if args.garments else garments
     print(f"source {SOURCE}; re-meshed targets {sizes} triangles; prior {args.prior}; {os.cpu_count()} cores",
           flush=True)
-    rows = body_study(bodies, sizes, garments, prior=args.prior, all_bodies=manifest["bodies"])
+    rows = body_study(bodies, sizes, garments, prior=args.prior, all_bodies=manifest["bodies"],
+                      body_model=args.body_model, exclude_groups=tuple(args.exclude_groups))
     print(format_summary(rows), flush=True)
     out = {"bodies": rows,
            "family": [] if args.no_family else family_study(garments[:3] if not args.quick else garments[:1],
