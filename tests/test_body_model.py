@@ -14,6 +14,7 @@ from garment_transfer.body_model import (HM08_BODY_VERTICES, TARGET_UNIT, makehu
 from garment_transfer.errors import MeshError, TopologyMismatchError
 from garment_transfer.mesh import mesh_from_triangles
 from garment_transfer.obj import read_obj
+from lab.registration import remesh
 
 ROOT = Path(__file__).resolve().parents[1]
 RINGS, AROUND = 223, 60          # 223 x 60 = 13,380 vertices: the hm08 body's count
@@ -144,17 +145,6 @@ def test_archives_that_are_not_targets_are_refused_naming_the_file(tmp_path, arc
 
 
 # --- the sparse fit: a target made from known slider weights, re-meshed, is recovered ---
-
-def remesh(V, F, triangles, seed=0):
-    """libigl decimation, vertex order shuffled (as ``lab.registration.remesh``)."""
-    import igl
-
-    U, G = igl.decimate(V, F, triangles)[:2]
-    perm = np.random.default_rng(seed).permutation(U.shape[0])
-    inv = np.empty_like(perm)
-    inv[perm] = np.arange(perm.size)
-    return U[perm], inv[np.asarray(G)]
-
 
 @pytest.fixture(scope="module")
 def sliders():

@@ -15,6 +15,7 @@ from garment_transfer.obj import read_obj, write_obj
 from garment_transfer.proximity import TriangleSurface
 from garment_transfer.registration import Similarity, align, register, transfer_to_any_body
 from garment_transfer.transfer import transfer_garment
+from lab.registration import remesh
 from meshes import icosphere, require_makehuman
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,18 +27,6 @@ def rotation(ax, ay, az):
     Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
     return Rz @ Ry @ Rx
-
-
-def remesh(V, F, triangles, seed=0):
-    """libigl decimation (after upsampling to go finer), vertex order shuffled."""
-    igl = pytest.importorskip("igl")
-    if triangles > F.shape[0]:
-        V, F = igl.upsample(V, F)
-    U, G = igl.decimate(V, F, triangles)[:2]
-    perm = np.random.default_rng(seed).permutation(U.shape[0])
-    inv = np.empty_like(perm)
-    inv[perm] = np.arange(perm.size)
-    return U[perm], inv[np.asarray(G)]
 
 
 @pytest.fixture(scope="module")
