@@ -94,7 +94,7 @@ def shape_key_basis(body, evaluated=True):
 
 def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
                      target_label="", field_share=None, offset=None, fix_penetration=True, evaluated=True,
-                     progress=None, keep_registered=False, use_shape_keys=False):
+                     progress=None, keep_registered=False, use_shape_keys=False, body_model_path=""):
     """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
 
     Reads the three objects (world space; see convert for which state), runs the core, and only
@@ -102,8 +102,10 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     another mesh is registered first (the core's registration); with ``keep_registered`` the
     fitted body is kept as ``<source>_fitted_to_<target>`` (``outcome.registered_body``). With
     ``use_shape_keys`` the source body's shape keys are the registration's shape basis
-    (``shape_key_basis``; their names in ``outcome.shape_keys``). ``field_share``: for a garment fit
-    model file (None: the core's default); its learned placement is used when the file holds one, and
+    (``shape_key_basis``; their names in ``outcome.shape_keys``); with ``body_model_path`` (MakeHuman's
+    ``targets.npz``) MakeHuman's sliders are, in place of the shape keys (``outcome.body_model`` True).
+    ``field_share``: for a garment fit model file (None: the core's default); its learned placement is
+    used when the file holds one, and
     ``outcome.model_text`` says which model was used.
 
     Returns
@@ -135,7 +137,16 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     def framed(mesh):
         return mesh.with_vertices(mesh.V @ frame.T)
 
-    deltas, bounds, key_names = shape_key_basis(source_body, evaluated) if use_shape_keys else (None, None, [])
+    body_model = bool(body_model_path)
+    if body_model:
+        from ..garment_transfer.body_model import makehuman_shape_basis
+
+        basis = makehuman_shape_basis(source, bpy.path.abspath(body_model_path))
+        deltas, bounds, key_names = basis.basis, basis.bounds, basis.names
+    elif use_shape_keys:
+        deltas, bounds, key_names = shape_key_basis(source_body, evaluated)
+    else:
+        deltas, bounds, key_names = None, None, []
     if deltas is not None and deltas.shape[1] != source.n_vertices:
         raise MeshError(source_body.name, f"its shape keys have {deltas.shape[1]} vertices but the mesh read "
                                           f"has {source.n_vertices} (a modifier changes the vertex count): "
@@ -145,8 +156,9 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
         **(model.transfer_arguments() if model else {}), target=target_label or None, offset=offset,
         fix_penetration=fix_penetration, progress=progress,
         shape_basis=None if deltas is None else deltas @ frame.T,
-        shape_bounds=SHAPE_BOUNDS if bounds is None else bounds)
+        shape_bounds=SHAPE_BOUNDS if bounds is None else bounds, body_model=body_model)
     outcome.shape_keys = key_names
+    outcome.body_model = body_model
     outcome.model_text = model_text(model)
     outcome.V = outcome.V @ frame
     metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
@@ -159,6 +171,10 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
             source_body, registration.V @ frame, registered_name(source_body, target_body), depsgraph,
             evaluated, scene=context.scene, view_layer=context.view_layer)
     return result, outcome, metrics
+
+
+#: The panel's registration line names at most this many sliders (the largest weights first).
+SHOWN_SLIDERS = 5
 
 
 def model_text(model):
@@ -176,11 +192,16 @@ def registration_text(context, outcome):
             f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
             f"from the target")
     names = getattr(outcome, "shape_keys", [])
+    what = "body model" if getattr(outcome, "body_model", False) else "shape keys"
     if names and "shape_weights" in reg:
         if q.get("shape_used"):
-            text += "; shape keys " + ", ".join(f"{n} {w:.2f}" for n, w in zip(names, reg["shape_weights"]) if w)
+            moved = sorted(((n, w) for n, w in zip(names, reg["shape_weights"]) if abs(w) >= 1e-3),
+                           key=lambda nw: -abs(nw[1]))
+            shown = ", ".join(f"{n} {w:.2f}" for n, w in moved[:SHOWN_SLIDERS])
+            more = f" and {len(moved) - SHOWN_SLIDERS} more" if len(moved) > SHOWN_SLIDERS else ""
+            text += f"; {what} {shown}{more}"
         else:
-            text += f"; shape keys not used (they explain {max(q.get('shape_explained', 0.0), 0.0):.0%})"
+            text += f"; {what} not used (explains {max(q.get('shape_explained', 0.0), 0.0):.0%})"
     return text
 
 
@@ -215,7 +236,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     offset=None if settings.auto_offset else settings.offset,
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
                     progress=progress, keep_registered=settings.keep_registered_body,
-                    use_shape_keys=settings.use_shape_keys)
+                    use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path)
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start

@@ -69,6 +69,7 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         row.prop(settings, "offset")
         col.prop(settings, "keep_registered_body")
         col.prop(settings, "use_shape_keys")
+        col.prop(settings, "body_model_path")
         layout.operator("garment_transfer.transfer", icon='MOD_CLOTH')
         if settings.last_registration:
             layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')

@@ -123,6 +123,11 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
                     "first fit the source as a blend of them within their slider ranges, then fit the "
                     "surface: the keys carry where each vertex belongs (a blend that explains less than half "
                     "of the difference is not used)")
+    body_model_path: StringProperty(
+        name="Body Model", subtype='FILE_PATH', default="",
+        description="MakeHuman's targets.npz (from the makehuman package): when the target body is another "
+                    "mesh and the source is a MakeHuman (hm08) body, fit the source as a blend of "
+                    "MakeHuman's sliders first, in place of its shape keys. Empty: none")
     last_registration: StringProperty(name="Last Registration")
     fix_penetration: BoolProperty(
         name="Fix Penetration", default=True,

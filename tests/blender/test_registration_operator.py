@@ -99,3 +99,60 @@ def test_source_shape_keys_are_the_registration_basis(dressed, tmp_path, monkeyp
     assert [k.name for k in source.data.shape_keys.key_blocks][1:] == ["female_slim_banana", "female_pear",
                                                                        "male_slim"]
     assert all(k.value == 0.0 for k in source.data.shape_keys.key_blocks[1:])
+
+
+def write_targets_archive(path, targets):
+    """A targets.npz laid out as MakeHuman's: targets/<group>/<name>.index.npy (uint16) and .vector.npy
+    (int16, thousandths of a decimetre, Y up)."""
+    import io
+    import zipfile
+
+    from numpy.lib import format as npformat
+
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, (index, vector) in targets.items():
+            for suffix, arr in ((".index.npy", np.asarray(index, np.uint16)),
+                                (".vector.npy", np.asarray(np.round(vector), np.int16))):
+                buf = io.BytesIO()
+                npformat.write_array(buf, arr)
+                zf.writestr(f"targets/{name}{suffix}", buf.getvalue())
+    return path
+
+
+def test_a_body_model_archive_is_the_registration_basis(dressed, tmp_path, monkeypatch):
+    # A body model of two sliders made from the MakeHuman files (decimetres, Y up, as MakeHuman's own
+    # targets are): the pear's shape as a hips slider, and a distractor. The target is the pear
+    # re-meshed; the fit takes the hips slider at about 1 and leaves the other.
+    from garment_transfer.obj import read_obj
+
+    monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
+    average = read_obj(dressed.makehuman / "bodies" / "female_average.obj").V
+    pear = read_obj(dressed.makehuman / "bodies" / "female_pear.obj").V
+    delta = (pear - average) * 1000.0                       # thousandths of a decimetre
+    moved = np.flatnonzero(np.abs(delta).max(axis=1) > 0.5)
+    chest = np.flatnonzero(average[:, 1] > 12.0)
+    up = np.zeros((chest.size, 3))
+    up[:, 2] = 150.0                                        # 15 mm forward
+    archive = write_targets_archive(tmp_path / "targets.npz", {
+        "measure/measure-hips-circ-incr": (moved, delta[moved]),
+        "measure/measure-hips-circ-decr": (moved, -delta[moved]),
+        "torso/torso-scale-depth-incr": (chest, up)})
+    dressed.settings.target_body = remeshed_object(dressed.target, "pear_scan")
+    dressed.settings.keep_registered_body = True
+    dressed.settings.body_model_path = str(archive)
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    text = dressed.settings.last_registration
+    assert "; body model measure/measure-hips-circ-incr(+-) " in text
+    weight = float(text.split("measure/measure-hips-circ-incr(+-) ")[1].split()[0].rstrip(","))
+    assert abs(weight - 1.0) < 0.1
+    assert "torso-scale-depth" not in text
+    err = np.linalg.norm(world_vertices(bpy.data.objects["average_fitted_to_pear_scan"])
+                         - world_vertices(dressed.target), axis=1)
+    assert err.mean() < 0.002       # metres
+
+    # A missing archive: refused naming it, nothing new in the scene.
+    dressed.settings.body_model_path = str(tmp_path / "missing.npz")
+    before = sorted(o.name for o in bpy.data.objects)
+    with pytest.raises(RuntimeError, match="missing.npz"):
+        bpy.ops.garment_transfer.transfer()
+    assert sorted(o.name for o in bpy.data.objects) == before
