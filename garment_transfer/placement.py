@@ -323,15 +323,7 @@ class PlacementModel(GarmentFitModel):
         -------
         y : (M,3) float64
         """
-        F = source_body.F
-        M = F.shape[0]
-        w = bound_counts(binding, M)
-        sel = w > 0
-        X, _, _ = self.inputs(source_body, target_body, garment, target)
-        y = np.zeros((M, 3))
-        y[sel] = self.raw_offsets(X[sel])
-        length = float(self.metadata["smoothing_share"]) * body_scale(source_body.V)
-        return smooth_on_body(y, w, source_body.V, F, length)
+        return _mean_unrotated_offsets([self], binding, source_body, target_body, garment, target)
 
     def raw_offsets(self, X):
         """The network's unrotated offsets for inputs ``X (n,P)``, before smoothing: ``(n,3)`` float64."""
@@ -404,25 +396,28 @@ class PlacementEnsemble:
     def label_weights_for(self, target_body: Mesh, target=None):
         return self.members[0].label_weights_for(target_body, target)
 
-    def frame_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
-        """``PlacementModel.frame_offsets`` of the mean of the members."""
-        self.check_source_body(source_body)
-        y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+    # The same as a single model's, through this ensemble's own unrotated offsets.
+    frame_offsets = PlacementModel.frame_offsets
 
     def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
         """``PlacementModel.unrotated_offsets`` of the mean of the members: (M,3) float64."""
-        first = self.members[0]
-        F = source_body.F
-        M = F.shape[0]
-        w = bound_counts(binding, M)
-        sel = w > 0
-        X, _, _ = first.inputs(source_body, target_body, garment, target)
-        X = X[sel]
-        y = np.zeros((M, 3))
-        y[sel] = sum(m.raw_offsets(X) for m in self.members) / len(self.members)
-        length = float(first.metadata["smoothing_share"]) * body_scale(source_body.V)
-        return smooth_on_body(y, w, source_body.V, F, length)
+        return _mean_unrotated_offsets(self.members, binding, source_body, target_body, garment, target)
+
+
+def _mean_unrotated_offsets(models, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh,
+                            target=None):
+    """The mean of ``models``' unrotated offsets of the bound triangles, smoothed once (with the first's
+    smoothing; the inputs are the first's, which every member shares): (M,3) float64."""
+    first = models[0]
+    F = source_body.F
+    M = F.shape[0]
+    w = bound_counts(binding, M)
+    sel = w > 0
+    X = first.inputs(source_body, target_body, garment, target)[0][sel]
+    y = np.zeros((M, 3))
+    y[sel] = sum(m.raw_offsets(X) for m in models) / len(models)
+    length = float(first.metadata["smoothing_share"]) * body_scale(source_body.V)
+    return smooth_on_body(y, w, source_body.V, F, length)
 
 
 class BlendedPlacement:
