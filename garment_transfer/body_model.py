@@ -4,7 +4,7 @@ MakeHuman's bodies are its base mesh (hm08) plus a weighted sum of its *targets*
 ("measure-hips-circ-incr", "universal-female-young-averagemuscle-maxweight", ...), CC0. A source body
 that is an hm08 body (a MakeHuman or MPFB export without helper geometry: 13,380 vertices) can use
 them as its shape basis (``registration.register(..., shape_basis=, shape_bounds=,
-shape_prior="body_model")``): the registration then fits the source as the body model would make the
+body_model=True)``): the registration then fits the source as the body model would make the
 target, and the model carries the correspondence along the limbs and around the torso.
 
 The targets are read from MakeHuman's compiled archive ``makehuman/data/targets.npz`` (in the

@@ -1381,6 +1381,11 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
     kw = w.size
     total = iterations + (SHAPE_REFIT_ITERATIONS if sparsity else 0)
     Dmat = Da.reshape(kw, -1)
+
+    def blend(w):
+        nz = np.flatnonzero(w)
+        return X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
+
     it = 0
     while it < total:
         if sparsity and refit is None and it >= iterations:
@@ -1389,8 +1394,7 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
                 break
         cols = np.arange(kw) if refit is None else np.flatnonzero(refit)
         kc = cols.size
-        nz = np.flatnonzero(w)
-        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
+        X = blend(w)
         Y = scale * X @ R.T + t
         # Source points to the target (normals of the fit there), target points to the fit.
         C, ok1, d1, Nt = _pairs_to_target(Sv @ Y, triangle_normals(Y, F[stri])[0], surface, normal_cos, max_dist,
@@ -1490,8 +1494,7 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         Rd = _rodrigues(omega)
         R_new = R @ Rd.T
         t_new = t + scale * R @ (c - Rd.T @ (c + tau))
-        nz = np.flatnonzero(w)
-        X = X0 + (w[nz] @ Dmat[nz]).reshape(X0.shape)
+        X = blend(w)
         heights = X[used] @ axis
         top, bottom = used[np.argmax(heights)], used[np.argmin(heights)]
         if rigid:
@@ -1513,11 +1516,8 @@ def fit_shape(X0, F, basis, target_V, target_F, *, bounds=SHAPE_BOUNDS, ridge=SH
         if done:
             if not sparsity or refit is not None:
                 break
-            # The sparse fit has settled: refit the weights it moved.
-            refit = np.abs(w) > 0
-            if not refit.any():
-                break
-            total = it + SHAPE_REFIT_ITERATIONS
+            # The sparse fit has settled: the refit of the weights it moved starts with the next step.
+            iterations, total = it, it + SHAPE_REFIT_ITERATIONS
     weights[active] = w
     info["fitted_weights"] = weights.tolist()
     info["similarity"] = start
