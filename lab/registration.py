@@ -188,9 +188,10 @@ def body_study(bodies, sizes, garments, prior="both", all_bodies=None, body_mode
     rows = []
     for name in bodies:
         truth = read_obj(MAKEHUMAN / "bodies" / f"{name}.obj", name=name)
-        basis_names, basis = leave_one_out_basis(source, name, all_bodies or bodies)
         if model is not None:
             basis_names, basis = model.names, model.basis
+        else:
+            basis_names, basis = leave_one_out_basis(source, name, all_bodies or bodies)
         # The garments through the true target are the same for every variant.
         truths = {g: transfer_garment(source, truth, read_obj(MAKEHUMAN / "garments" / g / f"{SOURCE}.obj",
                                                               name=g), method="direct").V for g in garments}
@@ -355,14 +356,15 @@ def speed_study(repeats=3, prior="off", target_name="female_pear", body_model=No
     truth = read_obj(MAKEHUMAN / "bodies" / f"{target_name}.obj")
     U, G = remesh(truth.V, truth.F, 50000)
     target = mesh_from_triangles(U, G, name=f"{target_name}_50k")
-    manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
-    names, basis = leave_one_out_basis(source, target_name, manifest["bodies"])
     bounds, model = (0.0, 1.0), prior == "makehuman"
     if model:
         from garment_transfer.body_model import makehuman_shape_basis
 
         m = makehuman_shape_basis(source, makehuman_targets(body_model))
         names, basis, bounds = ["MakeHuman targets"], m.basis, m.bounds
+    else:
+        manifest = json.loads((MAKEHUMAN / "manifest.json").read_text())
+        names, basis = leave_one_out_basis(source, target_name, manifest["bodies"])
     rows = []
     for i in range(repeats):
         for use_prior in {"off": [False], "on": [True], "both": [False, True], "makehuman": [True]}[prior]:
