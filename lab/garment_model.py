@@ -25,7 +25,9 @@ Parts (``--parts``, default all):
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
   garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
   that ``python -m lab.makehuman_drape --out DIR`` writes measures against the same garments simulated by
-  Blender's cloth solver instead (the reference rows are then named ``simulation``).
+  Blender's cloth solver instead (the reference rows are then named ``simulation``). Besides the methods
+  in ``MH_METHODS``, ``garment_share<s>_placed`` (the garment model's field at share ``s`` with the learned
+  placement) runs here too.
 
 Usage::
 
@@ -35,6 +37,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 
@@ -188,7 +191,7 @@ def makehuman_part(args, say):
     ds = load_dataset(folder)
     held = args.makehuman_garments or ds.garments
     folds = [([g for g in ds.garments if g != h], [h]) for h in held]
-    methods = [m for m in args.methods if m in MH_METHODS]
+    methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
     # simulated by the cloth solver (its manifest says so).
     reference = "simulation" if "placed_by" in ds.manifest else "fitted"

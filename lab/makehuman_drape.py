@@ -18,14 +18,21 @@ morphs. Tops hang on the shoulders.
 
 Run (needs the ``bpy`` module; the project's ``.venv`` has it)::
 
-    nice python -m lab.makehuman_drape --out DIR [--garments g1 g2 ...] [--targets b1 b2 ...]
+    nice python -m lab.makehuman_drape --out DIR [--garments g1 g2 ...] [--targets b1 b2 ...] \
+        [--continuous] [--source-frames 30] [--morph-frames 15] [--frames 15]
+
+``--continuous``: each target is one simulation from the start (the source settling, then the morph),
+not a restart from the garment settled on the source body; a restart moves the settled garment even on
+an unchanged body (its legs and hems sag a few millimetres more), which no transfer can predict from the
+body's change (``operators/cloth.py``, ``drape_garment``'s ``continuous``). It costs the source frames
+again for every target.
 
 ``--figure PNG`` also renders the first garment on the source body and on the last target, MakeHuman's
 proxy fit beside the simulation (Cycles on the CPU, ``lab/blender/render_columns.py``).
 
 Each garment is written as soon as it is done (atomically), and a garment already written is skipped,
-so an interrupted run continues where it stopped. ``DIR/drape_log.json`` records seconds, vertices and
-the penetration fix per garment.
+so an interrupted run continues where it stopped; a folder draped with other simulation settings is
+refused. ``DIR/drape_log.json`` records seconds, vertices, the settings and the penetration fix per garment.
 """
 
 from __future__ import annotations
@@ -49,6 +56,9 @@ from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN, makehu
 METRES_PER_UNIT = 0.1           # the fixtures are in decimetres
 PIN_BAND = (0.52, 0.62)         # share of the body's height from the soles: the waist and hips
 PIN_CONTACT = 0.01              # metres from the body
+#: drape_garment's frames on the source body, of each morph, of settling after it, and whether each target
+#: is one simulation from the start (see the module's text).
+SIMULATION = {"source_frames": 30, "morph_frames": 15, "frames": 15, "continuous": False}
 
 
 def to_blender(V):
@@ -89,7 +99,9 @@ def waist_pins(G, F, body_V, body_F):
     return np.flatnonzero(pinned)
 
 
-def drape(folder, out, garment, targets, say):
+def drape(folder, out, garment, targets, say, sim=None):
+    """Drape ``garment`` on the source body and into ``targets``; ``sim``: the simulation settings
+    (``SIMULATION``'s keys), the defaults where None."""
     from .blender.make_demo_data import load_cloth
 
     cloth = load_cloth()
@@ -101,8 +113,9 @@ def drape(folder, out, garment, targets, say):
     pins = waist_pins(gV, g.F, bV, source.F)
     report = []
     t = time.perf_counter()
+    sim = dict(SIMULATION, **(sim or {}))
     shapes = cloth.drape_garment(gV, g.polygons(), bV, source.F, [to_blender(bodies[b].V) for b in targets],
-                                 pin_group=pins, frames=15, morph_frames=15, source_frames=30, report=report)
+                                 pin_group=pins, report=report, **sim)
     secs = time.perf_counter() - t
     dest = out / "garments" / garment
     dest.mkdir(parents=True, exist_ok=True)
@@ -112,7 +125,7 @@ def drape(folder, out, garment, targets, say):
                           obj_text(g.with_vertices(from_blender(S)),
                                    header=f"{garment} draped by Blender's cloth solver on {body} "
                                           f"(lab.makehuman_drape)", digits=7))
-    entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size),
+    entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size), "simulation": sim,
              "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
              "inside_after_fix": [r["inside_after"] for r in report]}
     say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
@@ -148,10 +161,21 @@ def main(argv=None):
     ap.add_argument("--garments", nargs="+", default=manifest["garments"])
     ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
     ap.add_argument("--figure", help="PNG: the first garment, proxy fit and simulation, source and last target")
+    ap.add_argument("--source-frames", type=int, default=SIMULATION["source_frames"],
+                    help="frames to settle on the source body")
+    ap.add_argument("--morph-frames", type=int, default=SIMULATION["morph_frames"], help="frames of each morph")
+    ap.add_argument("--frames", type=int, default=SIMULATION["frames"], help="frames to settle after each morph")
+    ap.add_argument("--continuous", action="store_true",
+                    help="each target one simulation from the start (source settling, morph), no restart")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if out.resolve() == folder.resolve():
         ap.error(f"--out {out} is the fixtures' own folder; give another")
+    for key in ("source_frames", "morph_frames", "frames"):
+        if getattr(args, key) < 1:
+            ap.error(f"--{key.replace('_', '-')} must be at least 1")
+    sim = {"source_frames": args.source_frames, "morph_frames": args.morph_frames, "frames": args.frames,
+           "continuous": args.continuous}
     (out / "bodies").mkdir(parents=True, exist_ok=True)
     for b in (MAKEHUMAN_SOURCE, *args.targets):
         if not (out / "bodies" / f"{b}.obj").exists():
@@ -163,16 +187,20 @@ def main(argv=None):
 
     log_path = out / "drape_log.json"
     log = json.loads(log_path.read_text()) if log_path.exists() else {}
+    other = sorted(g for g, e in log.items() if e.get("simulation", dict(SIMULATION)) != sim)
+    if other:
+        ap.error(f"{log_path} records {', '.join(other)} draped with other simulation settings "
+                 f"({log[other[0]].get('simulation', SIMULATION)}, not {sim}); give another --out")
     for garment in args.garments:
         if (out / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj").exists() and garment in log:
             say(f"{garment}: already draped, skipped")
             continue
-        log[garment] = drape(folder, out, garment, args.targets, say)
+        log[garment] = drape(folder, out, garment, args.targets, say, sim)
         write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
     done = [g for g in manifest["garments"] if g in log]        # every garment draped so far
     m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done,
              placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "
-                       f"{MAKEHUMAN_SOURCE}")
+                       f"{MAKEHUMAN_SOURCE}", simulation=sim)
     write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")
     if (folder / "LICENSE.md").exists():
         shutil.copyfile(folder / "LICENSE.md", out / "LICENSE.md")

@@ -33,7 +33,7 @@ BODY_FRICTION = 1.0
 
 def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), pin_group=None,
                   frames=30, morph_frames=None, source_frames=None, progress=None, report=None, quality=5,
-                  cloth_settings=None):
+                  cloth_settings=None, continuous=False):
     """Settle a garment on the source body, then follow the body into each target shape.
 
     Parameters
@@ -67,6 +67,15 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
         Solver steps per frame.
     cloth_settings : dict or None
         Overrides of ``CLOTH_SETTINGS`` (attributes of Blender's ClothSettings).
+    continuous : bool
+        False: each target run starts from the garment settled on the source body (the source settling
+        is simulated once). Restarting a settled garment moves it even where the body does not change
+        (its hanging parts sag further; 1.8 mm on average for a MakeHuman suit, its legs 3-3.5 mm), so a
+        target's result differs from the source's by more than the body's change. True: each target run
+        is one simulation from the start: ``source_frames`` on the source body, then the morph and the
+        settling, with no restart between; the source result is that run's state before the morph (the
+        same simulation), so the two differ only by what the morph did. Costs ``source_frames`` more
+        frames per target.
 
     Returns
     -------
@@ -105,9 +114,15 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
                             settings, step_progress(0), start)
         results = [_finish(settled, tri, source_surface, -1, report)]
         for i, tV in enumerate(targets):
-            follow = _pins_following_body(results[0], pins, bV, tV)
-            out = _simulate(scene, results[0], polys, pins, bV, bF, tV, frames, morph_frames, quality,
-                            settings, step_progress(1 + i), follow, rest=start)
+            if continuous:
+                # From the start again: the source settling, then the morph, in one run.
+                out = _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quality,
+                                settings, step_progress(1 + i), _pins_following_body(start, pins, bV, tV),
+                                rest=start, hold=source_frames)
+            else:
+                follow = _pins_following_body(results[0], pins, bV, tV)
+                out = _simulate(scene, results[0], polys, pins, bV, bF, tV, frames, morph_frames, quality,
+                                settings, step_progress(1 + i), follow, rest=start)
             results.append(_finish(out, tri, TriangleSurface(tV, bF), i, report))
         return results
     finally:
@@ -190,11 +205,12 @@ def _animate_key(key_block, frame0, frame1):
 
 
 def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quality, settings, progress,
-              follow, rest=None):
-    """One cloth run: the garment starts at ``start``; the body morphs from bV to tV (if given)
-    over ``morph_frames`` and holds; pinned vertices move from ``start`` to ``follow`` meanwhile."""
+              follow, rest=None, hold=0):
+    """One cloth run: the garment starts at ``start``; after ``hold`` frames on bV the body morphs from bV
+    to tV (if given) over ``morph_frames`` and holds; pinned vertices move from ``start`` to ``follow``
+    meanwhile."""
     t0 = time.perf_counter()
-    last = 1 + morph_frames + frames
+    last = 1 + hold + morph_frames + frames
     body = _new_object(scene, "gt_drape_body", bV, bF.tolist())
     cloth_ob = _new_object(scene, "gt_drape_garment", start if rest is None else rest, polys)
     try:
@@ -202,7 +218,7 @@ def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quali
             body.shape_key_add(name="Basis", from_mix=False)
             kb = body.shape_key_add(name="target", from_mix=False)
             kb.data.foreach_set("co", tV.astype(np.float32).ravel())
-            _animate_key(kb, 1, 1 + morph_frames)
+            _animate_key(kb, 1 + hold, 1 + hold + morph_frames)
         col = body.modifiers.new("Collision", 'COLLISION')
         del col
         cs = body.collision
@@ -219,7 +235,7 @@ def _simulate(scene, start, polys, pins, bV, bF, tV, frames, morph_frames, quali
             k_follow = cloth_ob.shape_key_add(name="follow", from_mix=False)
             k_follow.data.foreach_set("co", follow.astype(np.float32).ravel())
             k_follow.relative_key = k_start
-            _animate_key(k_follow, 1, 1 + morph_frames)
+            _animate_key(k_follow, 1 + hold, 1 + hold + morph_frames)
         if pins.size:
             vg = cloth_ob.vertex_groups.new(name=PIN_GROUP)
             vg.add(pins.tolist(), 1.0, 'REPLACE')

@@ -72,3 +72,19 @@ def test_drape_refuses_a_target_of_another_topology(extension, small_case):
     V, F, T, g = small_case
     with pytest.raises(errors.MeshError, match="target body 0"):
         cloth_module(extension).drape_garment(g.V, g.polygons, V, F, [T[:-1]], frames=2)
+
+
+def test_continuous_drape_is_one_simulation_from_the_start(extension, small_case):
+    """continuous=True: a target that is the source body itself ends exactly where the source settling
+    alone ends after as many frames (no restart between them); a wider target still moves the waistband out.
+    Without it the restart from the settled garment lands elsewhere."""
+    V, F, T, g = small_case
+    drape = cloth_module(extension).drape_garment
+    longer = drape(g.V, g.polygons, V, F, [], pin_group=g.pin, source_frames=12 + 4 + 4)[0]
+    S = drape(g.V, g.polygons, V, F, [V, T], pin_group=g.pin, frames=4, morph_frames=4, source_frames=12,
+              continuous=True)
+    assert np.array_equal(S[1], longer)
+    r0 = np.linalg.norm(S[0][g.pin, :2], axis=1).mean()
+    assert np.linalg.norm(S[2][g.pin, :2], axis=1).mean() > r0 * 1.03
+    restarted = drape(g.V, g.polygons, V, F, [V], pin_group=g.pin, frames=4, morph_frames=4, source_frames=12)
+    assert np.abs(restarted[1] - longer).max() > 1e-3

@@ -46,6 +46,8 @@ def test_drape_writes_a_simulated_garment_in_the_fixtures_layout(tmp_path, makeh
         assert TriangleSurface(body_mesh.V, body_mesh.F).signed_distance(sim.V)[0].min() >= 0.0
     log = json.loads((out / "drape_log.json").read_text())
     assert log[GARMENT]["pinned"] > 0 and log[GARMENT]["inside_after_fix"] == [0, 0]
+    assert log[GARMENT]["simulation"] == manifest["simulation"] == {"source_frames": 30, "morph_frames": 15,
+                                                                     "frames": 15, "continuous": False}
     # A second run finds the garment done and leaves its files as they are.
     stamp = (out / "garments" / GARMENT / "female_pear.obj").stat().st_mtime_ns
     assert main(["--out", str(out), "--garments", GARMENT, "--targets", "female_pear"]) == 0
@@ -80,3 +82,40 @@ def test_every_piece_of_a_garment_is_pinned(makehuman):
     assert count == 3
     assert all(np.isin(np.flatnonzero(pieces == p), pins).any() for p in range(count))
     assert pins.size < n // 4
+
+
+def test_continuous_drape_with_its_settings_recorded(tmp_path, makehuman):
+    from garment_transfer.obj import read_obj
+    from garment_transfer.proximity import TriangleSurface
+    from lab.makehuman_drape import main
+
+    out = tmp_path / "sim"
+    argv = ["--out", str(out), "--garments", GARMENT, "--targets", "female_pear", "--continuous",
+            "--source-frames", "10", "--morph-frames", "5", "--frames", "5"]
+    assert main(argv) == 0
+    sim = {"source_frames": 10, "morph_frames": 5, "frames": 5, "continuous": True}
+    assert json.loads((out / "drape_log.json").read_text())[GARMENT]["simulation"] == sim
+    assert json.loads((out / "manifest.json").read_text())["simulation"] == sim
+    body = read_obj(out / "bodies" / "female_pear.obj")
+    draped = read_obj(out / "garments" / GARMENT / "female_pear.obj")
+    assert TriangleSurface(body.V, body.F).signed_distance(draped.V)[0].min() >= 0.0
+    assert np.linalg.norm(draped.V - read_obj(out / "garments" / GARMENT / "female_average.obj").V,
+                          axis=1).mean() > 0.01        # decimetres: the garment followed the body's change
+
+
+def test_a_folder_draped_with_other_settings_is_refused(tmp_path, capsys, makehuman):
+    from lab.makehuman_drape import SIMULATION, main
+
+    out = tmp_path / "sim"
+    out.mkdir()
+    (out / "drape_log.json").write_text(json.dumps({GARMENT: {"garment": GARMENT, "simulation": SIMULATION}}))
+    with pytest.raises(SystemExit) as e:
+        main(["--out", str(out), "--garments", GARMENT, "--continuous"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "drape_log.json" in err and GARMENT in err and "other simulation settings" in err
+    # A log written before the settings were recorded holds the defaults.
+    (out / "drape_log.json").write_text(json.dumps({GARMENT: {"garment": GARMENT}}))
+    with pytest.raises(SystemExit):
+        main(["--out", str(out), "--garments", GARMENT, "--frames", "20"])
+    assert not (out / "garments").exists()
