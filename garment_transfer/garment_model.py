@@ -209,9 +209,11 @@ def with_neighbourhood_means(values, centroids, area, scale, shares):
 
 #: The last few ``target_features`` of the models' inputs, by content: the field model and the placement
 #: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body about 2 s each, nearly all of
-#: it the neighbourhood means), and so do further garments sent to the same target body.
+#: it the neighbourhood means), and so do further garments sent to the same target body; a body that is not a
+#: training target also needs those of the training bodies its placement is blended from
+#: (``placement.BlendedPlacement``). About 6 MB each on that body.
 _TARGET_CACHE = OrderedDict()
-_TARGET_CACHE_SIZE = 4
+_TARGET_CACHE_SIZE = 8
 _TARGET_CACHE_LOCK = threading.Lock()
 
 
