@@ -19,7 +19,7 @@ Commands::
 two demo bodies (``lab.procedural.mannequin.BETWEEN``: every measurement interpolated) and packs them, with
 those bodies, into ``data/extra/between.npz``; ``unpack`` adds them to the dataset folder. The source
 shapes are the same as the demo's (the solver is deterministic and the source drape does not depend on
-the targets).
+the targets; data/extra/README.md says where they differ).
 """
 
 from __future__ import annotations
