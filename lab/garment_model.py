@@ -24,7 +24,8 @@ Parts (``--parts``, default all):
   the ``--data`` folder), which the models were not trained on: the body's label weights from its shape and
   the blend of the training bodies' placements, against the two training bodies it lies between (their
   errors interpolated at its share) in the same run and, with ``--between-in-training``, against models
-  trained on it too.
+  trained on it too (``--placement-nolabel``, ``--placement-body-offset`` as for unseen_body; the placement is
+  always the blend).
 * ``--placement-members N`` (demo, unseen_body, between): the learned placement is the mean of N placement models
   trained with seeds seed .. seed+N-1 (``placement.PlacementEnsemble``); 1 (default): one model.
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
@@ -226,7 +227,9 @@ def between_part(args, say):
         model, tinfo = train_garment_model(tables, tgts, epochs=experiment.GARMENT_EPOCHS, seed=args.seed,
                                            threads=args.threads)
         placement_tables(ds, source, tgts, train, tables)
-        placer, pinfo = experiment.train_placement(tables, tgts, seed=args.seed, threads=args.threads)
+        placer, pinfo = experiment.train_placement(tables, tgts, seed=args.seed, threads=args.threads,
+                                                   use_label=not args.placement_nolabel,
+                                                   body_offset=args.placement_body_offset)
         placer = placement.BlendedPlacement(placer)
         half = model.with_field_share(args.field_share)
         say(f"between ({variant}): trained on {tgts} in {tinfo['seconds']:.0f} + {pinfo['seconds']:.0f} s")
