@@ -481,9 +481,9 @@ def read_model_npz(path, format_name, version, what):
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
     if not isinstance(metadata, dict) or metadata.get("format") != format_name:
         raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
-    from .model import _version_read, versions_text
+    from .model import reads_version, versions_text
 
-    if not _version_read(metadata.get("format_version"), version):
+    if not reads_version(metadata.get("format_version"), version):
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "
                                f"{versions_text(version)}")
     return arrays, metadata

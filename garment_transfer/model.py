@@ -382,13 +382,14 @@ def need_format_version(path, metadata, version, what="it"):
     """A ModelError naming the file (and ``what`` in it, e.g. "its placement model") unless the metadata's
     ``format_version`` is ``version`` (an int, or a tuple of the versions read)."""
     have = metadata.get("format_version")
-    if not _version_read(have, version):
+    if not reads_version(have, version):
         where = "" if what == "it" else f"{what} "
         raise ModelError(path, f"{where}has format version {have}; this version of garment_transfer reads "
                                f"{versions_text(version)}")
 
 
-def _version_read(have, version):
+def reads_version(have, version):
+    """Whether a file's ``format_version`` ``have`` is ``version`` (an int) or one of them (a tuple)."""
     wanted = version if isinstance(version, tuple) else (version,)
     return not isinstance(have, bool) and isinstance(have, int) and have in wanted
 

@@ -461,17 +461,21 @@ class PlacementEnsemble:
 
 def _mean_unrotated_offsets(models, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh,
                             target=None):
-    """The mean of ``models``' unrotated offsets of the bound triangles, smoothed once (with the first's
-    smoothing; the inputs are the first's, which every member shares): (M,3) float64."""
+    """The mean of ``models``' unrotated offsets of the bound triangles (each with its ``offset_base`` under
+    the target's label weights), smoothed once (with the first's smoothing; the inputs are the first's,
+    which every member shares): (M,3) float64."""
     first = models[0]
     F = source_body.F
     M = F.shape[0]
     w = bound_counts(binding, M)
     sel = w > 0
     X = first.inputs(source_body, target_body, garment, target)[0][sel]
-    weights = first.label_weights_for(target_body, target)
     y = np.zeros((M, 3))
-    y[sel] = sum(m.raw_offsets(X) + m.offset_base(weights)[sel] for m in models) / len(models)
+    if any("offset_base" in m.arrays for m in models):
+        weights = first.label_weights_for(target_body, target)
+        y[sel] = sum(m.raw_offsets(X) + m.offset_base(weights)[sel] for m in models) / len(models)
+    else:
+        y[sel] = sum(m.raw_offsets(X) for m in models) / len(models)
     length = float(first.metadata["smoothing_share"]) * body_scale(source_body.V)
     return smooth_on_body(y, w, source_body.V, F, length)
 
