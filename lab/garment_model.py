@@ -205,6 +205,15 @@ def makehuman_part(args, say):
             "reference": reference, "folder": str(folder)}
 
 
+def placement_options(args):
+    """The ``train_placement_model`` arguments the command line sets (those given only)."""
+    hidden = None if args.placement_hidden is None else tuple(int(x) for x in args.placement_hidden.split(","))
+    return {k: v for k, v in (("hidden", hidden), ("lr", args.placement_lr), ("schedule", args.placement_schedule),
+                              ("weight_decay", args.placement_weight_decay),
+                              ("weighted", args.placement_weighted or None),
+                              ("residual", args.placement_residual or None)) if v is not None}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--parts", default="demo,unseen_body,makehuman")
@@ -263,12 +272,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     experiment.PLACEMENT_MEMBERS = args.placement_members
-    experiment.PLACEMENT_OPTIONS = {k: v for k, v in (
-        ("hidden", None if args.placement_hidden is None else tuple(int(x) for x in args.placement_hidden.split(","))),
-        ("lr", args.placement_lr), ("schedule", args.placement_schedule),
-        ("weight_decay", args.placement_weight_decay), ("weighted", args.placement_weighted or None),
-        ("residual", args.placement_residual or None))
-        if v is not None}
+    experiment.PLACEMENT_OPTIONS = placement_options(args)
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
