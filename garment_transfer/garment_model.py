@@ -450,7 +450,8 @@ def load_garment_model(path) -> GarmentFitModel:
 
 
 def read_model_npz(path, format_name, version, what):
-    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``).
+    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``;
+    ``version``: an int, or a tuple of the versions read).
 
     Returns
     -------
@@ -482,7 +483,9 @@ def read_model_npz(path, format_name, version, what):
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
     if not isinstance(metadata, dict) or metadata.get("format") != format_name:
         raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
-    if metadata.get("format_version") != version:
+    from .model import reads_version, versions_text
+
+    if not reads_version(metadata.get("format_version"), version):
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "
-                               f"{version}")
+                               f"{versions_text(version)}")
     return arrays, metadata

@@ -28,6 +28,10 @@ Parts (``--parts``, default all):
   always the blend).
 * ``--placement-members N`` (demo, unseen_body, between): the learned placement is the mean of N placement models
   trained with seeds seed .. seed+N-1 (``placement.PlacementEnsemble``); 1 (default): one model.
+  ``--placement-residual``: each learns the offset less the training garments' mean offset per triangle
+  (``placement.mean_offsets``); ``--placement-hidden``, ``--placement-lr``, ``--placement-schedule``,
+  ``--placement-weight-decay``, ``--placement-weighted``: ``garment_training.train_placement_model``'s
+  other training options (default: its defaults, as the recorded figures).
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
   garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
@@ -51,7 +55,7 @@ from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import placement_tables, train_garment_model, training_tables
+from garment_transfer.garment_training import SCHEDULES, placement_tables, train_garment_model, training_tables
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -313,6 +317,15 @@ def makehuman_part(args, say):
             "reference": reference, "folder": str(folder)}
 
 
+def placement_options(args):
+    """The ``train_placement_model`` arguments the command line sets (those given only)."""
+    hidden = None if args.placement_hidden is None else tuple(int(x) for x in args.placement_hidden.split(","))
+    return {k: v for k, v in (("hidden", hidden), ("lr", args.placement_lr), ("schedule", args.placement_schedule),
+                              ("weight_decay", args.placement_weight_decay),
+                              ("weighted", args.placement_weighted or None),
+                              ("residual", args.placement_residual or None)) if v is not None}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--parts", default="demo,unseen_body,makehuman")
@@ -345,6 +358,19 @@ def main(argv=None):
     ap.add_argument("--placement-members", type=int, default=experiment.PLACEMENT_MEMBERS,
                     help="placement models trained with seeds seed, seed+1, ... and averaged "
                          "(placement.PlacementEnsemble); 1: one model")
+    ap.add_argument("--placement-hidden", default=None,
+                    help="hidden layer widths of the placement model, comma-separated (default "
+                         "garment_training.train_placement_model's)")
+    ap.add_argument("--placement-lr", type=float, default=None, help="the placement model's learning rate")
+    ap.add_argument("--placement-schedule", choices=SCHEDULES, default=None,
+                    help="the placement model's learning rate decay (garment_training.SCHEDULES)")
+    ap.add_argument("--placement-weight-decay", type=float, default=None,
+                    help="the placement model's decoupled weight decay (AdamW)")
+    ap.add_argument("--placement-weighted", action="store_true",
+                    help="the placement model's loss weighted by the garment points bound to each triangle")
+    ap.add_argument("--placement-residual", action="store_true",
+                    help="the placement model learns the offset less the training garments' mean offset per "
+                         "triangle (placement.mean_offsets), as train --kind garment does by default")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
                     help="smoothing length of the placement (its training targets and predictions), as a share "
                          "of the body scale")
@@ -360,6 +386,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     experiment.PLACEMENT_MEMBERS = args.placement_members
+    experiment.PLACEMENT_OPTIONS = placement_options(args)
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
