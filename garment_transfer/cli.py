@@ -325,7 +325,8 @@ def _train_garment(args, targets, garments):
     summary = train_garment_fit_from_dataset(
         args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
         placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
-        progress=stderr_progress("train"), threads=args.threads, placement_members=args.placement_members)
+        progress=stderr_progress("train"), threads=args.threads, placement_members=args.placement_members,
+        placement_residual=not args.placement_absolute)
     parts = [f"field {summary['field']['epochs']} passes over {summary['field']['samples']} samples, final loss "
              f"{summary['field']['final_loss']:.4g}"]
     if summary["placement"]:
@@ -482,6 +483,10 @@ def build_parser():
                         f"(default {PLACEMENT_MEMBERS}, chosen on held-out training garments; 1: one model)")
     r.add_argument("--no-placement", action="store_true",
                    help="garment only: train the garment fit model alone, without the learned placement")
+    r.add_argument("--placement-absolute", action="store_true",
+                   help="garment only: the placement networks learn the offset itself, not its difference from "
+                        "the training garments' mean offset per body triangle (the default, chosen on held-out "
+                        "training garments); the file then reads with earlier versions too")
     r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
                                                 "replacing a writable file of that name")
     r.add_argument("--json", action="store_true", help="print one JSON object")
@@ -508,7 +513,8 @@ def _check_train_options(parser, args):
     """Options of one kind given for the other are usage errors, not silently ignored."""
     other = {"shared": [("--placement-epochs", args.placement_epochs is not None),
                         ("--placement-members", args.placement_members is not None),
-                        ("--no-placement", args.no_placement)],
+                        ("--no-placement", args.no_placement),
+                        ("--placement-absolute", args.placement_absolute)],
              "garment": [("--latent", args.latent is not None), ("--unmasked", args.unmasked)]}[args.kind]
     wrong = [name for name, given in other if given]
     if wrong:

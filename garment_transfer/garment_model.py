@@ -209,9 +209,11 @@ def with_neighbourhood_means(values, centroids, area, scale, shares):
 
 #: The last few ``target_features`` of the models' inputs, by content: the field model and the placement
 #: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body about 2 s each, nearly all of
-#: it the neighbourhood means), and so do further garments sent to the same target body.
+#: it the neighbourhood means), and so do further garments sent to the same target body; a body that is not a
+#: training target also needs those of the training bodies its placement is blended from
+#: (``placement.BlendedPlacement``). About 6 MB each on that body.
 _TARGET_CACHE = OrderedDict()
-_TARGET_CACHE_SIZE = 4
+_TARGET_CACHE_SIZE = 8
 _TARGET_CACHE_LOCK = threading.Lock()
 
 
@@ -448,7 +450,8 @@ def load_garment_model(path) -> GarmentFitModel:
 
 
 def read_model_npz(path, format_name, version, what):
-    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``).
+    """The arrays and JSON metadata of a model file of one format and version (``allow_pickle=False``;
+    ``version``: an int, or a tuple of the versions read).
 
     Returns
     -------
@@ -480,7 +483,9 @@ def read_model_npz(path, format_name, version, what):
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
     if not isinstance(metadata, dict) or metadata.get("format") != format_name:
         raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
-    if metadata.get("format_version") != version:
+    from .model import reads_version, versions_text
+
+    if not reads_version(metadata.get("format_version"), version):
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "
-                               f"{version}")
+                               f"{versions_text(version)}")
     return arrays, metadata

@@ -380,12 +380,25 @@ def load_model(path) -> SharedDeformationModel:
 
 def need_format_version(path, metadata, version, what="it"):
     """A ModelError naming the file (and ``what`` in it, e.g. "its placement model") unless the metadata's
-    ``format_version`` is ``version``."""
+    ``format_version`` is ``version`` (an int, or a tuple of the versions read)."""
     have = metadata.get("format_version")
-    if have != version:
+    if not reads_version(have, version):
         where = "" if what == "it" else f"{what} "
         raise ModelError(path, f"{where}has format version {have}; this version of garment_transfer reads "
-                               f"version {version}")
+                               f"{versions_text(version)}")
+
+
+def reads_version(have, version):
+    """Whether a file's ``format_version`` ``have`` is ``version`` (an int) or one of them (a tuple)."""
+    wanted = version if isinstance(version, tuple) else (version,)
+    return not isinstance(have, bool) and isinstance(have, int) and have in wanted
+
+
+def versions_text(version):
+    """``version 1`` or ``versions 1 and 2``."""
+    if not isinstance(version, tuple) or len(version) == 1:
+        return f"version {version[0] if isinstance(version, tuple) else version}"
+    return f"versions {', '.join(str(v) for v in version[:-1])} and {version[-1]}"
 
 
 def read_model_arrays(path):

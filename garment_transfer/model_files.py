@@ -238,7 +238,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         kind = "field" if prefix == "field" else "placement"
         if md.get("format") != module.FORMAT:
             raise ModelError(path, f"its {what!r} part is not a {kind} model (format {md.get('format')!r})")
-        need_format_version(path, md, module.FORMAT_VERSION, f"its {what} model")
+        need_format_version(path, md, getattr(module, "FORMAT_VERSIONS", module.FORMAT_VERSION), f"its {what} model")
         if kind == "placement" and "smoothing_share" not in md:
             raise ModelError(path, f"its {what} metadata lacks 'smoothing_share'")
         parts[prefix] = (own, md)

@@ -40,7 +40,11 @@ from .mesh import Mesh, require_same_topology, triangle_normals
 log = logging.getLogger(__name__)
 
 FORMAT = "garment_transfer.garment_placement_model"
+#: Version 1: the network predicts the offset itself; version 2 (a model with ``offset_base``): the
+#: offset less the training garments' mean offset on each triangle (``mean_offsets``). Both are read.
 FORMAT_VERSION = 1
+BASE_FORMAT_VERSION = 2
+FORMAT_VERSIONS = (FORMAT_VERSION, BASE_FORMAT_VERSION)
 #: Length over which the placement is smoothed on the body, as a share of the body scale (about 2 cm on
 #: a 1.7 m body). Measured on the demo's test garments on pear (``lab.garment_model
 #: --placement-smoothing``), garment model with the learned placement: 0.08 gives 0.78x direct's vertex
@@ -259,15 +263,65 @@ def placement_displacements(binding: Binding, target_V, body_F, C):
     return np.einsum("pji,pj->pi", T, C[tri])
 
 
+def mean_offsets(offset, bound):
+    """The training garments' mean placement per target and body triangle, weighted by bound points.
+
+    Parameters
+    ----------
+    offset : (G,K,M,3) float
+        Every training garment's unrotated smoothed offsets on every target (``true_offsets``' ``y``).
+    bound : (G,M) float
+        Bound garment points per triangle (``bound_counts``).
+
+    Returns
+    -------
+    (K,M,3) float64
+        Zero on triangles no training garment is bound to.
+    """
+    offset = np.asarray(offset, dtype=np.float64)
+    w = np.asarray(bound, dtype=np.float64)
+    if offset.ndim != 4 or offset.shape[3] != 3 or w.shape != (offset.shape[0], offset.shape[2]):
+        raise ValueError(f"offsets (G,K,M,3) and bound counts (G,M) do not fit: {offset.shape} and {w.shape}")
+    total = np.einsum("gm,gkmc->kmc", w, offset)
+    return total / np.maximum(w.sum(axis=0), 1e-12)[None, :, None]
+
+
 class PlacementModel(GarmentFitModel):
     """A trained placement model (see the module docstring): ``GarmentFitModel``'s inputs, 3 outputs.
 
     Extra metadata: ``smoothing_share`` (the smoothing of its targets and predictions),
     ``context_shares`` (``garment_context``, inputs after the garment's own features) and, optionally,
     ``body_offset_shares`` (``body_offset_features``, inputs after the target's features; absent: none).
+    A model of format version 2 has the array ``offset_base (K,M,3)``: the training garments' mean offset
+    per target and triangle (``mean_offsets``); its network predicts the offset less that, blended by the
+    label weights.
     """
 
     OUTPUTS = 3
+
+    def _check(self, a, md):
+        super()._check(a, md)
+        has = "offset_base" in a
+        if md.get("format_version", FORMAT_VERSION) == BASE_FORMAT_VERSION:
+            M = int(md["source"]["n_triangles"])
+            base = a.get("offset_base")
+            if base is None or base.dtype.kind != "f" or base.shape != (len(md["targets"]), M, 3):
+                raise ModelError(self.name, f"a placement model of format version {BASE_FORMAT_VERSION} needs the "
+                                            f"array 'offset_base' of shape ({len(md['targets'])}, {M}, 3), got "
+                                            f"{None if base is None else base.shape}")
+            if not np.isfinite(base).all():
+                raise ModelError(self.name, "'offset_base' has values that are not finite")
+        elif has:
+            raise ModelError(self.name, f"has 'offset_base', which format version {md.get('format_version')} "
+                                        "does not have")
+
+    def offset_base(self, weights):
+        """(M,3) float64: the training garments' mean unrotated offset under label ``weights (K,)``
+        (zero for a model of format version 1)."""
+        base = self.arrays.get("offset_base")
+        if base is None:
+            return np.zeros((int(self.metadata["source"]["n_triangles"]), 3))
+        return np.einsum("k,kmc->mc", np.asarray(weights, dtype=np.float64), base.astype(np.float64))
 
     @staticmethod
     def n_inputs(md):
@@ -326,7 +380,8 @@ class PlacementModel(GarmentFitModel):
         return _mean_unrotated_offsets([self], binding, source_body, target_body, garment, target)
 
     def raw_offsets(self, X):
-        """The network's unrotated offsets for inputs ``X (n,P)``, before smoothing: ``(n,3)`` float64."""
+        """The network's unrotated offsets for inputs ``X (n,P)``, before smoothing (without the
+        ``offset_base`` of a version 2 model): ``(n,3)`` float64."""
         return self.forward(X) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
 
 
@@ -406,8 +461,9 @@ class PlacementEnsemble:
 
 def _mean_unrotated_offsets(models, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh,
                             target=None):
-    """The mean of ``models``' unrotated offsets of the bound triangles, smoothed once (with the first's
-    smoothing; the inputs are the first's, which every member shares): (M,3) float64."""
+    """The mean of ``models``' unrotated offsets of the bound triangles (each with its ``offset_base`` under
+    the target's label weights), smoothed once (with the first's smoothing; the inputs are the first's,
+    which every member shares): (M,3) float64."""
     first = models[0]
     F = source_body.F
     M = F.shape[0]
@@ -415,7 +471,11 @@ def _mean_unrotated_offsets(models, binding: Binding, source_body: Mesh, target_
     sel = w > 0
     X = first.inputs(source_body, target_body, garment, target)[0][sel]
     y = np.zeros((M, 3))
-    y[sel] = sum(m.raw_offsets(X) for m in models) / len(models)
+    if any("offset_base" in m.arrays for m in models):
+        weights = first.label_weights_for(target_body, target)
+        y[sel] = sum(m.raw_offsets(X) + m.offset_base(weights)[sel] for m in models) / len(models)
+    else:
+        y[sel] = sum(m.raw_offsets(X) for m in models) / len(models)
     length = float(first.metadata["smoothing_share"]) * body_scale(source_body.V)
     return smooth_on_body(y, w, source_body.V, F, length)
 
@@ -488,7 +548,7 @@ def load_placement_model(path) -> PlacementModel:
         Naming the file: missing, unreadable, pickled objects, another format or version, arrays that do
         not fit together.
     """
-    arrays, metadata = read_model_npz(path, FORMAT, FORMAT_VERSION, "a garment placement model")
+    arrays, metadata = read_model_npz(path, FORMAT, FORMAT_VERSIONS, "a garment placement model")
     if "smoothing_share" not in metadata:
         raise ModelError(os.fspath(path), "metadata lacks 'smoothing_share'")
     return PlacementModel(arrays, metadata, os.fspath(path))

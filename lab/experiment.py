@@ -79,13 +79,16 @@ PLACEMENT_EPOCHS = 30
 #: Placement models trained (seeds ``seed`` .. ``seed + n - 1``) and averaged (``placement.PlacementEnsemble``);
 #: 1 (the lab's default, as its recorded figures): the single model.
 PLACEMENT_MEMBERS = 1
+#: Further ``garment_training.train_placement_model`` arguments of every placement the lab trains (hidden
+#: widths, learning rate and its schedule, weight decay, a loss weighted by bound points); empty: its defaults.
+PLACEMENT_OPTIONS = {}
 
 
 def train_placement(tables, targets, seed=0, threads=None, **options):
     """``garment_training.train_placement_ensemble`` of ``PLACEMENT_MEMBERS`` members, ``PLACEMENT_EPOCHS``
-    passes each."""
+    passes each, with ``PLACEMENT_OPTIONS`` (``options`` take precedence)."""
     return train_placement_ensemble(tables, targets, PLACEMENT_MEMBERS, seed=seed, epochs=PLACEMENT_EPOCHS,
-                                    threads=threads, **options)
+                                    threads=threads, **{**PLACEMENT_OPTIONS, **options})
 
 
 #: Every method the lab compares, by key.

@@ -19,8 +19,19 @@ Parts (``--parts``, default all):
   own field, the garment model's and half of it (``--field-share``); ``--placement-blend``: an unseen body
   gets the blend of the placements predicted on the training bodies; ``--placement-body-offset``: the
   placement model also sees the target's offset from the source body). ``--data``/``--extra`` as for demo.
-* ``--placement-members N`` (demo and unseen_body): the learned placement is the mean of N placement models
+* ``between``: the test garments on bodies between two training bodies (``lab.procedural.mannequin.BETWEEN``,
+  every measurement interpolated; ``python -m lab.garment_data between`` drapes them, ``unpack`` adds them to
+  the ``--data`` folder), which the models were not trained on: the body's label weights from its shape and
+  the blend of the training bodies' placements, against the two training bodies it lies between (their
+  errors interpolated at its share) in the same run and, with ``--between-in-training``, against models
+  trained on it too (``--placement-nolabel``, ``--placement-body-offset`` as for unseen_body; the placement is
+  always the blend).
+* ``--placement-members N`` (demo, unseen_body, between): the learned placement is the mean of N placement models
   trained with seeds seed .. seed+N-1 (``placement.PlacementEnsemble``); 1 (default): one model.
+  ``--placement-residual``: each learns the offset less the training garments' mean offset per triangle
+  (``placement.mean_offsets``); ``--placement-hidden``, ``--placement-lr``, ``--placement-schedule``,
+  ``--placement-weight-decay``, ``--placement-weighted``: ``garment_training.train_placement_model``'s
+  other training options (default: its defaults, as the recorded figures).
 * ``makehuman``: leave-one-garment-out on the MakeHuman fixtures (``--makehuman-garments`` held out in
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
   garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
@@ -47,7 +58,7 @@ from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import placement_tables, train_garment_model, training_tables
+from garment_transfer.garment_training import SCHEDULES, placement_tables, train_garment_model, training_tables
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -183,6 +194,111 @@ def unseen_body_part(args, say):
     return info
 
 
+BETWEEN_RUNS = ["direct", "garment_contact", "direct_placed", "garment_placed", "garment_half_placed"]
+
+
+def between_part(args, say):
+    """The test garments on bodies between two training bodies (every measurement interpolated,
+    ``lab.procedural.mannequin.BETWEEN``; draped by ``python -m lab.garment_data between``), which no model
+    was trained on: label weights from the body's shape, the blend of the training bodies' placements.
+    Compared with the two training bodies it lies between (same models, same run) and, with
+    ``--between-in-training``, with models trained on it too."""
+    ds = load_dataset(args.data)
+    between = ds.manifest.get("between_bodies") or {}
+    if not between:
+        raise SystemExit(f"{args.data}: no in-between bodies (make the folder with python -m lab.garment_data "
+                         "unpack, which adds data/extra/between.npz)")
+    source = ds.manifest["source"]
+    train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
+    test = list(ds.manifest["test_garments"])
+    targets = [t for t in args.targets if t not in between]
+    for b, (a, c, _) in between.items():
+        if a not in targets or c not in targets:
+            raise SystemExit(f"{b} lies between {a} and {c}: both must be training targets (--targets)")
+    variants = [("unseen", targets)]
+    if args.between_in_training:
+        lacking = [g for g in train if not all(ds.has_garment(g, b) for b in between)]
+        if lacking:
+            raise SystemExit(f"--between-in-training: {len(lacking)} training garments are not draped on "
+                             f"{', '.join(between)} (e.g. {lacking[0]}); run python -m lab.garment_data between")
+        variants.append(("in_training", targets + list(between)))
+    src = ds.body(source)
+    say(f"between: {len(train)} training garments, {len(test)} test garments; training bodies {targets}; "
+        f"in-between bodies {', '.join(f'{b} ({a}/{c} {t:g})' for b, (a, c, t) in between.items())}")
+    rows, info = [], {"between": between, "targets": targets, "label_weights": {}}
+    garments = {g: ds.garment(g, source) for g in test}
+    prepared = {g: {a: prepare_garment(src, G, anchoring=a) for a in ("everywhere", "contact")}
+                for g, G in garments.items()}
+    for variant, tgts in variants:
+        tables = training_tables(ds, source, tgts, train)
+        model, tinfo = train_garment_model(tables, tgts, epochs=experiment.GARMENT_EPOCHS, seed=args.seed,
+                                           threads=args.threads)
+        placement_tables(ds, source, tgts, train, tables)
+        placer, pinfo = experiment.train_placement(tables, tgts, seed=args.seed, threads=args.threads,
+                                                   use_label=not args.placement_nolabel,
+                                                   body_offset=args.placement_body_offset)
+        placer = placement.BlendedPlacement(placer)
+        half = model.with_field_share(args.field_share)
+        say(f"between ({variant}): trained on {tgts} in {tinfo['seconds']:.0f} + {pinfo['seconds']:.0f} s")
+        if variant == "unseen":
+            bodies = [(b, None) for b in between] + [(t, t) for t in dict.fromkeys(
+                x for a, c, _ in between.values() for x in (a, c))]
+        else:
+            bodies = [(b, b) for b in between]
+        for body_name, label in bodies:
+            body = ds.body(body_name)
+            weights = model.label_weights_for(body, label)
+            info["label_weights"][f"{body_name} ({variant})"] = dict(zip(tgts, np.round(weights, 4).tolist()))
+            runs = [("garment_contact", "contact", dict(method="model", model=model, target=label)),
+                    ("direct_placed", "everywhere", dict(method="direct", placement=placer, target=label)),
+                    ("garment_placed", "everywhere", dict(method="model", model=model, placement=placer,
+                                                          target=label)),
+                    ("garment_half_placed", "everywhere", dict(method="model", model=half, placement=placer,
+                                                               target=label))]
+            if variant == "unseen":
+                runs.insert(0, ("direct", "everywhere", dict(method="direct")))
+            for g, G in garments.items():
+                ref = ds.garment(g, body_name)
+                for key, anchoring, kw in runs:
+                    r = transfer_garment(src, body, G, prepared=prepared[g][anchoring], **kw)
+                    e = evaluate(G, G.with_vertices(r.V), body, reference=ref)
+                    e.update(garment=g, target=body_name, method=key if variant == "unseen" else f"{key}_in_training")
+                    rows.append(e)
+            say(f"between ({variant}): {body_name} done")
+
+    def mean(m, t, k="vertex_error_mean"):
+        vals = [r[k] for r in rows if r["method"] == m and r["target"] == t]
+        return float(np.mean(vals)) if vals else float("nan")
+
+    lines = [f"{'body':12s} {'method':26s} {'vertex mm':>9s} {'x direct':>8s} {'drape rel':>9s} {'MDC x dir':>9s} "
+             f"{'inside':>6s}"]
+    shown_bodies = list(between) + [x for x in dict.fromkeys(y for a, c, _ in between.values() for y in (a, c))]
+    for t in shown_bodies:
+        for m in BETWEEN_RUNS + [f"{k}_in_training" for k in BETWEEN_RUNS[1:]]:
+            if np.isnan(mean(m, t)):
+                continue
+            lines.append(f"{t:12s} {m:26s} {1000 * mean(m, t):9.1f} {mean(m, t) / mean('direct', t):8.2f} "
+                         f"{mean(m, t, 'drape_error_relative'):9.3f} "
+                         f"{mean(m, t, 'mdc') / mean('direct', t, 'mdc'):9.2f} "
+                         f"{sum(r['penetrating_vertices'] for r in rows if r['method'] == m and r['target'] == t):6d}")
+    ratios = {}
+    for b, (a, c, share) in between.items():
+        for m in BETWEEN_RUNS[1:]:
+            # The training bodies' errors interpolated at the in-between body's share.
+            ends = (1 - share) * mean(m, a) + share * mean(m, c)
+            ends_rel = (1 - share) * mean(m, a) / mean("direct", a) + share * mean(m, c) / mean("direct", c)
+            ratios[f"{b}/{m}"] = {"to_training_bodies": mean(m, b) / ends,
+                                  "to_training_bodies_x_direct": (mean(m, b) / mean("direct", b)) / ends_rel,
+                                  "to_itself_in_training": mean(m, b) / mean(f"{m}_in_training", b)}
+            x = ratios[f"{b}/{m}"]
+            lines.append(f"{b} {m}: vertex error / its training bodies' ({a}, {c}) {x['to_training_bodies']:.2f}; "
+                         f"in units of direct's {x['to_training_bodies_x_direct']:.2f}"
+                         + ("" if np.isnan(x["to_itself_in_training"]) else
+                            f"; / itself in training {x['to_itself_in_training']:.2f}"))
+    info.update(rows=rows, ratios=ratios, text="\n".join(lines))
+    return info
+
+
 def makehuman_part(args, say):
     folder = makehuman_folder()
     if folder is None:
@@ -204,6 +320,15 @@ def makehuman_part(args, say):
             "reference": reference, "folder": str(folder)}
 
 
+def placement_options(args):
+    """The ``train_placement_model`` arguments the command line sets (those given only)."""
+    hidden = None if args.placement_hidden is None else tuple(int(x) for x in args.placement_hidden.split(","))
+    return {k: v for k, v in (("hidden", hidden), ("lr", args.placement_lr), ("schedule", args.placement_schedule),
+                              ("weight_decay", args.placement_weight_decay),
+                              ("weighted", args.placement_weighted or None),
+                              ("residual", args.placement_residual or None)) if v is not None}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--parts", default="demo,unseen_body,makehuman")
@@ -211,6 +336,8 @@ def main(argv=None):
     ap.add_argument("--targets", default="pear,heavy,hourglass")
     ap.add_argument("--extra", default="", help="extra training garments of --data, comma-separated")
     ap.add_argument("--unseen", default="hourglass")
+    ap.add_argument("--between-in-training", action="store_true",
+                    help="between: also train with the in-between bodies (every training garment draped on them)")
     ap.add_argument("--validation", default="",
                     help="demo: test on these training garments instead (held out with their _loose and _tight "
                          "variants), to choose settings without the test garments")
@@ -234,6 +361,19 @@ def main(argv=None):
     ap.add_argument("--placement-members", type=int, default=experiment.PLACEMENT_MEMBERS,
                     help="placement models trained with seeds seed, seed+1, ... and averaged "
                          "(placement.PlacementEnsemble); 1: one model")
+    ap.add_argument("--placement-hidden", default=None,
+                    help="hidden layer widths of the placement model, comma-separated (default "
+                         "garment_training.train_placement_model's)")
+    ap.add_argument("--placement-lr", type=float, default=None, help="the placement model's learning rate")
+    ap.add_argument("--placement-schedule", choices=SCHEDULES, default=None,
+                    help="the placement model's learning rate decay (garment_training.SCHEDULES)")
+    ap.add_argument("--placement-weight-decay", type=float, default=None,
+                    help="the placement model's decoupled weight decay (AdamW)")
+    ap.add_argument("--placement-weighted", action="store_true",
+                    help="the placement model's loss weighted by the garment points bound to each triangle")
+    ap.add_argument("--placement-residual", action="store_true",
+                    help="the placement model learns the offset less the training garments' mean offset per "
+                         "triangle (placement.mean_offsets), as train --kind garment does by default")
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
                     help="smoothing length of the placement (its training targets and predictions), as a share "
                          "of the body scale")
@@ -249,6 +389,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     experiment.PLACEMENT_MEMBERS = args.placement_members
+    experiment.PLACEMENT_OPTIONS = placement_options(args)
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
@@ -259,7 +400,8 @@ def main(argv=None):
 
     out = {"command": " ".join(["python -m lab.garment_model", *(argv if argv is not None else sys.argv[1:])])}
     for part in args.parts.split(","):
-        fn = {"demo": demo_part, "unseen_body": unseen_body_part, "makehuman": makehuman_part}[part]
+        fn = {"demo": demo_part, "unseen_body": unseen_body_part, "between": between_part,
+              "makehuman": makehuman_part}[part]
         out[part] = fn(args, say)
         if out[part]:
             print(f"\n== {part}\n{out[part]['text']}\n", flush=True)

@@ -144,6 +144,8 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     loaded = read_model_file(model)
     assert isinstance(loaded.placement.model, PlacementEnsemble)
     assert len(loaded.placement.model.members) == PLACEMENT_MEMBERS
+    # Each member learned the offset less the training garments' mean offset (placement format version 2).
+    assert all(m.metadata["format_version"] == 2 and "offset_base" in m.arrays for m in loaded.placement.model.members)
     expect = transfer_garment(read_obj(src), read_obj(tgt), read_obj(garment), method="model", model=loaded.model,
                               placement=loaded.placement).V
     # The same to the last digit of the file (9 significant digits).
@@ -157,6 +159,14 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
                                     model=whole.model).V
     np.testing.assert_array_equal(read_obj(tmp_path / "whole.obj").V, as_written(expect_whole))
     assert np.abs(expect_whole - expect).max() > 1e-5
+    # --placement-absolute: the placement as before (format version 1, no mean offset).
+    absolute = tmp_path / "absolute.npz"
+    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
+            "--garments", "band,skirt", "--placement-epochs", "10", "--placement-members", "1",
+            "--placement-absolute", "--out", absolute)
+    assert p.returncode == 0, p.stderr
+    placed = read_model_file(absolute).placement.model
+    assert placed.metadata["format_version"] == 1 and "offset_base" not in placed.arrays
 
 
 def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
@@ -195,6 +205,9 @@ def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
     p = run("train", "--placement-members", "3", "--dataset", ds, "--source", "src", "--targets", "pear",
             "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--placement-members is not for train --kind shared" in p.stderr
+    p = run("train", "--placement-absolute", "--dataset", ds, "--source", "src", "--targets", "pear",
+            "--out", tmp_path / "m.npz")
+    assert p.returncode == 2 and "--placement-absolute is not for train --kind shared" in p.stderr
     p = run("train", "--kind", "garment", "--placement-members", "0", "--dataset", ds, "--source", "src",
             "--targets", "pear", "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--placement-members" in p.stderr and not (tmp_path / "m.npz").exists()

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from garment_transfer.obj import read_obj, write_obj
 from lab.garment_data import OFFSET_STEP, SOURCE_STEP, pack, read_packed
@@ -55,3 +56,55 @@ def test_a_later_pack_keeps_the_garments_packed_before(tmp_path):
     np.testing.assert_array_equal(after["skirt"][0], before[0])
     for b in BODIES:
         np.testing.assert_array_equal(after["skirt"][1][b], before[1][b])
+
+
+def test_in_between_bodies_are_packed_with_their_garments_and_unpacked_into_a_dataset(tmp_path):
+    import json
+
+    from garment_transfer.dataset import load_dataset
+    from garment_transfer.mesh import mesh_from_triangles
+    from lab.garment_data import unpack
+    from meshes import icosphere
+
+    # A demo folder: a source body, a training body, one garment on both.
+    demo = tmp_path / "demo"
+    body = mesh_from_triangles(*icosphere(1), name="body")
+    (demo / "bodies").mkdir(parents=True)
+    write_obj(demo / "bodies" / "banana.obj", body)
+    g = grid(5, 4)
+    (demo / "garments" / "skirt").mkdir(parents=True)
+    for b in ("banana", "pear"):
+        write_obj(demo / "garments" / "skirt" / f"{b}.obj", g, g.V + [0.1, 0.2, 1.3])
+    write_obj(demo / "bodies" / "pear.obj", body, body.V * 1.1)
+    (demo / "manifest.json").write_text(json.dumps({"bodies": ["banana", "pear"], "garments": ["skirt"],
+                                                    "source": "banana", "targets": ["pear"],
+                                                    "train_garments": ["skirt"], "test_garments": []}))
+    extra = tmp_path / "extra.npz"
+    np.savez(extra, metadata=np.array(json.dumps({"source": "banana", "targets": ["pear"], "garments": [],
+                                                   "source_step": SOURCE_STEP, "offset_step": OFFSET_STEP})))
+    # The work folder of the in-between drape: its body and the garment on it.
+    work = tmp_path / "work"
+    (work / "bodies").mkdir(parents=True)
+    write_obj(work / "bodies" / "pear_heavy.obj", body, body.V * 1.2)
+    (work / "garments" / "skirt").mkdir(parents=True)
+    write_obj(work / "garments" / "skirt" / "banana.obj", g, g.V + [0.1, 0.2, 1.3])
+    write_obj(work / "garments" / "skirt" / "pear_heavy.obj", g, g.V + [0.1, 0.25, 1.3])
+    (work / "log.txt").write_text("[ 1.0s] garment 1/1 skirt: 20 vertices, 24 triangles, 3.5s, vertices inside "
+                                  "the body before/after the fix [0, 0]/[0, 0]\n")
+    packed = tmp_path / "between.npz"
+    meta = pack(work, packed, source="banana", targets=("pear_heavy",), with_bodies=True)
+    assert meta["bodies"] == ["pear_heavy"]
+    (work / "bodies" / "pear_heavy.obj").unlink()
+    with pytest.raises(ValueError, match="pear_heavy.obj: body not found"):
+        pack(work, tmp_path / "other.npz", source="banana", targets=("pear_heavy",), with_bodies=True)
+
+    out = tmp_path / "dataset"
+    unpack(out, packed=extra, demo=demo, between=packed)
+    ds = load_dataset(out)
+    assert "pear_heavy" in ds.bodies and ds.manifest["between_bodies"] == {"pear_heavy": ["pear", "heavy", 0.5]}
+    np.testing.assert_allclose(ds.body("pear_heavy").V, body.V * 1.2, atol=SOURCE_STEP)
+    np.testing.assert_array_equal(ds.body("pear_heavy").F, ds.body("banana").F)
+    np.testing.assert_allclose(ds.garment("skirt", "pear_heavy").V, g.V + [0.1, 0.25, 1.3],
+                               atol=SOURCE_STEP + OFFSET_STEP)
+    # The demo's own files are not rewritten.
+    np.testing.assert_array_equal(ds.garment("skirt", "pear").V, read_obj(demo / "garments" / "skirt" / "pear.obj").V)

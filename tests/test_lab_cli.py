@@ -50,3 +50,21 @@ def test_multigrid_study_compares_the_cycles_on_a_real_system():
     assert len(rows) == 3
     for line in rows:
         assert float(line.rsplit("difference", 1)[1]) < 1e-6
+
+
+def test_the_garment_model_study_passes_the_placement_options_given():
+    import inspect
+    from argparse import Namespace
+
+    from garment_transfer.garment_training import train_placement_model
+    from lab.garment_model import placement_options
+
+    unset = Namespace(placement_hidden=None, placement_lr=None, placement_schedule=None, placement_weight_decay=None,
+                      placement_weighted=False, placement_residual=False)
+    assert placement_options(unset) == {}
+    given = Namespace(placement_hidden="128,96", placement_lr=0.003, placement_schedule="cosine",
+                      placement_weight_decay=0.01, placement_weighted=True, placement_residual=True)
+    options = placement_options(given)
+    assert options == {"hidden": (128, 96), "lr": 0.003, "schedule": "cosine", "weight_decay": 0.01,
+                       "weighted": True, "residual": True}
+    assert set(options) <= set(inspect.signature(train_placement_model).parameters)

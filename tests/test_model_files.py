@@ -286,3 +286,28 @@ def test_a_bad_count_of_placement_members_is_refused_naming_the_file(ensemble_bu
         with pytest.raises(ModelError) as exc:
             read_model_file(bad)
         assert str(exc.value).startswith(str(bad)) and problem in str(exc.value), (name, str(exc.value))
+
+
+def test_the_default_placement_is_residual_and_a_file_without_the_base_still_reads(bundle, tmp_path):
+    from garment_transfer.binding import bind
+    from garment_transfer.garment_training import PLACEMENT_RESIDUAL, train_garment_fit_from_dataset
+
+    ds, path, _ = bundle
+    field, placed, md = parts_by_hand(path)
+    assert PLACEMENT_RESIDUAL and md["placement"]["format_version"] == 2 and md["format_version"] == 1
+    assert placed.arrays["offset_base"].shape == (len(TARGETS), field.metadata["source"]["n_triangles"], 3)
+    assert np.abs(placed.arrays["offset_base"]).max() > 0
+    # Without the residual: a placement of format version 1, as files written before it, read alike.
+    old = tmp_path / "old.npz"
+    train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3, placement_epochs=10,
+                                   seed=1, out=old, threads=1, placement_members=1, placement_residual=False)
+    field_old, placed_old, md_old = parts_by_hand(old)
+    assert md_old["placement"]["format_version"] == 1 and "offset_base" not in placed_old.arrays
+    dataset = load_dataset(ds)
+    src, tgt, g = dataset.body("src"), dataset.body("pear"), dataset.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    for p, own in ((path, placed), (old, placed_old)):
+        np.testing.assert_array_equal(read_model_file(p).placement.frame_offsets(binding, src, tgt, g, "pear"),
+                                      own.frame_offsets(binding, src, tgt, g, "pear"))
+    assert np.abs(placed.frame_offsets(binding, src, tgt, g, "pear")
+                  - placed_old.frame_offsets(binding, src, tgt, g, "pear")).max() > 1e-6

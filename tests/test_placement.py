@@ -167,7 +167,7 @@ def test_placement_model_files_of_another_version_or_kind_are_refused(trained, t
     model, _, _ = trained
     newer = tmp_path / "newer.npz"
     np.savez(newer, metadata=np.array(json.dumps({**model.metadata, "format_version": 99})), **model.arrays)
-    with pytest.raises(ModelError, match=r"newer.npz: has format version 99; this version reads 1"):
+    with pytest.raises(ModelError, match=r"newer.npz: has format version 99; this version reads versions 1 and 2"):
         load_placement_model(newer)
     with pytest.raises(ModelError, match="is not a garment fit model"):
         load_garment_model(newer)
@@ -301,3 +301,104 @@ def test_an_ensemble_predicts_the_mean_of_its_members_trained_with_successive_se
         train_placement_ensemble(tables, TARGETS, 0)
     with pytest.raises(ValueError, match="whole number >= 1 of members, got 1.5"):
         train_placement_ensemble(tables, TARGETS, 1.5)
+
+
+def test_mean_offsets_weighs_garments_by_their_bound_points():
+    from garment_transfer.placement import mean_offsets
+
+    offset = np.zeros((2, 2, 3, 3))
+    offset[0, :, :, 0] = 1.0          # garment 0: +1 along x on every triangle and target
+    offset[1, 1, :, 1] = 4.0          # garment 1: +4 along y on target 1
+    bound = np.array([[1.0, 3.0, 0.0], [3.0, 1.0, 0.0]])
+    base = mean_offsets(offset, bound)
+    assert base.shape == (2, 3, 3)
+    np.testing.assert_allclose(base[:, 0, 0], 0.25)
+    np.testing.assert_allclose(base[:, 1, 0], 0.75)
+    np.testing.assert_allclose(base[1, :2, 1], [3.0, 1.0])
+    np.testing.assert_allclose(base[0, :, 1], 0.0)
+    # A triangle no garment is bound to: no offset.
+    np.testing.assert_array_equal(base[:, 2], 0.0)
+    with pytest.raises(ValueError, match="do not fit"):
+        mean_offsets(offset, bound[:, :2])
+
+
+def test_a_residual_placement_adds_the_training_garments_mean_offset(trained, tiny, tmp_path):
+    from garment_transfer.garment_training import train_placement_model
+    from garment_transfer.embedding import body_scale
+    from garment_transfer.placement import PlacementModel, load_placement_model, mean_offsets, smooth_on_body
+
+    model, _, tables = trained
+    res, info = train_placement_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1,
+                                      residual=True)
+    assert res.metadata["format_version"] == 2 and res.metadata["training"]["residual"] is True
+    assert model.metadata["format_version"] == 1 and "offset_base" not in model.arrays
+    base = mean_offsets(tables["offset"], tables["bound"])
+    np.testing.assert_allclose(res.arrays["offset_base"], base, rtol=1e-6, atol=1e-9)
+    assert np.abs(base).max() > 1e-3
+    assert info["losses"][-1] < 0.85 * info["losses"][0]
+    ds = load_dataset(tiny)
+    src, g = ds.body("src"), ds.garment("top", "src")
+    binding = bind(g.V, src.V, src.F)
+    w = np.bincount(binding.triangle, minlength=src.F.shape[0]).astype(float)
+    length = res.metadata["smoothing_share"] * body_scale(src.V)
+    # Its prediction is the network's plus the base of the target's label (blended for a body between).
+    network_only = PlacementModel({**res.arrays, "offset_base": np.zeros_like(res.arrays["offset_base"])},
+                                  res.metadata, "zero base")
+    tgt = ds.body("pear")
+    mid = src.with_vertices(0.5 * (ds.body("similar").V + tgt.V))
+    for body, label in ((tgt, "pear"), (mid, None)):
+        lw = res.label_weights_for(body, label)
+        bound_base = np.where((w > 0)[:, None], np.einsum("k,kmc->mc", lw, base), 0.0)
+        np.testing.assert_allclose(res.unrotated_offsets(binding, src, body, g, label),
+                                   network_only.unrotated_offsets(binding, src, body, g, label)
+                                   + smooth_on_body(bound_base, w, src.V, src.F, length), rtol=0, atol=1e-6)
+    # Written as format version 2, read back the same; a version 1 file of the same network as before.
+    path = tmp_path / "residual.npz"
+    res.save(path)
+    loaded = load_placement_model(path)
+    assert loaded.metadata["format_version"] == 2
+    np.testing.assert_array_equal(loaded.frame_offsets(binding, src, tgt, g, "pear"),
+                                  res.frame_offsets(binding, src, tgt, g, "pear"))
+    old = tmp_path / "old.npz"
+    model.save(old)
+    np.testing.assert_array_equal(load_placement_model(old).frame_offsets(binding, src, tgt, g, "pear"),
+                                  model.frame_offsets(binding, src, tgt, g, "pear"))
+    # The base and the version go together; a base of the wrong shape or not finite is refused.
+    arrays = {k: v for k, v in res.arrays.items() if k != "offset_base"}
+    cases = {"no_base.npz": (arrays, res.metadata, "needs the array 'offset_base'"),
+             "v1_base.npz": (res.arrays, {**res.metadata, "format_version": 1}, "which format version 1 does not have"),
+             "short_base.npz": ({**arrays, "offset_base": res.arrays["offset_base"][:1]}, res.metadata,
+                                r"offset_base' of shape \(2, "),
+             "nan_base.npz": ({**arrays, "offset_base": np.full_like(res.arrays["offset_base"], np.nan)},
+                              res.metadata, "not finite")}
+    for name, (a, md, message) in cases.items():
+        bad = tmp_path / name
+        np.savez(bad, metadata=np.array(json.dumps(md)), **a)
+        with pytest.raises(ModelError, match=f"{name}: .*{message}"):
+            load_placement_model(bad)
+
+
+def test_placement_training_options(trained):
+    from garment_transfer.garment_training import train_placement_model
+
+    model, _, tables = trained
+    kw = dict(hidden=(16,), epochs=30, batch=256, seed=1, threads=1)
+    # Weighted by bound points that are the same everywhere: the same network as unweighted.
+    even = {**tables, "bound": np.where(tables["bound"] > 0, 2.0, 0.0).astype(np.float32)}
+    same, _ = train_placement_model(even, TARGETS, weighted=True, **kw)
+    assert all(np.array_equal(same.arrays[k], model.arrays[k]) for k in model.arrays)
+    weighted, _ = train_placement_model(tables, TARGETS, weighted=True, **kw)
+    assert len(np.unique(tables["bound"][tables["bound"] > 0])) > 1
+    assert not np.array_equal(weighted.arrays["W0"], model.arrays["W0"])
+    assert weighted.metadata["training"]["weighted"] is True and model.metadata["training"]["weighted"] is False
+    cosine, info = train_placement_model(tables, TARGETS, schedule="cosine", **kw)
+    assert cosine.metadata["training"]["schedule"] == "cosine" and model.metadata["training"]["schedule"] == "exp"
+    assert info["losses"][-1] < 0.85 * info["losses"][0]
+    assert not np.array_equal(cosine.arrays["W0"], model.arrays["W0"])
+    # Decoupled weight decay shrinks the weights.
+    decayed, _ = train_placement_model(tables, TARGETS, weight_decay=5.0, **kw)
+    assert decayed.metadata["training"]["weight_decay"] == 5.0
+    norm = [sum(float(np.sum(m.arrays[f"W{i}"] ** 2)) for i in range(2)) for m in (model, decayed)]
+    assert norm[1] < 0.8 * norm[0]
+    with pytest.raises(ValueError, match="unknown learning rate schedule 'linear'"):
+        train_placement_model(tables, TARGETS, schedule="linear", **kw)

@@ -122,3 +122,20 @@ def test_push_out_moves_inside_points_to_the_clearance():
     Q = push_out(body, P, clearance=0.01)
     assert body.sdf(Q[:1])[0] == pytest.approx(0.01, abs=1e-3)
     assert np.array_equal(Q[1], P[1])
+
+
+def test_a_body_between_two_presets_has_their_mean_measurements_and_lies_between_them(bodies):
+    from lab.procedural.mannequin import BETWEEN
+
+    a, c, share = BETWEEN["pear_heavy"]
+    assert (a, c) == ("pear", "heavy")
+    m = measurements("pear_heavy")
+    for field in ("hip", "waist", "bust", "height", "thigh", "shoulder_width"):
+        want = (1 - share) * getattr(PRESETS[a], field) + share * getattr(PRESETS[c], field)
+        assert abs(getattr(m, field) - want) < 1e-12, field
+    V, F = mannequin("pear_heavy")
+    assert np.array_equal(F, bodies["banana"][1])
+    mid = (1 - share) * bodies[a][0] + share * bodies[c][0]
+    apart = np.linalg.norm(bodies[a][0] - bodies[c][0], axis=1).mean()
+    # Much closer to the blend of its two bodies than they are to each other.
+    assert np.linalg.norm(V - mid, axis=1).mean() < 0.1 * apart

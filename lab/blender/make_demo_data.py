@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
 from garment_transfer.obj import obj_text, write_text_atomic  # noqa: E402
 from lab.procedural.garments import TEST_GARMENTS, TRAIN_GARMENTS, garment  # noqa: E402
-from lab.procedural.mannequin import PRESETS, mannequin  # noqa: E402
+from lab.procedural.mannequin import mannequin, measurements  # noqa: E402
 
 SOURCE = "banana"
 TARGETS = ("pear", "slim", "heavy", "apple", "hourglass")
@@ -83,7 +83,7 @@ def main(argv=None):
         bodies[name] = V
         if args.log_dir is None:
             write_text_atomic(out / "bodies" / f"{name}.obj",
-                              compact_obj(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
+                              compact_obj(V, F, f"procedural mannequin '{name}': {measurements(name)}"))
             say(f"body {name}: {V.shape[0]} vertices, {F.shape[0]} triangles")
     F = mannequin(SOURCE)[1]
     cloth = load_cloth()
@@ -132,7 +132,7 @@ def run_jobs(args, out, say):
     for name in [SOURCE] + args.targets:
         V, F = mannequin(name)
         write_text_atomic(out / "bodies" / f"{name}.obj",
-                          compact_obj(V, F, f"procedural mannequin '{name}': {PRESETS[name]}"))
+                          compact_obj(V, F, f"procedural mannequin '{name}': {measurements(name)}"))
         say(f"body {name}: {V.shape[0]} vertices, {F.shape[0]} triangles")
     with tempfile.TemporaryDirectory() as logs:
         common = ["--out", str(out), "--targets", *args.targets, "--frames", str(args.frames),

@@ -75,13 +75,25 @@ PRESETS = {
 }
 
 
+# Bodies between two presets: every measurement interpolated (name: (preset, preset, share of the
+# second)). They are not training bodies of the demo; the garment fit model meets them unseen.
+BETWEEN = {
+    "pear_heavy": ("pear", "heavy", 0.5),
+    "slim_apple": ("slim", "apple", 0.5),
+}
+
+
 def measurements(shape) -> Measurements:
-    """A Measurements from a preset name, a Measurements, or a dict of overrides of banana."""
+    """A Measurements from a preset or in-between name (``PRESETS``, ``BETWEEN``), a Measurements, or a
+    dict of overrides of banana."""
     if isinstance(shape, Measurements):
         return shape
     if isinstance(shape, str):
+        if shape in BETWEEN:
+            a, b, t = BETWEEN[shape]
+            return _interpolate(PRESETS[a], PRESETS[b], t)
         if shape not in PRESETS:
-            raise ValueError(f"shape: unknown preset {shape!r}; expected one of {sorted(PRESETS)}")
+            raise ValueError(f"shape: unknown preset {shape!r}; expected one of {sorted(PRESETS) + sorted(BETWEEN)}")
         return PRESETS[shape]
     if isinstance(shape, dict):
         return replace(PRESETS["banana"], **shape)
