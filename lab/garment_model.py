@@ -350,9 +350,9 @@ def main(argv=None):
     ap.add_argument("--placement", action="store_true",
                     help="unseen_body: also the garment model with the learned placement")
     ap.add_argument("--placement-nolabel", action="store_true",
-                    help="unseen_body: the placement model without the target label (body features only)")
+                    help="unseen_body, between: the placement model without the target label (body features only)")
     ap.add_argument("--placement-body-offset", action="store_true",
-                    help="unseen_body: the placement model also sees the target's offset from the source body")
+                    help="unseen_body, between: the placement model also sees the target's offset from the source body")
     ap.add_argument("--placement-blend", action="store_true",
                     help="unseen_body: an unseen body gets the blend of the placements predicted on the training "
                          "bodies, by its label weights (placement.BlendedPlacement)")
