@@ -306,6 +306,19 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
+def _undo_pushes_inside(V, V_fixed, surface):
+    """Where the crossings pass left a vertex inside the body (it can, when it cannot clear every crossing:
+    a garment pressed through a fold of the body), the vertex goes back to where the penetration fix had it,
+    outside. Returns (V, vertices inside after that, vertices put back)."""
+    inside = surface.signed_distance(V)[0] < 0
+    if not inside.any():
+        return V, 0, 0
+    V = V.copy()
+    V[inside] = V_fixed[inside]
+    left = int((surface.signed_distance(V[inside])[0] < 0).sum())
+    return V, left, int(inside.sum())
+
+
 def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, method="direct",
                      model=None, target=None, offset=None, fix_penetration=True, interpolate=True,
                      stiffness=None, prepared: PreparedGarment | None = None, anchoring="everywhere",
@@ -414,11 +427,12 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     if fix_penetration and resolve_crossings:
         step(0.9, "crossings")
         t = time.perf_counter()
+        V_fixed = V
         V, sep_info = clearance.separate(V, garment.F, target_body.V, target_body.F, offset, surface=surface,
                                          source_V=garment.V)
         info.update(sep_info)
         if sep_info["moved_vertices"]:
-            inside = int((surface.signed_distance(V)[0] < 0).sum())
+            V, inside, info["crossings_pass_inside_undone"] = _undo_pushes_inside(V, V_fixed, surface)
             info["inside_after"] = inside
         seconds["crossings"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0

@@ -284,3 +284,33 @@ def test_a_tangle_the_source_has_may_slide_but_not_grow():
     assert self_intersections(out, F)[0] <= source_count
     c = crossings(out, F, BV, BF)
     assert c["a_edge_pairs"] == c["b_edge_pairs"] == 0
+
+
+def test_a_vertex_the_crossings_pass_leaves_inside_goes_back_where_the_penetration_fix_put_it(monkeypatch):
+    # The crossings pass can fail where the garment is pressed through a fold of the body; whatever it then
+    # leaves inside is put back where the penetration fix had it (outside), and the transfer says so.
+    import garment_transfer.transfer as transfer_module
+    from garment_transfer import clearance
+
+    V, F = icosphere(3)
+    source = mesh_from_triangles(V, F, name="source")
+    target = mesh_from_triangles(V * [1.25, 1.25, 1.0], F, name="target")
+    GV, GF = icosphere(1, radius=1.02)
+    garment = mesh_from_triangles(GV, GF, name="garment")
+    fixed = transfer_garment(source, target, garment, resolve_crossings=False)
+    real = clearance.separate
+
+    def failing(V, *args, **kwargs):
+        out, info = real(V, *args, **kwargs)
+        out = out.copy()
+        out[[0, 5]] *= 0.5                      # two vertices pushed deep inside the body
+        info["moved_vertices"] = max(info["moved_vertices"], 2)
+        return out, info
+
+    monkeypatch.setattr(transfer_module.clearance, "separate", failing)
+    result = transfer_garment(source, target, garment)
+    surface = TriangleSurface(target.V, target.F)
+    assert (surface.signed_distance(result.V)[0] < 0).sum() == 0
+    assert result.penetrating_vertices == 0 and result.info["inside_after"] == 0
+    assert result.info["crossings_pass_inside_undone"] == 2
+    np.testing.assert_array_equal(result.V[[0, 5]], fixed.V[[0, 5]])
