@@ -13,7 +13,8 @@ Stages (timed one by one):
 5. ``solve``: the garment rebuilt from its new gradients, placed by the anchors.
 6. ``fix``: penetration removal against the target body (vertices).
 7. ``crossings``: the final pass (``clearance.separate``): no garment edge through the body and no
-   body edge through the garment, checked with exact predicates.
+   body edge through the garment, checked with exact predicates. Where it cannot clear them all and
+   leaves a vertex inside the body, that vertex goes back where step 6 put it.
 
 ``surface`` skips 1, 2, 4 and 5: the garment follows the body alone (what Blender's Surface Deform
 does); it is a baseline.
