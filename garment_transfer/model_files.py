@@ -212,11 +212,8 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
                                "the garment fit model and its placement in one file")
     if fmt != BUNDLE_FORMAT:
         raise ModelError(path, f"is not a garment transfer model (metadata 'format' is {fmt!r})")
-    version = metadata.get("format_version")
-    if version not in (BUNDLE_VERSION, ENSEMBLE_BUNDLE_VERSION):
-        raise ModelError(path, f"has format version {version}; this version of garment_transfer reads versions "
-                               f"{BUNDLE_VERSION} and {ENSEMBLE_BUNDLE_VERSION}")
-    members = _placement_members(path, metadata, version)
+    need_format_version(path, metadata, (BUNDLE_VERSION, ENSEMBLE_BUNDLE_VERSION))
+    members = _placement_members(path, metadata, metadata["format_version"])
     # (prefix of the arrays, metadata, module, what): the field model and each placement member.
     specs = [("field", metadata.get("field"), garment_model, "field")]
     if members is None:

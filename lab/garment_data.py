@@ -188,6 +188,17 @@ def unpack(out, packed=PACKED, demo=DEMO_DATA, between=BETWEEN_PACKED):
     return list(garments)
 
 
+def pack_between(work, packed, say):
+    """``pack`` of the garments draped on the in-between bodies, with the bodies, into ``packed`` (or, where
+    that is the extra garments' file, the default, into ``BETWEEN_PACKED``)."""
+    from .procedural.mannequin import BETWEEN
+
+    out = BETWEEN_PACKED if str(packed) == str(PACKED) else Path(packed)
+    meta = pack(work, out, targets=tuple(BETWEEN), with_bodies=True)
+    say(f"packed {len(meta['garments'])} garments on {', '.join(BETWEEN)} into {out}")
+    return meta
+
+
 def main(argv=None):
     from .procedural.garments import EXTRA_GARMENTS
 
@@ -210,10 +221,8 @@ def main(argv=None):
         from .procedural.mannequin import BETWEEN
 
         names = args.garments or list(TEST_GARMENTS) + list(TRAIN_GARMENTS) + list(EXTRA_GARMENTS)
-        packed = BETWEEN_PACKED if args.packed == str(PACKED) else Path(args.packed)
         code = generate(args.work, names, say, targets=list(BETWEEN))
-        meta = pack(args.work, packed, targets=tuple(BETWEEN), with_bodies=True)
-        say(f"packed {len(meta['garments'])} garments on {', '.join(BETWEEN)} into {packed}")
+        pack_between(args.work, args.packed, say)
         return code
     args.garments = args.garments or list(EXTRA_GARMENTS)
     if args.command == "generate":
@@ -222,11 +231,7 @@ def main(argv=None):
         say(f"packed {len(meta['garments'])} garments into {args.packed}")
         return code
     if args.command == "pack" and args.between:
-        from .procedural.mannequin import BETWEEN
-
-        packed = BETWEEN_PACKED if args.packed == str(PACKED) else Path(args.packed)
-        meta = pack(args.work, packed, targets=tuple(BETWEEN), with_bodies=True)
-        say(f"packed {len(meta['garments'])} garments on {', '.join(BETWEEN)} into {packed}")
+        pack_between(args.work, args.packed, say)
         return 0
     if args.command == "pack":
         meta = pack(args.work, args.packed)

@@ -115,6 +115,22 @@ def demo_part(args, say):
             "train": train, "test": test}
 
 
+def model_runs(model, half, placer, label):
+    """The learned methods the unseen_body and between parts run, as (key, anchoring, transfer_garment's
+    arguments): the garment model with contact anchors, and with a placement ``placer`` (None: none) the
+    body's own field, the garment model's whole field (anchors everywhere and contact) and its field at the
+    share of ``half``, each placed by it; ``label``: the target label (None: from the body's shape)."""
+    runs = [("garment_contact", "contact", dict(method="model", model=model, target=label))]
+    if placer is not None:
+        runs += [("direct_placed", "everywhere", dict(method="direct", placement=placer, target=label)),
+                 ("garment_placed", "everywhere", dict(method="model", model=model, placement=placer, target=label)),
+                 ("garment_placed_contact", "contact", dict(method="model", model=model, placement=placer,
+                                                            target=label)),
+                 ("garment_half_placed", "everywhere", dict(method="model", model=half, placement=placer,
+                                                            target=label))]
+    return runs
+
+
 UNSEEN_RUNS = ["direct", "garment_contact", "direct_placed", "garment_placed", "garment_placed_contact",
                "garment_half_placed"]
 
@@ -154,15 +170,7 @@ def unseen_body_part(args, say):
             garment = ds.garment(g, source)
             prepared = {a: prepare_garment(src, garment, anchoring=a) for a in ("everywhere", "contact")}
             ref = ds.garment(g, args.unseen)
-            runs = [("garment_contact", "contact", dict(method="model", model=model, target=label))]
-            if placer is not None:
-                runs += [("direct_placed", "everywhere", dict(method="direct", placement=placer, target=label)),
-                         ("garment_placed", "everywhere", dict(method="model", model=model, placement=placer,
-                                                               target=label)),
-                         ("garment_placed_contact", "contact", dict(method="model", model=model, placement=placer,
-                                                                    target=label)),
-                         ("garment_half_placed", "everywhere", dict(method="model", model=half, placement=placer,
-                                                                    target=label))]
+            runs = model_runs(model, half, placer, label)
             if with_it:
                 runs.append(("direct", "everywhere", dict(method="direct")))
             for key, anchoring, kw in runs:
@@ -215,6 +223,8 @@ def between_part(args, say):
     for b, (a, c, _) in between.items():
         if a not in targets or c not in targets:
             raise SystemExit(f"{b} lies between {a} and {c}: both must be training targets (--targets)")
+    # The training bodies the in-between ones lie between, each once.
+    ends = list(dict.fromkeys(x for a, c, _ in between.values() for x in (a, c)))
     variants = [("unseen", targets)]
     if args.between_in_training:
         lacking = [g for g in train if not all(ds.has_garment(g, b) for b in between)]
@@ -241,20 +251,14 @@ def between_part(args, say):
         half = model.with_field_share(args.field_share)
         say(f"between ({variant}): trained on {tgts} in {tinfo['seconds']:.0f} + {pinfo['seconds']:.0f} s")
         if variant == "unseen":
-            bodies = [(b, None) for b in between] + [(t, t) for t in dict.fromkeys(
-                x for a, c, _ in between.values() for x in (a, c))]
+            bodies = [(b, None) for b in between] + [(t, t) for t in ends]
         else:
             bodies = [(b, b) for b in between]
         for body_name, label in bodies:
             body = ds.body(body_name)
             weights = model.label_weights_for(body, label)
             info["label_weights"][f"{body_name} ({variant})"] = dict(zip(tgts, np.round(weights, 4).tolist()))
-            runs = [("garment_contact", "contact", dict(method="model", model=model, target=label)),
-                    ("direct_placed", "everywhere", dict(method="direct", placement=placer, target=label)),
-                    ("garment_placed", "everywhere", dict(method="model", model=model, placement=placer,
-                                                          target=label)),
-                    ("garment_half_placed", "everywhere", dict(method="model", model=half, placement=placer,
-                                                               target=label))]
+            runs = [r for r in model_runs(model, half, placer, label) if r[0] in BETWEEN_RUNS]
             if variant == "unseen":
                 runs.insert(0, ("direct", "everywhere", dict(method="direct")))
             for g, G in garments.items():
@@ -272,8 +276,7 @@ def between_part(args, say):
 
     lines = [f"{'body':12s} {'method':26s} {'vertex mm':>9s} {'x direct':>8s} {'drape rel':>9s} {'MDC x dir':>9s} "
              f"{'inside':>6s}"]
-    shown_bodies = list(between) + [x for x in dict.fromkeys(y for a, c, _ in between.values() for y in (a, c))]
-    for t in shown_bodies:
+    for t in list(between) + ends:
         for m in BETWEEN_RUNS + [f"{k}_in_training" for k in BETWEEN_RUNS[1:]]:
             if np.isnan(mean(m, t)):
                 continue
