@@ -99,18 +99,37 @@ def waist_pins(G, F, body_V, body_F):
     return np.flatnonzero(pinned)
 
 
-def drape(folder, out, garment, targets, say, sim=None):
+def other_settings(log, sim, log_path):
+    """The refusal when ``log`` (a folder's drape log) records garments draped with other settings than
+    ``sim``, else None."""
+    other = sorted(g for g, e in log.items() if e.get("simulation", dict(SIMULATION)) != sim)
+    if not other:
+        return None
+    return (f"{log_path} records {', '.join(other)} draped with other simulation settings "
+            f"({log[other[0]].get('simulation', SIMULATION)}, not {sim}); give another --out")
+
+
+def read_manifest(folder):
+    """``folder/manifest.json`` as a dict, {} when there is none."""
+    path = Path(folder) / "manifest.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None):
     """Drape ``garment`` on the source body and into ``targets``; ``sim``: the simulation settings
-    (``SIMULATION``'s keys), the defaults where None."""
+    (``SIMULATION``'s keys), the defaults where None. ``mesh``: the garment on the source body (the
+    fixtures' units and axes), else read from ``folder``; ``pins``: the vertices to pin, else
+    ``waist_pins``."""
     from .blender.make_demo_data import load_cloth
 
     cloth = load_cloth()
     bodies = {b: read_obj(folder / "bodies" / f"{b}.obj", name=b) for b in (MAKEHUMAN_SOURCE, *targets)}
     source = bodies[MAKEHUMAN_SOURCE]
-    g = read_obj(folder / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj", name=garment)
+    g = mesh if mesh is not None else read_obj(folder / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj",
+                                               name=garment)
     bV = to_blender(source.V)
     gV = to_blender(g.V)
-    pins = waist_pins(gV, g.F, bV, source.F)
+    pins = waist_pins(gV, g.F, bV, source.F) if pins is None else np.asarray(pins, np.int64)
     report = []
     t = time.perf_counter()
     sim = dict(SIMULATION, **(sim or {}))
@@ -187,10 +206,9 @@ def main(argv=None):
 
     log_path = out / "drape_log.json"
     log = json.loads(log_path.read_text()) if log_path.exists() else {}
-    other = sorted(g for g, e in log.items() if e.get("simulation", dict(SIMULATION)) != sim)
-    if other:
-        ap.error(f"{log_path} records {', '.join(other)} draped with other simulation settings "
-                 f"({log[other[0]].get('simulation', SIMULATION)}, not {sim}); give another --out")
+    problem = other_settings(log, sim, log_path)
+    if problem:
+        ap.error(problem)
     for garment in args.garments:
         if (out / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj").exists() and garment in log:
             say(f"{garment}: already draped, skipped")
@@ -198,7 +216,10 @@ def main(argv=None):
         log[garment] = drape(folder, out, garment, args.targets, say, sim)
         write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
     done = [g for g in manifest["garments"] if g in log]        # every garment draped so far
-    m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done,
+    # Garments another command added to this folder (lab.makehuman_procedural) stay listed.
+    extra = read_manifest(out).get("procedural_garments", [])
+    m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done + extra,
+             **({"procedural_garments": extra} if extra else {}),
              placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "
                        f"{MAKEHUMAN_SOURCE}", simulation=sim)
     write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")

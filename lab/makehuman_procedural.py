@@ -1,0 +1,160 @@
+"""Procedural garments on the MakeHuman bodies, draped by Blender's cloth solver: more garments to learn from.
+
+The MakeHuman fixtures hold 8 garments; leaving one out for a test leaves 7 to train on. This carries
+garments of the procedural catalogue (``lab/procedural``, built on the demo's ``banana`` mannequin) onto the
+MakeHuman source body ``female_average`` with the product's own transfer to any body
+(``garment_transfer.registration.transfer_to_any_body``: the mannequin registered onto the MakeHuman body,
+then the transfer), and drapes each as ``lab.makehuman_drape`` drapes the fixtures' garments: settled on the
+source body, then following it into each target body (same solver and settings), pinned where the catalogue
+pins it (waistband, top band). The results go into a folder ``lab.makehuman_drape`` wrote (or a new one), in
+the fixtures' layout, units and axes, and are listed in its manifest under ``garments`` and
+``procedural_garments``: the MakeHuman study (``lab.garment_model --parts makehuman``, with
+``--makehuman-garments`` naming the fixture garments to hold out) then trains every fold on them too.
+
+    nice python -m lab.makehuman_procedural --out DIR [--garments g1 g2 ...] [--continuous] \
+        [--source-frames 30] [--morph-frames 15] [--frames 15]
+
+The simulation settings must be those of the garments already in ``DIR`` (else refused). Each garment is
+written as soon as it is done (atomically) and a garment already there is skipped, so an interrupted run
+continues; two runs may share a folder (the log and manifest are updated under a lock), which is how the
+2-core machines drape two garments at a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from garment_transfer.obj import read_obj, write_text_atomic
+
+from .makehuman_drape import SIMULATION, drape, other_settings, read_manifest
+from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN
+
+#: The catalogue's garments carried onto the MakeHuman bodies by default: trousers, shorts and tops of every
+#: fit (the fixture garments are suits: trousers or shorts and shirts), and skirts and dresses for variety.
+GARMENTS = ("trousers", "trousers_loose", "trousers_tight", "culottes", "culottes_loose", "culottes_tight",
+            "bermudas", "wide_trousers", "shorts", "tank_top", "tank_top_loose", "tank_top_tight", "sweater",
+            "sweater_loose", "sweater_tight", "crop_top", "long_sleeve_top", "tunic", "tshirt",
+            "straight_skirt", "aline_skirt", "pencil_skirt", "mini_skirt", "shift_dress")
+#: The mannequin the catalogue is built on.
+MANNEQUIN = "banana"
+
+
+@contextlib.contextmanager
+def locked(folder):
+    """Hold ``folder/.lock`` (an exclusive lock) while the folder's log and manifest are read and written."""
+    import fcntl
+
+    with open(Path(folder) / ".lock", "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def fit(name, registration=None):
+    """The catalogue's garment ``name`` on the MakeHuman source body (decimetres, Y up).
+
+    Returns
+    -------
+    mesh : Mesh
+        The garment (the catalogue's vertex order and quads).
+    pins : (k,) int64
+        The catalogue's pinned vertices.
+    info : dict
+        Vertices inside the body after the transfer, the registration's fit.
+    registration : Registration
+        For the next garment.
+    """
+    from garment_transfer.mesh import mesh_from_polygons
+    from garment_transfer.registration import transfer_to_any_body
+
+    from .procedural.garments import garment
+
+    g = garment(name)
+    mesh = mesh_from_polygons(g.V, g.polygons, name=name)
+    mannequin = read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj", name=MANNEQUIN)
+    body = read_obj(SHARED_MAKEHUMAN / "bodies" / f"{MAKEHUMAN_SOURCE}.obj", name=MAKEHUMAN_SOURCE)
+    result, registration = transfer_to_any_body(mannequin, body, mesh, registration=registration)
+    q = registration.quality
+    info = {"inside_after_transfer": int(result.penetrating_vertices),
+            "registration_rms_share": round(float(q["rms"]) / float(q["height"]), 6)}
+    return mesh.with_vertices(result.V, name=name), g.pin, info, registration
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="the folder (lab.makehuman_drape's, or a new one)")
+    ap.add_argument("--garments", nargs="+", default=list(GARMENTS), help="catalogue garments")
+    ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
+    ap.add_argument("--source-frames", type=int, default=SIMULATION["source_frames"])
+    ap.add_argument("--morph-frames", type=int, default=SIMULATION["morph_frames"])
+    ap.add_argument("--frames", type=int, default=SIMULATION["frames"])
+    ap.add_argument("--continuous", action="store_true",
+                    help="each target one simulation from the start (lab.makehuman_drape's --continuous)")
+    args = ap.parse_args(argv)
+    from .procedural.garments import EXTRA_GARMENTS, TEST_GARMENTS, TRAIN_GARMENTS
+
+    known = set(TRAIN_GARMENTS) | set(TEST_GARMENTS) | set(EXTRA_GARMENTS)
+    unknown = [g for g in args.garments if g not in known]
+    if unknown:
+        ap.error(f"--garments: not in the procedural catalogue: {', '.join(unknown)}")
+    fixtures = json.loads((SHARED_MAKEHUMAN / "manifest.json").read_text())
+    out = Path(args.out)
+    if out.resolve() == SHARED_MAKEHUMAN.resolve():
+        ap.error(f"--out {out} is the fixtures' own folder; give another")
+    sim = {"source_frames": args.source_frames, "morph_frames": args.morph_frames, "frames": args.frames,
+           "continuous": args.continuous}
+    (out / "bodies").mkdir(parents=True, exist_ok=True)
+    for b in (MAKEHUMAN_SOURCE, *args.targets):
+        if not (out / "bodies" / f"{b}.obj").exists():
+            shutil.copyfile(SHARED_MAKEHUMAN / "bodies" / f"{b}.obj", out / "bodies" / f"{b}.obj")
+    log_path = out / "drape_log.json"
+    with locked(out):
+        problem = other_settings(json.loads(log_path.read_text()) if log_path.exists() else {}, sim, log_path)
+    if problem:
+        ap.error(problem)
+    t0 = time.perf_counter()
+
+    def say(text):
+        print(f"[{time.perf_counter() - t0:7.1f}s] {text}", flush=True)
+
+    registration = None
+    for name in args.garments:
+        dest = out / "garments" / name
+        # Claimed by a run sharing the folder: its source file is written last, a claim file first.
+        with locked(out):
+            log = json.loads(log_path.read_text()) if log_path.exists() else {}
+            if name in log or (dest / ".claimed").exists():
+                say(f"{name}: already draped or being draped, skipped")
+                continue
+            dest.mkdir(parents=True, exist_ok=True)
+            (dest / ".claimed").write_text("")
+        try:
+            mesh, pins, info, registration = fit(name, registration)
+            say(f"{name}: on {MAKEHUMAN_SOURCE}, {info['inside_after_transfer']} vertices inside after the transfer")
+            entry = drape(SHARED_MAKEHUMAN, out, name, args.targets, say, sim, mesh=mesh, pins=pins)
+        finally:
+            (dest / ".claimed").unlink(missing_ok=True)
+        entry.update(info, procedural=True, mannequin=MANNEQUIN)
+        with locked(out):
+            log = json.loads(log_path.read_text()) if log_path.exists() else {}
+            log[name] = entry
+            write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
+            m = read_manifest(out) or dict(fixtures, garments=[], bodies=[MAKEHUMAN_SOURCE, *args.targets],
+                                           placed_by="Blender's cloth solver", simulation=sim)
+            extra = list(dict.fromkeys(m.get("procedural_garments", []) + [name]))
+            m.update(garments=list(dict.fromkeys(m["garments"] + [name])), procedural_garments=extra)
+            write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")
+    say(f"done: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

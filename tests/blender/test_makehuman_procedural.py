@@ -1,0 +1,80 @@
+"""lab.makehuman_procedural: a garment of the procedural catalogue carried onto the MakeHuman source body and
+draped by Blender's cloth solver into a target body, listed beside the fixtures' garments of a folder that
+lab.makehuman_drape writes; the fixtures themselves untouched."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.lab
+
+GARMENT = "mini_skirt"              # a small catalogue garment (1,296 vertices)
+FIXTURE_GARMENT = "male_casualsuit04"
+SHORT = ["--targets", "female_pear", "--continuous", "--source-frames", "5", "--morph-frames", "3",
+         "--frames", "3"]
+
+
+def test_a_catalogue_garment_draped_on_the_makehuman_bodies(tmp_path, makehuman):
+    from garment_transfer.dataset import load_dataset
+    from garment_transfer.obj import read_obj
+    from garment_transfer.proximity import TriangleSurface
+    from lab import makehuman_drape, makehuman_procedural
+    from lab.procedural.garments import garment
+
+    before = {p: p.stat().st_mtime_ns for p in makehuman.rglob("*.obj")}
+    out = tmp_path / "sim"
+    assert makehuman_procedural.main(["--out", str(out), "--garments", GARMENT, *SHORT]) == 0
+    catalogue = garment(GARMENT)
+    log = json.loads((out / "drape_log.json").read_text())[GARMENT]
+    assert log["procedural"] and log["pinned"] == catalogue.pin.size and log["inside_after_fix"] == [0, 0]
+    for body in ("female_average", "female_pear"):
+        draped = read_obj(out / "garments" / GARMENT / f"{body}.obj")
+        assert np.array_equal(draped.polygons(), [list(p) for p in catalogue.polygons])
+        mesh = read_obj(out / "bodies" / f"{body}.obj")
+        # Decimetres, Y up, on the body and outside it: the skirt's waist near the body's.
+        assert TriangleSurface(mesh.V, mesh.F).signed_distance(draped.V)[0].min() >= 0.0
+        assert abs(draped.V[catalogue.pin, 1].mean() - mesh.V[:, 1].min() - 0.6 * np.ptp(mesh.V[:, 1])) < 1.5
+    moved = read_obj(out / "garments" / GARMENT / "female_pear.obj").V
+    assert np.linalg.norm(moved - read_obj(out / "garments" / GARMENT / "female_average.obj").V, axis=1).mean() > 0.01
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["garments"] == [GARMENT] and manifest["procedural_garments"] == [GARMENT]
+    # A fixture garment draped into the same folder: both listed, the study reads them as one dataset.
+    assert makehuman_drape.main(["--out", str(out), "--garments", FIXTURE_GARMENT, *SHORT]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["garments"] == [FIXTURE_GARMENT, GARMENT] and manifest["procedural_garments"] == [GARMENT]
+    assert load_dataset(out).garments == [FIXTURE_GARMENT, GARMENT]
+    # Done garments are skipped, their files left as they are.
+    stamp = (out / "garments" / GARMENT / "female_pear.obj").stat().st_mtime_ns
+    assert makehuman_procedural.main(["--out", str(out), "--garments", GARMENT, *SHORT]) == 0
+    assert (out / "garments" / GARMENT / "female_pear.obj").stat().st_mtime_ns == stamp
+    assert json.loads((out / "manifest.json").read_text())["garments"] == [FIXTURE_GARMENT, GARMENT]
+    assert {p: p.stat().st_mtime_ns for p in makehuman.rglob("*.obj")} == before
+
+
+@pytest.mark.parametrize("name", ["ball_gown", FIXTURE_GARMENT])
+def test_garments_not_in_the_catalogue_are_refused(tmp_path, capsys, makehuman, name):
+    from lab.makehuman_procedural import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--out", str(tmp_path / "sim"), "--garments", "trousers", name])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "not in the procedural catalogue" in err and name in err and "trousers" not in err
+    assert not (tmp_path / "sim").exists()
+
+
+def test_a_folder_draped_with_other_settings_is_refused(tmp_path, capsys, makehuman):
+    from lab.makehuman_drape import SIMULATION
+    from lab.makehuman_procedural import main
+
+    out = tmp_path / "sim"
+    out.mkdir()
+    (out / "drape_log.json").write_text(json.dumps({FIXTURE_GARMENT: {"simulation": SIMULATION}}))
+    with pytest.raises(SystemExit) as e:
+        main(["--out", str(out), "--garments", GARMENT, "--continuous"])
+    assert e.value.code == 2
+    assert "other simulation settings" in capsys.readouterr().err
+    assert not (out / "garments").exists()
