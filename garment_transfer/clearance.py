@@ -535,7 +535,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         them), ``undone`` (pushes taken back because they made the cloth cross itself). With
         ``source_V``: ``self_intersections_before``, ``self_intersections_after`` (edge-triangle
         pairs), ``self_intersections_new`` (pairs left that the source does not have) and
-        ``restored_vertices``.
+        ``restored_vertices``. ``kept_input``: True when nothing tried was better than the input (more
+        crossings, else more self-intersections, else more near pairs than it had): the input is returned.
     """
     V = np.array(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
@@ -553,6 +554,13 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         moved = np.any(V != V_start, axis=1)
         info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
                                             - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
+        info["kept_input"] = False
+        if info["crossings_after"] > info["crossings_before"]:
+            log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
+                        info["crossings_after"], info["crossings_before"])
+            info.update(crossings_after=info["crossings_before"], near_after=info["near_before"],
+                        moved_vertices=0, self_intersections_added=0, kept_input=True)
+            return V_start, info
         return V, info
     V_cleared = V
     tangles = _SourceTangles(source_V, F, E)
@@ -586,6 +594,20 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best
     info["rounds"] += rounds
     info["undone"] += undone
+    if ((info["crossings_after"], pairs.shape[0], info["near_after"])
+            > (info["crossings_before"], info["self_intersections_before"], info["near_before"])):
+        # Nothing it tried is better than what it was given (a garment pressed through the body can leave
+        # it more crossings and tangles than before): the garment is returned as it came.
+        log.warning("the crossings pass left %d crossings and %d self-intersections (%d and %d before): the "
+                    "garment is kept as it was", info["crossings_after"], pairs.shape[0], info["crossings_before"],
+                    info["self_intersections_before"])
+        pairs, new = new_self_pairs(V_start, F, E, source_V)
+        info.update(crossings_after=info["crossings_before"], near_after=info["near_before"], moved_vertices=0,
+                    restored_vertices=0, self_intersections_after=int(pairs.shape[0]),
+                    self_intersections_new=int(tangles.left_out(pairs, new).shape[0]), self_intersections_added=0,
+                    kept_input=True)
+        return V_start, info
+    info["kept_input"] = False
     info["moved_vertices"] = int(np.any(V != V_start, axis=1).sum())
     info["restored_vertices"] = int(np.any(V != V_cleared, axis=1).sum())
     info["self_intersections_after"] = int(pairs.shape[0])
