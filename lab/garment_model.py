@@ -36,7 +36,9 @@ Parts (``--parts``, default all):
   turn; set ``GARMENT_TRANSFER_MAKEHUMAN`` when the fixtures are not in ``../shared``). The fixtures'
   garments are MakeHuman's proxy fits (body-driven); ``GARMENT_TRANSFER_MAKEHUMAN=DIR`` with the folder
   that ``python -m lab.makehuman_drape --out DIR`` writes measures against the same garments simulated by
-  Blender's cloth solver instead (the reference rows are then named ``simulation``). Besides the methods
+  Blender's cloth solver instead (the reference rows are then named ``simulation``); the catalogue garments
+  that ``python -m lab.makehuman_procedural --out DIR`` adds to that folder are in every fold's training set
+  and never held out. Besides the methods
   in ``MH_METHODS``, ``garment_share<s>_placed`` (the garment model's field at share ``s`` with the learned
   placement) runs here too.
 
@@ -308,7 +310,9 @@ def makehuman_part(args, say):
         say("makehuman: fixtures not found (set GARMENT_TRANSFER_MAKEHUMAN); skipped")
         return None
     ds = load_dataset(folder)
-    held = args.makehuman_garments or ds.garments
+    # Garments of the procedural catalogue draped on these bodies (lab.makehuman_procedural) train every fold.
+    procedural = ds.manifest.get("procedural_garments", [])
+    held = args.makehuman_garments or [g for g in ds.garments if g not in procedural]
     folds = [([g for g in ds.garments if g != h], [h]) for h in held]
     methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
