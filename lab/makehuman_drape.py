@@ -172,23 +172,21 @@ def figure(folder, out, garment, target, png):
                                "--out", str(png)]).returncode
 
 
-def main(argv=None):
-    folder = makehuman_folder() or SHARED_MAKEHUMAN
-    manifest = json.loads((folder / "manifest.json").read_text())
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", required=True, help="folder for the simulated fixtures")
-    ap.add_argument("--garments", nargs="+", default=manifest["garments"])
-    ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
-    ap.add_argument("--figure", help="PNG: the first garment, proxy fit and simulation, source and last target")
+def simulation_arguments(ap):
+    """The command line's simulation settings (``SIMULATION``'s keys)."""
     ap.add_argument("--source-frames", type=int, default=SIMULATION["source_frames"],
                     help="frames to settle on the source body")
     ap.add_argument("--morph-frames", type=int, default=SIMULATION["morph_frames"], help="frames of each morph")
     ap.add_argument("--frames", type=int, default=SIMULATION["frames"], help="frames to settle after each morph")
     ap.add_argument("--continuous", action="store_true",
                     help="each target one simulation from the start (source settling, morph), no restart")
-    args = ap.parse_args(argv)
+
+
+def output_folder(ap, args, folder):
+    """``--out`` checked (not the fixtures' folder ``folder``) and made, with the source and target bodies
+    copied from ``folder``; the simulation settings checked. Returns (out, settings)."""
     out = Path(args.out)
-    if out.resolve() == folder.resolve():
+    if out.resolve() == Path(folder).resolve():
         ap.error(f"--out {out} is the fixtures' own folder; give another")
     for key in ("source_frames", "morph_frames", "frames"):
         if getattr(args, key) < 1:
@@ -198,7 +196,21 @@ def main(argv=None):
     (out / "bodies").mkdir(parents=True, exist_ok=True)
     for b in (MAKEHUMAN_SOURCE, *args.targets):
         if not (out / "bodies" / f"{b}.obj").exists():
-            shutil.copyfile(folder / "bodies" / f"{b}.obj", out / "bodies" / f"{b}.obj")
+            shutil.copyfile(Path(folder) / "bodies" / f"{b}.obj", out / "bodies" / f"{b}.obj")
+    return out, sim
+
+
+def main(argv=None):
+    folder = makehuman_folder() or SHARED_MAKEHUMAN
+    manifest = json.loads((folder / "manifest.json").read_text())
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="folder for the simulated fixtures")
+    ap.add_argument("--garments", nargs="+", default=manifest["garments"])
+    ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
+    ap.add_argument("--figure", help="PNG: the first garment, proxy fit and simulation, source and last target")
+    simulation_arguments(ap)
+    args = ap.parse_args(argv)
+    out, sim = output_folder(ap, args, folder)
     t0 = time.perf_counter()
 
     def say(text):

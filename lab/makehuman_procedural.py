@@ -25,14 +25,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
 
 from garment_transfer.obj import read_obj, write_text_atomic
 
-from .makehuman_drape import SIMULATION, drape, other_settings, read_manifest
+from .makehuman_drape import drape, other_settings, output_folder, read_manifest, simulation_arguments
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN
 
 #: The catalogue's garments carried onto the MakeHuman bodies by default: trousers, shorts and tops of every
@@ -93,11 +92,7 @@ def main(argv=None):
     ap.add_argument("--out", required=True, help="the folder (lab.makehuman_drape's, or a new one)")
     ap.add_argument("--garments", nargs="+", default=list(GARMENTS), help="catalogue garments")
     ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
-    ap.add_argument("--source-frames", type=int, default=SIMULATION["source_frames"])
-    ap.add_argument("--morph-frames", type=int, default=SIMULATION["morph_frames"])
-    ap.add_argument("--frames", type=int, default=SIMULATION["frames"])
-    ap.add_argument("--continuous", action="store_true",
-                    help="each target one simulation from the start (lab.makehuman_drape's --continuous)")
+    simulation_arguments(ap)
     args = ap.parse_args(argv)
     from .procedural.garments import EXTRA_GARMENTS, TEST_GARMENTS, TRAIN_GARMENTS
 
@@ -106,15 +101,7 @@ def main(argv=None):
     if unknown:
         ap.error(f"--garments: not in the procedural catalogue: {', '.join(unknown)}")
     fixtures = json.loads((SHARED_MAKEHUMAN / "manifest.json").read_text())
-    out = Path(args.out)
-    if out.resolve() == SHARED_MAKEHUMAN.resolve():
-        ap.error(f"--out {out} is the fixtures' own folder; give another")
-    sim = {"source_frames": args.source_frames, "morph_frames": args.morph_frames, "frames": args.frames,
-           "continuous": args.continuous}
-    (out / "bodies").mkdir(parents=True, exist_ok=True)
-    for b in (MAKEHUMAN_SOURCE, *args.targets):
-        if not (out / "bodies" / f"{b}.obj").exists():
-            shutil.copyfile(SHARED_MAKEHUMAN / "bodies" / f"{b}.obj", out / "bodies" / f"{b}.obj")
+    out, sim = output_folder(ap, args, SHARED_MAKEHUMAN)
     log_path = out / "drape_log.json"
     with locked(out):
         problem = other_settings(json.loads(log_path.read_text()) if log_path.exists() else {}, sim, log_path)
