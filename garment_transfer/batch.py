@@ -58,10 +58,17 @@ METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetra
 OUTCOMES = ("done", "skipped", "failed", "not run")
 PARTIAL_PREFIX = ".partial-"
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
-# The modules whose code decides a result's vertices or metrics: a change to any of them makes
-# every earlier result stale.
-_RESULT_MODULES = ("binding", "embedding", "garment_model", "gradients", "mesh", "metrics", "model",
-                   "model_files", "obj", "penetration", "placement", "poisson", "proximity", "transfer")
+# The package's modules that cannot change a result's vertices or metrics (the command lines, this
+# module's bookkeeping, training); a change to any other module makes every earlier result stale, a
+# module added later included.
+_NOT_RESULT_MODULES = frozenset({"__init__", "__main__", "batch", "batch_cli", "cli", "files", "training",
+                                 "garment_training"})
+
+
+def result_modules() -> list:
+    """The names of the package's modules whose code decides a result (hashed by ``code_version``)."""
+    here = Path(__file__).resolve().parent
+    return sorted(p.stem for p in here.glob("*.py") if p.stem not in _NOT_RESULT_MODULES)
 
 
 class CatalogueError(DatasetError):
@@ -450,7 +457,7 @@ def code_version() -> str:
 
         h = hashlib.sha256()
         here = Path(__file__).resolve().parent
-        for m in _RESULT_MODULES:
+        for m in result_modules():
             h.update(m.encode())
             h.update((here / f"{m}.py").read_bytes())
         _CODE_VERSION = f"{__version__}+{h.hexdigest()[:12]}"
@@ -705,6 +712,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                                          if k in ("model_kind", "field_share", "placement")}
         record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s), **used,
                       inputs=digests, stage_seconds=result.seconds,
+                      crossings_left=int(result.info.get("crossings_after") or 0),
                       output_sha256=hashlib.sha256(text).hexdigest())
         write_atomic(obj_path, text)
         write_atomic(json_path, (json.dumps(record, indent=1) + "\n").encode("utf-8"))

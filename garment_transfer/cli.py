@@ -90,6 +90,7 @@ def cmd_transfer(args):
     if len(args.out) != 1:
         raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
     from .registration import transfer_to_any_body
+    from .transfer import crossings_left
 
     args.garment, args.out = args.garment[0], args.out[0]
     inputs = [args.source_body, args.target_body, args.garment, args.model]
@@ -125,6 +126,10 @@ def cmd_transfer(args):
         lines.append(f"model: {model.describe()}")
     if registration is not None:
         lines.append(_registration_line(args.source_body, args.target_body, registration))
+    left = crossings_left(result.info)
+    if left:
+        out["warnings"] = [f"{args.out}: {left}"]
+        lines.append(f"warning: {args.out}: {left}")
     _emit(args, out, lines)
 
 

@@ -320,6 +320,18 @@ def _undo_pushes_inside(V, V_fixed, surface):
     return V, left, int(inside.sum())
 
 
+def crossings_left(info) -> str | None:
+    """What to tell the user when the crossings pass left the garment crossing the body (``info``: a
+    ``TransferResult``'s); None when it left no crossing or did not run."""
+    n = info.get("crossings_after")
+    if not n:
+        return None
+    text = f"{n} garment-body crossings are left (the crossings pass could not clear them"
+    if info.get("kept_input"):
+        text += "; the garment is as the penetration fix left it"
+    return text + "): look at the result before using it"
+
+
 def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, method="direct",
                      model=None, target=None, offset=None, fix_penetration=True, interpolate=True,
                      stiffness=None, prepared: PreparedGarment | None = None, anchoring="everywhere",

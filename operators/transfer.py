@@ -249,6 +249,11 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         settings.last_model = outcome.model_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
+        from ..garment_transfer.transfer import crossings_left
+
+        left = crossings_left(outcome.info)
+        if left:
+            self.report({'WARNING'}, f"{result.name}: {left}")
         return {'FINISHED'}
 
 

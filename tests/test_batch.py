@@ -448,3 +448,28 @@ def test_dask_runs_without_dask_installed_say_what_to_install(dataset, tmp_path,
     assert code == 1
     assert "pip install 'dask[distributed]'" in capsys.readouterr().err
     assert not list((tmp_path / "out").glob("*/*.obj"))
+
+
+def test_every_module_a_transfer_runs_is_in_the_code_version():
+    # A result is stale when any code that made it changes: the crossings pass (clearance, intersections) as
+    # much as the solve. Every package module a transfer and its metrics load is hashed.
+    import sys
+
+    from garment_transfer.batch import _NOT_RESULT_MODULES, result_modules
+    from garment_transfer.mesh import mesh_from_triangles
+    from garment_transfer.metrics import evaluate
+    from garment_transfer.transfer import transfer_garment
+    from meshes import icosphere
+
+    V, F = icosphere(2)
+    source = mesh_from_triangles(V, F, name="source")
+    target = mesh_from_triangles(V * [1.2, 1.2, 1.0], F, name="target")
+    GV, GF = icosphere(1, radius=1.03)
+    garment = mesh_from_triangles(GV, GF, name="garment")
+    result = transfer_garment(source, target, garment)
+    evaluate(garment, garment.with_vertices(result.V), target, intersections=True)
+    loaded = {name.split(".")[1] for name in sys.modules if name.startswith("garment_transfer.")}
+    hashed = set(result_modules())
+    assert {"clearance", "intersections", "transfer", "penetration"} <= loaded
+    assert loaded - _NOT_RESULT_MODULES <= hashed
+    assert not hashed & _NOT_RESULT_MODULES

@@ -228,3 +228,37 @@ def test_train_without_torch_says_how_to_get_it_and_writes_nothing(tmp_path, mon
                      "--out", str(tmp_path / "m.npz")])
         assert code == 1 and "pip install torch==2.13.0" in capsys.readouterr().err
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_crossings_the_pass_leaves_are_reported_not_passed_over(tmp_path, monkeypatch, capsys):
+    # A garment pressed through the body can defeat the crossings pass; the command still writes the result,
+    # and says how many crossings are left, in its text and in its JSON.
+    from garment_transfer import clearance
+    from garment_transfer.cli import main
+
+    V, F = icosphere(3)
+    write_obj(tmp_path / "src.obj", mesh_from_triangles(V, F))
+    write_obj(tmp_path / "tgt.obj", mesh_from_triangles(V * [1.2, 1.2, 1.0], F))
+    GV, GF = icosphere(2, radius=1.03)
+    write_obj(tmp_path / "g.obj", mesh_from_triangles(GV, GF))
+    real = clearance.separate
+
+    def defeated(V, *args, **kwargs):
+        out, info = real(V, *args, **kwargs)
+        info.update(crossings_before=563, crossings_after=563, kept_input=True)
+        return out, info
+
+    monkeypatch.setattr(clearance, "separate", defeated)
+    argv = ["transfer", "--source-body", str(tmp_path / "src.obj"), "--target-body", str(tmp_path / "tgt.obj"),
+            "--garment", str(tmp_path / "g.obj"), "--out", str(tmp_path / "out.obj")]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "warning:" in text and "out.obj" in text and "563 garment-body crossings are left" in text
+    assert "as the penetration fix left it" in text
+    assert main(argv + ["--json"]) == 0
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    assert len(warnings) == 1 and "563 garment-body crossings" in warnings[0]
+    # A transfer the pass clears says nothing of crossings.
+    monkeypatch.setattr(clearance, "separate", real)
+    assert main(argv + ["--json"]) == 0
+    assert "warnings" not in json.loads(capsys.readouterr().out)

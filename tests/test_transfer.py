@@ -114,3 +114,13 @@ def test_result_moves_with_the_scene():
     a = transfer_garment(source, target, garment, fix_penetration=False)
     b = transfer_garment(moved(source), moved(target), moved(garment), fix_penetration=False)
     np.testing.assert_allclose(b.V, a.V @ R.T + t, atol=1e-9)
+
+
+def test_crossings_left_names_what_the_pass_could_not_clear():
+    from garment_transfer.transfer import crossings_left
+
+    assert crossings_left({}) is None                                  # the pass did not run
+    assert crossings_left({"crossings_after": 0, "crossings_before": 12}) is None
+    text = crossings_left({"crossings_after": 7, "crossings_before": 9, "kept_input": False})
+    assert "7 garment-body crossings are left" in text and "penetration fix" not in text
+    assert "as the penetration fix left it" in crossings_left({"crossings_after": 9, "kept_input": True})

@@ -234,3 +234,27 @@ def make_tiny_dataset(makehuman, folder, garments, bodies=("female_average", "fe
                 makehuman / "garments" / garment / f"{body}.obj")
     (folder / "manifest.json").write_text('{"units": "decimetres", "up_axis": "Y"}')
     return folder
+
+
+def test_crossings_the_pass_leaves_are_reported_as_a_warning(dressed, extension, monkeypatch, capfd):
+    # The result is made and kept, and the artist is told that the garment still crosses the body.
+    import importlib
+
+    clearance = importlib.import_module(extension.__name__ + ".garment_transfer.clearance")
+    real = clearance.separate
+
+    def defeated(V, *args, **kwargs):
+        out, info = real(V, *args, **kwargs)
+        info.update(crossings_after=41, kept_input=True)
+        return out, info
+
+    monkeypatch.setattr(clearance, "separate", defeated)
+    result = transfer_result()
+    assert result is not None and result.name == "sportsuit_on_pear"
+    err = capfd.readouterr()
+    assert "sportsuit_on_pear: 41 garment-body crossings are left" in err.out + err.err
+    monkeypatch.setattr(clearance, "separate", real)
+    bpy.data.objects.remove(result)
+    transfer_result()
+    err = capfd.readouterr()
+    assert "crossings are left" not in err.out + err.err
