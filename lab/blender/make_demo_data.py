@@ -63,6 +63,9 @@ def main(argv=None):
     ap.add_argument("--morph-frames", type=int, default=15, help="frames of each morph")
     ap.add_argument("--source-frames", type=int, default=30, help="frames to settle on the source body")
     ap.add_argument("--jobs", type=int, default=1, help="simulate garments in this many processes")
+    ap.add_argument("--continuous", action="store_true",
+                    help="each target one simulation from the start (source settling, then the morph), not a "
+                         "restart from the garment settled on the source (operators/cloth.py, drape_garment)")
     ap.add_argument("--log-dir", help=argparse.SUPPRESS)
     if "--" in sys.argv and argv is None:
         argv = sys.argv[sys.argv.index("--") + 1:]
@@ -105,7 +108,7 @@ def drape_one(cloth, gname, bodies, F, args, out, say, counter):
     report = []
     shapes = cloth.drape_garment(g.V, g.polygons, bodies[SOURCE], F, [bodies[b] for b in args.targets],
                                  pin_group=g.pin, frames=args.frames, morph_frames=args.morph_frames,
-                                 source_frames=args.source_frames, report=report)
+                                 source_frames=args.source_frames, report=report, continuous=args.continuous)
     folder = out / "garments" / gname
     folder.mkdir(parents=True, exist_ok=True)
     tris = mesh_from_polygons(g.V, g.polygons, name=gname).n_triangles
@@ -137,7 +140,7 @@ def run_jobs(args, out, say):
     with tempfile.TemporaryDirectory() as logs:
         common = ["--out", str(out), "--targets", *args.targets, "--frames", str(args.frames),
                   "--morph-frames", str(args.morph_frames), "--source-frames", str(args.source_frames),
-                  "--log-dir", logs]
+                  "--log-dir", logs] + (["--continuous"] if args.continuous else [])
         procs = [subprocess.Popen([sys.executable, __file__, *common, "--garments", *share])
                  for share in shares if share]
         codes = [p.wait() for p in procs]
@@ -161,7 +164,8 @@ def write_manifest(out, args, log):
         "train_garments": [g for g in TRAIN_GARMENTS if g in done],
         "test_garments": [g for g in TEST_GARMENTS if g in done],
         "generator": {"script": "lab/blender/make_demo_data.py", "frames": args.frames,
-                      "morph_frames": args.morph_frames, "source_frames": args.source_frames},
+                      "morph_frames": args.morph_frames, "source_frames": args.source_frames,
+                      "continuous": args.continuous},
         "drape_log": log,
     }
     write_text_atomic(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
