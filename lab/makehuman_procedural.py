@@ -16,8 +16,8 @@ the fixtures' layout, units and axes, and are listed in its manifest under ``gar
 
 The simulation settings must be those of the garments already in ``DIR`` (else refused). Each garment is
 written as soon as it is done (atomically) and a garment already there is skipped, so an interrupted run
-continues; two runs may share a folder (the log and manifest are updated under a lock), which is how the
-2-core machines drape two garments at a time.
+continues (a garment claimed by a run that was stopped is draped again); two runs may share a folder (the log
+and manifest are updated under a lock), which is how the 2-core machines drape two garments at a time.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -55,6 +56,23 @@ def locked(folder):
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def claimed_elsewhere(path):
+    """Whether the claim file ``path`` names another process that is still running."""
+    try:
+        pid = int(Path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def fit(name, registration=None):
@@ -115,14 +133,15 @@ def main(argv=None):
     registration = None
     for name in args.garments:
         dest = out / "garments" / name
-        # Claimed by a run sharing the folder: its source file is written last, a claim file first.
+        # A run sharing the folder claims a garment (its process id in a claim file) before draping it; the
+        # claim of a run that was stopped (its process gone) is taken over.
         with locked(out):
             log = json.loads(log_path.read_text()) if log_path.exists() else {}
-            if name in log or (dest / ".claimed").exists():
+            if name in log or claimed_elsewhere(dest / ".claimed"):
                 say(f"{name}: already draped or being draped, skipped")
                 continue
             dest.mkdir(parents=True, exist_ok=True)
-            (dest / ".claimed").write_text("")
+            (dest / ".claimed").write_text(str(os.getpid()))
         try:
             mesh, pins, info, registration = fit(name, registration)
             say(f"{name}: on {MAKEHUMAN_SOURCE}, {info['inside_after_transfer']} vertices inside after the transfer")

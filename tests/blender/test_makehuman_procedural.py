@@ -78,3 +78,27 @@ def test_a_folder_draped_with_other_settings_is_refused(tmp_path, capsys, makehu
     assert e.value.code == 2
     assert "other simulation settings" in capsys.readouterr().err
     assert not (out / "garments").exists()
+
+
+def test_a_claim_left_by_a_stopped_run_is_taken_over(tmp_path, makehuman):
+    import os
+    import subprocess
+    import sys
+
+    from lab.makehuman_procedural import claimed_elsewhere, main
+
+    claim = tmp_path / ".claimed"
+    assert not claimed_elsewhere(claim)                                   # no claim
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    claim.write_text(str(gone.pid))
+    assert not claimed_elsewhere(claim)                                   # its process is gone
+    claim.write_text(str(os.getppid()))
+    assert claimed_elsewhere(claim)                                       # a live process holds it
+    # A run finds the stale claim in the folder and drapes the garment.
+    out = tmp_path / "sim"
+    (out / "garments" / GARMENT).mkdir(parents=True)
+    (out / "garments" / GARMENT / ".claimed").write_text(str(gone.pid))
+    assert main(["--out", str(out), "--garments", GARMENT, *SHORT]) == 0
+    assert GARMENT in json.loads((out / "drape_log.json").read_text())
+    assert not (out / "garments" / GARMENT / ".claimed").exists()
