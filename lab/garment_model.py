@@ -304,16 +304,25 @@ def between_part(args, say):
     return info
 
 
+def makehuman_folds(garments, manifest, held=None):
+    """Leave-one-garment-out folds of a MakeHuman folder: each held-out garment (``held``, else every fixture
+    garment) tested on its own, trained on the folder's other garments. Garments of the procedural catalogue
+    (``procedural_garments``, lab.makehuman_procedural) train every fold and are never held out by default;
+    a looser cut of a fixture garment (``variants``, lab.makehuman_drape --loose) trains every fold but its
+    original's. Returns (held, [(training, [held garment]), ...])."""
+    procedural = manifest.get("procedural_garments", [])
+    variants = manifest.get("variants", {})
+    held = held or [g for g in garments if g not in procedural and g not in variants]
+    return held, [([g for g in garments if g != h and variants.get(g) != h], [h]) for h in held]
+
+
 def makehuman_part(args, say):
     folder = makehuman_folder()
     if folder is None:
         say("makehuman: fixtures not found (set GARMENT_TRANSFER_MAKEHUMAN); skipped")
         return None
     ds = load_dataset(folder)
-    # Garments of the procedural catalogue draped on these bodies (lab.makehuman_procedural) train every fold.
-    procedural = ds.manifest.get("procedural_garments", [])
-    held = args.makehuman_garments or [g for g in ds.garments if g not in procedural]
-    folds = [([g for g in ds.garments if g != h], [h]) for h in held]
+    held, folds = makehuman_folds(ds.garments, ds.manifest, args.makehuman_garments)
     methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
     # simulated by the cloth solver (its manifest says so).

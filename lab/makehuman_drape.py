@@ -56,6 +56,8 @@ from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN, makehu
 METRES_PER_UNIT = 0.1           # the fixtures are in decimetres
 PIN_BAND = (0.52, 0.62)         # share of the body's height from the soles: the waist and hips
 PIN_CONTACT = 0.01              # metres from the body
+LOOSE_SUFFIX = "_loose"         # a looser cut of a fixture garment (--loose)
+LOOSE_FADE = 0.05               # metres from the pinned vertices over which the ease of a looser cut fades in
 #: drape_garment's frames on the source body, of each morph, of settling after it, and whether each target
 #: is one simulation from the start (see the module's text).
 SIMULATION = {"source_frames": 30, "morph_frames": 15, "frames": 15, "continuous": False}
@@ -115,7 +117,25 @@ def read_manifest(folder):
     return json.loads(path.read_text()) if path.exists() else {}
 
 
-def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None):
+def loose_variant(G, F, body_V, body_F, pins, ease, fade=LOOSE_FADE):
+    """A looser cut of a garment (metres, Z up): every vertex moved away from the body by ``ease`` along the
+    body's outward normal at its closest point (the directions averaged over the garment's edges, so neighbours
+    move alike), fading to nothing within ``fade`` of the pinned vertices (the waistband stays where it was)."""
+    from scipy.spatial import cKDTree
+
+    from garment_transfer.penetration import vertex_adjacency
+
+    normal = TriangleSurface(body_V, body_F).signed_distance(G)[2]
+    A = vertex_adjacency(G.shape[0], F)
+    degree = np.maximum(np.asarray(A.sum(axis=1)).ravel(), 1.0)[:, None]
+    for _ in range(10):
+        normal = 0.5 * normal + 0.5 * (A @ normal) / degree
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+    near = cKDTree(G[pins]).query(G)[0] if len(pins) else np.full(G.shape[0], np.inf)
+    return G + (ease * np.clip(near / fade, 0.0, 1.0))[:, None] * normal
+
+
+def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, loose=None):
     """Drape ``garment`` on the source body and into ``targets``; ``sim``: the simulation settings
     (``SIMULATION``'s keys), the defaults where None. ``mesh``: the garment on the source body (the
     fixtures' units and axes), else read from ``folder``; ``pins``: the vertices to pin, else
@@ -130,6 +150,10 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None):
     bV = to_blender(source.V)
     gV = to_blender(g.V)
     pins = waist_pins(gV, g.F, bV, source.F) if pins is None else np.asarray(pins, np.int64)
+    if loose is not None:
+        gV = loose_variant(gV, g.F, bV, source.F, pins, loose)
+        g = g.with_vertices(from_blender(gV), name=f"{garment}{LOOSE_SUFFIX}")
+        garment = g.name
     report = []
     t = time.perf_counter()
     sim = dict(SIMULATION, **(sim or {}))
@@ -145,6 +169,7 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None):
                                    header=f"{garment} draped by Blender's cloth solver on {body} "
                                           f"(lab.makehuman_drape)", digits=7))
     entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size), "simulation": sim,
+             **({} if loose is None else {"variant_of": garment[:-len(LOOSE_SUFFIX)], "ease": loose}),
              "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
              "inside_after_fix": [r["inside_after"] for r in report]}
     say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
@@ -208,8 +233,14 @@ def main(argv=None):
     ap.add_argument("--garments", nargs="+", default=manifest["garments"])
     ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
     ap.add_argument("--figure", help="PNG: the first garment, proxy fit and simulation, source and last target")
+    ap.add_argument("--loose", type=float, metavar="METRES",
+                    help="drape a looser cut of each garment instead (<garment>_loose: this much ease, the "
+                         "waistband kept), a garment of its own that the study never trains on with the original "
+                         "held out")
     simulation_arguments(ap)
     args = ap.parse_args(argv)
+    if args.loose is not None and not 0.0 < args.loose <= 0.05:
+        ap.error(f"--loose {args.loose}: give the ease in metres, more than 0 and at most 0.05")
     out, sim = output_folder(ap, args, folder)
     t0 = time.perf_counter()
 
@@ -222,16 +253,18 @@ def main(argv=None):
     if problem:
         ap.error(problem)
     for garment in args.garments:
-        if (out / "garments" / garment / f"{MAKEHUMAN_SOURCE}.obj").exists() and garment in log:
-            say(f"{garment}: already draped, skipped")
+        name = garment if args.loose is None else garment + LOOSE_SUFFIX
+        if (out / "garments" / name / f"{MAKEHUMAN_SOURCE}.obj").exists() and name in log:
+            say(f"{name}: already draped, skipped")
             continue
-        log[garment] = drape(folder, out, garment, args.targets, say, sim)
+        log[name] = drape(folder, out, garment, args.targets, say, sim, loose=args.loose)
         write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
     done = [g for g in manifest["garments"] if g in log]        # every garment draped so far
+    variants = {g: e["variant_of"] for g, e in log.items() if "variant_of" in e}
     # Garments another command added to this folder (lab.makehuman_procedural) stay listed.
     extra = read_manifest(out).get("procedural_garments", [])
-    m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done + extra,
-             **({"procedural_garments": extra} if extra else {}),
+    m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done + list(variants) + extra,
+             **({"procedural_garments": extra} if extra else {}), **({"variants": variants} if variants else {}),
              placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "
                        f"{MAKEHUMAN_SOURCE}", simulation=sim)
     write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")

@@ -219,3 +219,19 @@ def test_prepare_garment_contact_anchoring_is_kept(tiny):
     assert np.ndim(p.solver.anchor_weight) == 1
     with pytest.raises(ValueError, match="anchoring"):
         prepare_garment(ds.body("src"), ds.garment("skirt", "src"), anchoring="nowhere")
+
+
+def test_makehuman_folds_never_train_on_the_held_out_garment_or_its_looser_cut():
+    from lab.garment_model import makehuman_folds
+
+    garments = ["suit_a", "suit_b", "suit_c", "suit_a_loose", "suit_b_loose", "trousers", "tshirt"]
+    manifest = {"procedural_garments": ["trousers", "tshirt"],
+                "variants": {"suit_a_loose": "suit_a", "suit_b_loose": "suit_b"}}
+    held, folds = makehuman_folds(garments, manifest)
+    assert held == ["suit_a", "suit_b", "suit_c"]                  # catalogue garments and cuts never held out
+    assert folds[0] == (["suit_b", "suit_c", "suit_b_loose", "trousers", "tshirt"], ["suit_a"])
+    assert folds[2] == (["suit_a", "suit_b", "suit_a_loose", "suit_b_loose", "trousers", "tshirt"], ["suit_c"])
+    assert makehuman_folds(garments, manifest, ["suit_b"])[1] == [
+        (["suit_a", "suit_c", "suit_a_loose", "trousers", "tshirt"], ["suit_b"])]
+    # A plain fixture folder: every garment held out in turn, trained on the others.
+    assert makehuman_folds(["a", "b"], {})[1] == [(["b"], ["a"]), (["a"], ["b"])]

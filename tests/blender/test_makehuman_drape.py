@@ -119,3 +119,29 @@ def test_a_folder_draped_with_other_settings_is_refused(tmp_path, capsys, makehu
     with pytest.raises(SystemExit):
         main(["--out", str(out), "--garments", GARMENT, "--frames", "20"])
     assert not (out / "garments").exists()
+
+
+def test_looser_cuts_are_draped_and_listed_as_variants(tmp_path, makehuman):
+    from garment_transfer.obj import read_obj
+    from garment_transfer.proximity import TriangleSurface
+    from lab.makehuman_drape import main, to_blender, waist_pins
+
+    out = tmp_path / "sim"
+    short = ["--targets", "female_pear", "--continuous", "--source-frames", "5", "--morph-frames", "3",
+             "--frames", "3"]
+    assert main(["--out", str(out), "--garments", GARMENT, "--loose", "0.01", *short]) == 0
+    name = GARMENT + "_loose"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["garments"] == [name] and manifest["variants"] == {name: GARMENT}
+    log = json.loads((out / "drape_log.json").read_text())[name]
+    assert log["variant_of"] == GARMENT and log["ease"] == 0.01
+    body = read_obj(makehuman / "bodies" / "female_average.obj")
+    proxy = read_obj(makehuman / "garments" / GARMENT / "female_average.obj")
+    assert log["pinned"] == waist_pins(to_blender(proxy.V), proxy.F, to_blender(body.V), body.F).size
+    loose = read_obj(out / "garments" / name / "female_average.obj")
+    assert np.array_equal(loose.face_vertices, proxy.face_vertices)
+    surface = TriangleSurface(body.V, body.F)
+    # Decimetres: farther from the body than the fitted garment, on average by most of the 1 cm of ease.
+    assert surface.signed_distance(loose.V)[0].mean() - surface.signed_distance(proxy.V)[0].mean() > 0.05
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path / "other"), "--garments", GARMENT, "--loose", "0.2", *short])
