@@ -558,9 +558,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         if info["crossings_after"] > info["crossings_before"]:
             log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
                         info["crossings_after"], info["crossings_before"])
-            info.update(crossings_after=info["crossings_before"], near_after=info["near_before"],
-                        moved_vertices=0, self_intersections_added=0, kept_input=True)
-            return V_start, info
+            return _as_given(V_start, info)
         return V, info
     V_cleared = V
     tangles = _SourceTangles(source_V, F, E)
@@ -602,11 +600,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
                     "garment is kept as it was", info["crossings_after"], pairs.shape[0], info["crossings_before"],
                     info["self_intersections_before"])
         pairs, new = new_self_pairs(V_start, F, E, source_V)
-        info.update(crossings_after=info["crossings_before"], near_after=info["near_before"], moved_vertices=0,
-                    restored_vertices=0, self_intersections_after=int(pairs.shape[0]),
-                    self_intersections_new=int(tangles.left_out(pairs, new).shape[0]), self_intersections_added=0,
-                    kept_input=True)
-        return V_start, info
+        return _as_given(V_start, info, restored_vertices=0, self_intersections_after=int(pairs.shape[0]),
+                         self_intersections_new=int(tangles.left_out(pairs, new).shape[0]))
     info["kept_input"] = False
     info["moved_vertices"] = int(np.any(V != V_start, axis=1).sum())
     info["restored_vertices"] = int(np.any(V != V_cleared, axis=1).sum())
@@ -616,6 +611,14 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     if new.shape[0]:
         log.warning("%d self-intersections the source garment does not have are left", new.shape[0])
     return V, info
+
+
+def _as_given(V_start, info, **counts):
+    """``separate``'s input returned as it came: its info says so, with the input's own counts (``counts``:
+    those of the source-shape checks)."""
+    info.update(crossings_after=info["crossings_before"], near_after=info["near_before"], moved_vertices=0,
+                self_intersections_added=0, kept_input=True, **counts)
+    return V_start, info
 
 
 def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, max_rounds, keep_offset,

@@ -290,10 +290,10 @@ def between_part(args, say):
     for b, (a, c, share) in between.items():
         for m in BETWEEN_RUNS[1:]:
             # The training bodies' errors interpolated at the in-between body's share.
-            ends = (1 - share) * mean(m, a) + share * mean(m, c)
-            ends_rel = (1 - share) * mean(m, a) / mean("direct", a) + share * mean(m, c) / mean("direct", c)
-            ratios[f"{b}/{m}"] = {"to_training_bodies": mean(m, b) / ends,
-                                  "to_training_bodies_x_direct": (mean(m, b) / mean("direct", b)) / ends_rel,
+            at_share = (1 - share) * mean(m, a) + share * mean(m, c)
+            at_share_rel = (1 - share) * mean(m, a) / mean("direct", a) + share * mean(m, c) / mean("direct", c)
+            ratios[f"{b}/{m}"] = {"to_training_bodies": mean(m, b) / at_share,
+                                  "to_training_bodies_x_direct": (mean(m, b) / mean("direct", b)) / at_share_rel,
                                   "to_itself_in_training": mean(m, b) / mean(f"{m}_in_training", b)}
             x = ratios[f"{b}/{m}"]
             lines.append(f"{b} {m}: vertex error / its training bodies' ({a}, {c}) {x['to_training_bodies']:.2f}; "

@@ -111,9 +111,9 @@ def other_settings(log, sim, log_path):
             f"({log[other[0]].get('simulation', SIMULATION)}, not {sim}); give another --out")
 
 
-def read_manifest(folder):
-    """``folder/manifest.json`` as a dict, {} when there is none."""
-    path = Path(folder) / "manifest.json"
+def read_json(path):
+    """A folder's JSON file (its manifest, its drape log) as a dict, {} when there is none."""
+    path = Path(path)
     return json.loads(path.read_text()) if path.exists() else {}
 
 
@@ -150,10 +150,11 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, lo
     bV = to_blender(source.V)
     gV = to_blender(g.V)
     pins = waist_pins(gV, g.F, bV, source.F) if pins is None else np.asarray(pins, np.int64)
+    original = garment
     if loose is not None:
         gV = loose_variant(gV, g.F, bV, source.F, pins, loose)
-        g = g.with_vertices(from_blender(gV), name=f"{garment}{LOOSE_SUFFIX}")
-        garment = g.name
+        garment = f"{original}{LOOSE_SUFFIX}"
+        g = g.with_vertices(from_blender(gV), name=garment)
     report = []
     t = time.perf_counter()
     sim = dict(SIMULATION, **(sim or {}))
@@ -169,7 +170,7 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, lo
                                    header=f"{garment} draped by Blender's cloth solver on {body} "
                                           f"(lab.makehuman_drape)", digits=7))
     entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size), "simulation": sim,
-             **({} if loose is None else {"variant_of": garment[:-len(LOOSE_SUFFIX)], "ease": loose}),
+             **({} if loose is None else {"variant_of": original, "ease": loose}),
              "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
              "inside_after_fix": [r["inside_after"] for r in report]}
     say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
@@ -248,7 +249,7 @@ def main(argv=None):
         print(f"[{time.perf_counter() - t0:7.1f}s] {text}", flush=True)
 
     log_path = out / "drape_log.json"
-    log = json.loads(log_path.read_text()) if log_path.exists() else {}
+    log = read_json(log_path)
     problem = other_settings(log, sim, log_path)
     if problem:
         ap.error(problem)
@@ -262,7 +263,7 @@ def main(argv=None):
     done = [g for g in manifest["garments"] if g in log]        # every garment draped so far
     variants = {g: e["variant_of"] for g, e in log.items() if "variant_of" in e}
     # Garments another command added to this folder (lab.makehuman_procedural) stay listed.
-    extra = read_manifest(out).get("procedural_garments", [])
+    extra = read_json(out / "manifest.json").get("procedural_garments", [])
     m = dict(manifest, bodies=[MAKEHUMAN_SOURCE, *args.targets], garments=done + list(variants) + extra,
              **({"procedural_garments": extra} if extra else {}), **({"variants": variants} if variants else {}),
              placed_by="Blender's cloth solver (lab.makehuman_drape), from MakeHuman's proxy fit on "

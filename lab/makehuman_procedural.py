@@ -32,7 +32,7 @@ from pathlib import Path
 
 from garment_transfer.obj import read_obj, write_text_atomic
 
-from .makehuman_drape import drape, other_settings, output_folder, read_manifest, simulation_arguments
+from .makehuman_drape import drape, other_settings, output_folder, read_json, simulation_arguments
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN
 
 #: The catalogue's garments carried onto the MakeHuman bodies by default: trousers, shorts and tops of every
@@ -75,8 +75,9 @@ def claimed_elsewhere(path):
     return True
 
 
-def fit(name, registration=None):
-    """The catalogue's garment ``name`` on the MakeHuman source body (decimetres, Y up).
+def fit(name, mannequin, body, registration=None):
+    """The catalogue's garment ``name`` on the MakeHuman source body ``body`` (decimetres, Y up), from the
+    ``mannequin`` it is built on.
 
     Returns
     -------
@@ -96,8 +97,6 @@ def fit(name, registration=None):
 
     g = garment(name)
     mesh = mesh_from_polygons(g.V, g.polygons, name=name)
-    mannequin = read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj", name=MANNEQUIN)
-    body = read_obj(SHARED_MAKEHUMAN / "bodies" / f"{MAKEHUMAN_SOURCE}.obj", name=MAKEHUMAN_SOURCE)
     result, registration = transfer_to_any_body(mannequin, body, mesh, registration=registration)
     q = registration.quality
     info = {"inside_after_transfer": int(result.penetrating_vertices),
@@ -122,7 +121,7 @@ def main(argv=None):
     out, sim = output_folder(ap, args, SHARED_MAKEHUMAN)
     log_path = out / "drape_log.json"
     with locked(out):
-        problem = other_settings(json.loads(log_path.read_text()) if log_path.exists() else {}, sim, log_path)
+        problem = other_settings(read_json(log_path), sim, log_path)
     if problem:
         ap.error(problem)
     t0 = time.perf_counter()
@@ -131,30 +130,33 @@ def main(argv=None):
         print(f"[{time.perf_counter() - t0:7.1f}s] {text}", flush=True)
 
     registration = None
+    mannequin = read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj", name=MANNEQUIN)
+    body = read_obj(SHARED_MAKEHUMAN / "bodies" / f"{MAKEHUMAN_SOURCE}.obj", name=MAKEHUMAN_SOURCE)
     for name in args.garments:
         dest = out / "garments" / name
         # A run sharing the folder claims a garment (its process id in a claim file) before draping it; the
         # claim of a run that was stopped (its process gone) is taken over.
         with locked(out):
-            log = json.loads(log_path.read_text()) if log_path.exists() else {}
+            log = read_json(log_path)
             if name in log or claimed_elsewhere(dest / ".claimed"):
                 say(f"{name}: already draped or being draped, skipped")
                 continue
             dest.mkdir(parents=True, exist_ok=True)
             (dest / ".claimed").write_text(str(os.getpid()))
         try:
-            mesh, pins, info, registration = fit(name, registration)
+            mesh, pins, info, registration = fit(name, mannequin, body, registration)
             say(f"{name}: on {MAKEHUMAN_SOURCE}, {info['inside_after_transfer']} vertices inside after the transfer")
             entry = drape(SHARED_MAKEHUMAN, out, name, args.targets, say, sim, mesh=mesh, pins=pins)
         finally:
             (dest / ".claimed").unlink(missing_ok=True)
         entry.update(info, procedural=True, mannequin=MANNEQUIN)
         with locked(out):
-            log = json.loads(log_path.read_text()) if log_path.exists() else {}
+            log = read_json(log_path)
             log[name] = entry
             write_text_atomic(log_path, json.dumps(log, indent=1) + "\n")
-            m = read_manifest(out) or dict(fixtures, garments=[], bodies=[MAKEHUMAN_SOURCE, *args.targets],
-                                           placed_by="Blender's cloth solver", simulation=sim)
+            m = read_json(out / "manifest.json") or dict(fixtures, garments=[],
+                                                         bodies=[MAKEHUMAN_SOURCE, *args.targets],
+                                                         placed_by="Blender's cloth solver", simulation=sim)
             extra = list(dict.fromkeys(m.get("procedural_garments", []) + [name]))
             m.update(garments=list(dict.fromkeys(m["garments"] + [name])), procedural_garments=extra)
             write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")
