@@ -1,10 +1,24 @@
 """Rebuilding a mesh from per-triangle deformation gradients (paper eq. 5).
 
-Minimise ``sum_t w_t sum_{k=2,3} |Q_t (x_tk - x_t1) - (y_tk - y_t1)|^2 + lam * sum_i |y_i - p_i|^2``.
-The first term is the paper's; it fixes the shape but not where it is (translation-invariant).
-The second, weak, term ties every vertex to an anchor position ``p_i`` (where the body says the
-garment goes): with a small ``lam`` it only decides the low frequencies, the placement, and leaves
-folds to the gradients. The normal equations ``(G^T W G + lam I) y = G^T W b + lam p`` have a
+Minimise ``sum_t w_t tr(R_t M_t R_t^T) + lam * sum_i |y_i - p_i|^2``, where ``R_t`` (3x2) holds the
+residuals ``(y_tk - y_t1) - Q_t (x_tk - x_t1)`` of triangle t's two edges (k = 2, 3) and ``M_t`` is a
+2x2 metric (``ENERGIES``):
+
+- ``"gradients"`` (the default): ``M_t = c area_t (E_t^T E_t)^-1`` with ``E_t`` the triangle's two source
+  edges, so that the term is the linear finite-element energy ``c sum_t w_t area_t |grad y_t - Q_t|^2`` of
+  the difference between the garment's gradient and the target's. It does not depend on which vertex of a
+  triangle comes first, and a thin triangle resists being turned as much as a well-shaped one: with the
+  paper's metric a thin triangle's short edge costs little to turn, so whatever strain the anchors leave
+  gathers there and folds it over (on MakeHuman's suits with the learned placement: MDC 0.0146 against
+  0.0093 for ``male_casualsuit02`` on ``female_pear``, ``python -m lab.poisson_energy``). ``c`` makes a
+  median triangle cost what it costs with the paper's metric; a triangle's metric is capped at
+  ``METRIC_CAP`` times that (triangles thinner than about 1:25 are held no stiffer).
+- ``"edges"``: ``M_t = I``, the paper's eq. 5, ``sum_k |Q_t (x_tk - x_t1) - (y_tk - y_t1)|^2``.
+
+The first term fixes the shape but not where it is (translation-invariant). The second, weak, term
+ties every vertex to an anchor position ``p_i`` (where the body says the garment goes): with a small
+``lam`` it only decides the low frequencies, the placement, and leaves folds to the gradients. The
+normal equations ``(G^T W G + lam I) y = G^T W b + lam p`` (``W`` block diagonal of ``w_t M_t``) have a
 matrix that depends only on the garment's topology and source positions: it is factored once and
 reused for every target.
 
@@ -66,6 +80,10 @@ LEVELS_MAX = 9
 #: Threads solving the coordinates by multigrid at once (one per coordinate at most).
 SOLVE_THREADS = min(3, THREADS)
 METHODS = ("factor", "multigrid")
+#: The metrics of the gradient term (module doc).
+ENERGIES = ("gradients", "edges")
+#: The stiffest a triangle's metric gets, as a multiple of the median triangle's (``triangle_metrics``).
+METRIC_CAP = 50.0
 
 
 def choose_method(n_vertices, reused=True):
@@ -97,6 +115,42 @@ def edge_operator(n, F):
     return sp.csr_matrix((vals, (rows, cols)), shape=(2 * m, n))
 
 
+def triangle_metrics(V, F, weights):
+    """The gradient term's 2x2 metric of every triangle, ``w_t M_t`` (module doc, ``"gradients"``).
+
+    Parameters
+    ----------
+    V : (n,3) float
+    F : (m,3) int
+    weights : (m,) float
+        ``w_t``; a triangle of weight 0 (degenerate) gets a zero metric.
+
+    Returns
+    -------
+    (m,2,2) float64, symmetric positive semi-definite.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    weights = np.asarray(weights, dtype=np.float64)
+    x1 = V[F[:, 0]]
+    e1, e2 = V[F[:, 1]] - x1, V[F[:, 2]] - x1
+    a, b, d = (np.einsum("mj,mj->m", e1, e1), np.einsum("mj,mj->m", e1, e2), np.einsum("mj,mj->m", e2, e2))
+    det = a * d - b * b
+    used = (weights > 0) & (det > 0)
+    M = np.zeros((F.shape[0], 2, 2))
+    if not used.any():
+        return M
+    # area (E^T E)^-1 = (sqrt(det) / 2) adj(E^T E) / det.
+    s = 0.5 / np.sqrt(det[used])
+    M[used] = np.stack([np.stack([d[used], -b[used]], -1), np.stack([-b[used], a[used]], -1)], -2) * s[:, None, None]
+    # c: the median triangle costs what it costs with the identity metric, for a gradient error in the
+    # triangle's plane: (|e1|^2 + |e2|^2) / 2 against c area.
+    c = np.median((a[used] + d[used]) / np.sqrt(det[used]))
+    values, vectors = np.linalg.eigh(M[used] * c)
+    values = np.minimum(values, METRIC_CAP * np.median(values.sum(axis=1)) / 2)
+    M[used] = np.einsum("mij,mj,mkj->mik", vectors, values, vectors)
+    return M * weights[:, None, None]
+
+
 def anchor_weight_for(V, F, stiffness_length, edge_length=None):
     """The weight ``lam`` at which the anchors decide shape features longer than ``stiffness_length``.
 
@@ -123,11 +177,16 @@ class PoissonSolver:
         ``w_t``; degenerate triangles of the source get 0 by default.
     method : {"factor", "multigrid"}
         How the system is solved (module doc).
+    energy : {"gradients", "edges"}
+        The gradient term's metric (module doc): the finite-element energy, or the paper's.
     """
 
-    def __init__(self, V, F, anchor_weight, triangle_weights=None, method="factor"):
+    def __init__(self, V, F, anchor_weight, triangle_weights=None, method="factor", energy="gradients"):
         if method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        if energy not in ENERGIES:
+            raise ValueError(f"energy must be one of {', '.join(ENERGIES)}, got {energy!r}")
+        self.energy = energy
         self.method = method
         self.V = np.asarray(V, dtype=np.float64)
         self.F = np.asarray(F, dtype=np.int64)
@@ -143,7 +202,15 @@ class PoissonSolver:
         self.anchor_weight = float(weight) if weight.ndim == 0 else weight
         self._lam = np.broadcast_to(weight, (n,))[:, None]
         G = edge_operator(n, self.F)
-        self.GtW = (G.T @ sp.diags(np.repeat(self.triangle_weights, 2))).tocsr()
+        if energy == "edges":
+            W = sp.diags(np.repeat(self.triangle_weights, 2))
+        else:
+            m = self.F.shape[0]
+            rows = np.repeat(np.arange(2 * m).reshape(m, 2), 2, axis=1).reshape(-1)
+            cols = np.tile(np.arange(2 * m).reshape(m, 2), (1, 2)).reshape(-1)
+            W = sp.csr_matrix((triangle_metrics(self.V, self.F, self.triangle_weights).reshape(-1), (rows, cols)),
+                              shape=(2 * m, 2 * m))
+        self.GtW = (G.T @ W).tocsr()
         K = self.GtW @ G + sp.diags(np.broadcast_to(weight, (n,)).astype(np.float64))
         self.factor = self.hierarchy = None
         if method == "factor":

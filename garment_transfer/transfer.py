@@ -190,7 +190,7 @@ def anchor_weights(garment: Mesh, distance, scale, stiffness, anchoring="everywh
 
 def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiffness=None,
                     need_solver=True, anchoring="everywhere", contact=None, reused=True,
-                    solver_method=None) -> PreparedGarment:
+                    solver_method=None, energy="gradients") -> PreparedGarment:
     """The target-independent part of a transfer: embedding, binding, Poisson factor.
 
     Parameters
@@ -215,6 +215,9 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         large garment is solved by multigrid (``poisson.choose_method``).
     solver_method : {"factor", "multigrid"}, optional
         The Poisson solver, instead of the choice by size and ``reused``.
+    energy : {"gradients", "edges"}
+        The Poisson solve's gradient term (``poisson.PoissonSolver``): the finite-element energy, or the
+        paper's sum over edges.
     """
     if anchoring not in ANCHORINGS:
         raise ValueError(f"anchoring must be one of {', '.join(ANCHORINGS)}, got {anchoring!r}")
@@ -234,7 +237,7 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
         started = time.perf_counter()
         w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
         solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
-                               method=method)
+                               method=method, energy=energy)
         seconds["factor"] = time.perf_counter() - started
         # The penetration fix's vertex graph, while the main thread binds (otherwise built on first use).
         adjacency = penetration.vertex_adjacency(garment.n_vertices, garment.F) if with_adjacency else None

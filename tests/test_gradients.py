@@ -5,7 +5,8 @@ import scipy.sparse.linalg as spla
 
 from garment_transfer.gradients import deformation_gradients, triangle_frames
 from garment_transfer.obj import read_obj
-from garment_transfer.poisson import PoissonSolver, edge_operator
+from garment_transfer.metrics import discrete_curvature
+from garment_transfer.poisson import METRIC_CAP, PoissonSolver, edge_operator, triangle_metrics
 from meshes import grid, icosphere, random_rotation, require_makehuman
 
 
@@ -87,12 +88,13 @@ def test_edge_operator_rows_sum_to_zero_and_laplacian_is_psd():
     assert np.linalg.eigvalsh(K).min() > -1e-9
 
 
-def test_poisson_rebuilds_a_mesh_from_its_own_gradients():
+@pytest.mark.parametrize("energy", ["gradients", "edges"])
+def test_poisson_rebuilds_a_mesh_from_its_own_gradients(energy):
     rng = np.random.default_rng(3)
     V, F = icosphere(2)
     Y = V * [1.0, 1.3, 0.7] + 0.05 * np.sin(4 * V) + rng.normal(size=3)
     Q, _ = deformation_gradients(V, Y, F)
-    solver = PoissonSolver(V, F, anchor_weight=1e-3)
+    solver = PoissonSolver(V, F, anchor_weight=1e-3, energy=energy)
     out = solver.solve(Q, Y)
     assert np.max(np.abs(out - Y)) / np.max(np.abs(Y)) < 1e-9
 
@@ -119,6 +121,71 @@ def test_poisson_anchor_weight_must_be_positive():
     V, F = icosphere(0)
     with pytest.raises(ValueError, match="anchor_weight"):
         PoissonSolver(V, F, anchor_weight=0.0)
+    with pytest.raises(ValueError, match="energy"):
+        PoissonSolver(V, F, anchor_weight=1e-3, energy="cotangent")
+
+
+def _sheet_with_thin_column():
+    """A flat sheet whose middle column of quads is squeezed to 1:20 slivers, the vertex columns on
+    either side of them, a target field that keeps it flat and anchors that ask for a bump and a shear
+    (which it cannot follow exactly)."""
+    V = grid(12, 12).V.copy()
+    F = grid(12, 12).F
+    xs = np.unique(V[:, 0])
+    V[np.isclose(V[:, 0], xs[6]), 0] = xs[5] + 0.004
+    thin = np.isclose(V[:, 0], xs[5]) | np.isclose(V[:, 0], xs[5] + 0.004)
+    anchors = V.copy()
+    anchors[:, 2] += 0.05 * np.sin(np.pi * V[:, 0]) * np.sin(np.pi * V[:, 1] / 0.8)
+    anchors[:, 0] += 0.03 * V[:, 1] ** 2
+    return V, F, thin, anchors
+
+
+def test_gradient_energy_keeps_thin_triangles_from_folding():
+    # The strain the anchors leave: with the paper's edge energy a sliver's short edge is cheap to turn,
+    # so the slivers fold; the finite-element energy holds them as stiff as the rest.
+    V, F, thin, anchors = _sheet_with_thin_column()
+    Q = np.broadcast_to(np.eye(3), (F.shape[0], 3, 3))
+    r0 = discrete_curvature(V, F)
+    turn = {e: np.abs(discrete_curvature(PoissonSolver(V, F, 1e-2, energy=e).solve(Q, anchors), F) - r0)
+            for e in ("gradients", "edges")}
+    assert turn["edges"][thin].mean() > 100 * turn["edges"][~thin].mean()
+    assert turn["gradients"][thin].mean() < 0.01 * turn["edges"][thin].mean()
+    assert turn["gradients"][thin].mean() < 10 * turn["gradients"][~thin].mean()
+
+
+def test_gradient_energy_does_not_depend_on_which_vertex_comes_first():
+    V, F, _, anchors = _sheet_with_thin_column()
+    Q = np.eye(3) + 0.1 * np.random.default_rng(0).normal(size=(F.shape[0], 3, 3))
+    turned = F[:, [1, 2, 0]]
+    a, b = (PoissonSolver(V, f, 1e-2).solve(Q, anchors) for f in (F, turned))
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-10)
+    # The paper's energy measures two of the three edges: which two changes the answer.
+    a, b = (PoissonSolver(V, f, 1e-2, energy="edges").solve(Q, anchors) for f in (F, turned))
+    assert np.abs(a - b).max() > 1e-3
+
+
+def test_triangle_metric_of_a_median_triangle_matches_the_edges_and_thin_ones_are_capped():
+    V, F = icosphere(2)
+    w = np.ones(F.shape[0])
+    M = triangle_metrics(V, F, w)
+    np.testing.assert_allclose(M, np.swapaxes(M, 1, 2), atol=1e-15)
+    assert np.linalg.eigvalsh(M).min() > 0
+    # A gradient error G in a triangle's plane leaves the edge residuals R = G E and costs tr(R M R^T);
+    # the paper's energy is |G e1|^2 + |G e2|^2. For a uniform scaling error (G the projection on the
+    # plane) the two agree on the median triangle.
+    x1 = V[F[:, 0]]
+    E = np.stack([V[F[:, 1]] - x1, V[F[:, 2]] - x1], axis=2)
+    fem = np.einsum("mki,mij,mkj->m", E, M, E)
+    paper = np.einsum("mki,mki->m", E, E)
+    assert np.median(fem / paper) == pytest.approx(1.0, rel=1e-3)
+    # A nearly degenerate triangle: finite, no stiffer than the cap; a zero-weight one: no metric.
+    V2 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0], [1.0, 1e-7, 0]])
+    F2 = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3], [0, 4, 5]])
+    M2 = triangle_metrics(V2, F2, np.array([1.0, 1.0, 1.0, 1.0]))
+    assert np.isfinite(M2).all()
+    cap = METRIC_CAP * np.median(np.trace(M2, axis1=1, axis2=2)) / 2
+    assert np.linalg.eigvalsh(M2[3]).max() == pytest.approx(cap, rel=1e-9)
+    assert not triangle_metrics(V2, F2, np.array([1.0, 1.0, 1.0, 0.0]))[3].any()
 
 
 def _garment_pair():
