@@ -6,13 +6,14 @@ residuals ``(y_tk - y_t1) - Q_t (x_tk - x_t1)`` of triangle t's two edges (k = 2
 
 - ``"gradients"`` (the default): ``M_t = c area_t (E_t^T E_t)^-1`` with ``E_t`` the triangle's two source
   edges, so that the term is the linear finite-element energy ``c sum_t w_t area_t |grad y_t - Q_t|^2`` of
-  the difference between the garment's gradient and the target's. It does not depend on which vertex of a
+  the difference between the garment's gradient and the target's (in its cotangent form, each edge's
+  weight clamped to be positive: ``triangle_metrics``). It does not depend on which vertex of a
   triangle comes first, and a thin triangle resists being turned as much as a well-shaped one: with the
   paper's metric a thin triangle's short edge costs little to turn, so whatever strain the anchors leave
   gathers there and folds it over (on MakeHuman's suits with the learned placement: MDC 0.0146 against
   0.0093 for ``male_casualsuit02`` on ``female_pear``, ``python -m lab.poisson_energy``). ``c`` makes a
-  median triangle cost what it costs with the paper's metric; a triangle's metric is capped at
-  ``METRIC_CAP`` times that (triangles thinner than about 1:25 are held no stiffer).
+  median triangle cost what it costs with the paper's metric; an edge's weight is capped at
+  ``METRIC_CAP`` times the median (angles under about 1 degree are held no stiffer).
 - ``"edges"``: ``M_t = I``, the paper's eq. 5, ``sum_k |Q_t (x_tk - x_t1) - (y_tk - y_t1)|^2``.
 
 The first term fixes the shape but not where it is (translation-invariant). The second, weak, term
@@ -76,13 +77,18 @@ SPECTRUM_STEPS = 10
 #: limits: a level this small is solved directly; at most this many levels above it.
 PROLONGATION_OMEGA = 4.0 / 3.0
 COARSE_MAX = 10
+#: Strength of connection of the aggregation (pyamg's symmetric measure): couplings weaker than this
+#: share of their rows' largest are not followed. 0 follows every edge, which on the bench dress's thin
+#: cells and the finite-element energy needs 33 iterations instead of 11-13 (0.05-0.1; edge energy 10-12
+#: with either; 0.25 is worse for both: one-off script, 156K triangles).
+STRENGTH_THETA = 0.08
 LEVELS_MAX = 9
 #: Threads solving the coordinates by multigrid at once (one per coordinate at most).
 SOLVE_THREADS = min(3, THREADS)
 METHODS = ("factor", "multigrid")
 #: The metrics of the gradient term (module doc).
 ENERGIES = ("gradients", "edges")
-#: The stiffest a triangle's metric gets, as a multiple of the median triangle's (``triangle_metrics``).
+#: The largest weight of an edge in the gradient term, as a multiple of the median (``triangle_metrics``).
 METRIC_CAP = 50.0
 
 
@@ -118,6 +124,13 @@ def edge_operator(n, F):
 def triangle_metrics(V, F, weights):
     """The gradient term's 2x2 metric of every triangle, ``w_t M_t`` (module doc, ``"gradients"``).
 
+    ``c area (E^T E)^-1`` written with the triangle's cotangents, ``1/2 [[k3 + k1, -k1], [-k1, k2 + k1]]``
+    (``k_i``: the cotangent of the angle at vertex i, ``c`` times), that is ``1/2 sum_e k_e |r_e|^2`` over
+    the three edges' residuals, each ``k`` clamped to ``[0, METRIC_CAP x the median]``. Without an obtuse
+    angle (and under the cap) it is the finite-element metric itself; the clamping keeps every edge's
+    weight positive, so the system stays a graph Laplacian plus a diagonal (the multigrid's
+    aggregation needs that: with the unclamped metric the bench dress needs 118 iterations instead of 12).
+
     Parameters
     ----------
     V : (n,3) float
@@ -139,15 +152,14 @@ def triangle_metrics(V, F, weights):
     M = np.zeros((F.shape[0], 2, 2))
     if not used.any():
         return M
-    # area (E^T E)^-1 = (sqrt(det) / 2) adj(E^T E) / det.
-    s = 0.5 / np.sqrt(det[used])
-    M[used] = np.stack([np.stack([d[used], -b[used]], -1), np.stack([-b[used], a[used]], -1)], -2) * s[:, None, None]
+    root = np.sqrt(det[used])
+    # Cotangents of the angles at vertices 1, 2, 3 (|e1 x e2| = sqrt(det) for all three).
+    k = np.stack([b[used], a[used] - b[used], d[used] - b[used]], axis=1) / root[:, None]
+    k = np.clip(k, 0.0, METRIC_CAP * np.median(np.maximum(k, 0.0)))
     # c: the median triangle costs what it costs with the identity metric, for a gradient error in the
-    # triangle's plane: (|e1|^2 + |e2|^2) / 2 against c area.
-    c = np.median((a[used] + d[used]) / np.sqrt(det[used]))
-    values, vectors = np.linalg.eigh(M[used] * c)
-    values = np.minimum(values, METRIC_CAP * np.median(values.sum(axis=1)) / 2)
-    M[used] = np.einsum("mij,mj,mkj->mik", vectors, values, vectors)
+    # triangle's plane: |e1|^2 + |e2|^2 against 2 c area.
+    k *= 0.5 * np.median((a[used] + d[used]) / root)
+    M[used] = np.stack([np.stack([k[:, 2] + k[:, 0], -k[:, 0]], -1), np.stack([-k[:, 0], k[:, 1] + k[:, 0]], -1)], -2)
     return M * weights[:, None, None]
 
 
@@ -392,7 +404,7 @@ class Multigrid:
     """Conjugate gradients preconditioned by a multigrid V-cycle, for a symmetric positive definite K.
 
     The levels are smoothed aggregation built here from pyamg's aggregation and tentative prolongator
-    (strength of connection off, theta 0: every garment edge couples its vertices); the prolongator's
+    (strength of connection ``STRENGTH_THETA``); the prolongator's
     Jacobi step and the smoother take their largest eigenvalues from our own Lanczos search
     (``largest_eigenvalue``), which calls no BLAS and starts from a fixed vector, and every level is
     kept in CSR. At 78K vertices the hierarchy builds in 0.06-0.08 s against 0.12 s for pyamg's
@@ -402,9 +414,10 @@ class Multigrid:
     are ours, so that everything a solve does is scipy's sparse products and numpy's vector operations:
     they release the GIL, so the coordinates are solved on threads at once, and none calls BLAS, whose
     threads would wait on the cores those use. The smoother is a Chebyshev polynomial of each level's
-    matrix rather than pyamg's default symmetric Gauss-Seidel: as many iterations (10-12 per coordinate
-    to 1e-8 at 78K vertices, 12-15 at 500K) and cheaper ones (the three coordinates at 78K: 0.15 s
-    against 0.36 s on one core, 0.08 s on two; at 500K 1.2 s against 2.7 s, and 0.8 s).
+    Jacobi-scaled matrix ``D^-1 A`` rather than pyamg's default symmetric Gauss-Seidel: as many
+    iterations (10-12 per coordinate to 1e-8 at 78K vertices, 12-15 at 500K) and cheaper ones (the three
+    coordinates at 78K: 0.15 s against 0.36 s on one core, 0.08 s on two; at 500K 1.2 s against 2.7 s,
+    and 0.8 s).
 
     Parameters
     ----------
@@ -422,7 +435,7 @@ class Multigrid:
         candidates = np.ones((A.shape[0], 1))
         self.levels = []
         while A.shape[0] > COARSE_MAX and len(self.levels) < LEVELS_MAX:
-            aggregates = standard_aggregation(symmetric_strength_of_connection(A, theta=0.0))[0]
+            aggregates = standard_aggregation(symmetric_strength_of_connection(A, theta=STRENGTH_THETA))[0]
             if aggregates.shape[1] in (0, A.shape[0]):
                 break
             T, candidates = fit_candidates(aggregates, candidates)
@@ -433,20 +446,21 @@ class Multigrid:
             rho = largest_eigenvalue(A, SPECTRUM_STEPS, np.sqrt(inverse_diagonal))
             P = (T - sp.diags(inverse_diagonal * (PROLONGATION_OMEGA / rho)) @ (A @ T)).tocsr()
             R = P.T.tocsr()
-            # The smoother's interval reaches past the estimate of A's largest eigenvalue (a Lanczos
-            # estimate is below it).
-            rho = largest_eigenvalue(A, SPECTRUM_STEPS)
+            # The smoother is a polynomial of D^-1 A, whose interval reaches past the estimate of its
+            # largest eigenvalue (a Lanczos estimate is below it).
             coefficients = -chebyshev_polynomial_coefficients(CHEBYSHEV_LOWER * rho, CHEBYSHEV_UPPER * rho,
                                                               CHEBYSHEV_DEGREE)[:-1]
-            self.levels.append((A, R, P, coefficients))
+            self.levels.append((A, R, P, (inverse_diagonal, coefficients)))
             A = (R @ A @ P).tocsr()
         self.coarse = np.linalg.pinv(A.toarray())
 
-    def _smooth(self, A, coefficients, r):
-        """p(A) r, the smoother's correction for the residual r (Horner's rule)."""
+    def _smooth(self, A, smoother, r):
+        """p(D^-1 A) D^-1 r, the smoother's correction for the residual r (Horner's rule; D: A's diagonal)."""
+        inverse_diagonal, coefficients = smoother
+        r = inverse_diagonal * r
         h = coefficients[0] * r
         for c in coefficients[1:]:
-            h = c * r + A @ h
+            h = c * r + inverse_diagonal * (A @ h)
         return h
 
     def cycle(self, b):

@@ -164,29 +164,45 @@ def test_gradient_energy_does_not_depend_on_which_vertex_comes_first():
     assert np.abs(a - b).max() > 1e-3
 
 
-def test_triangle_metric_of_a_median_triangle_matches_the_edges_and_thin_ones_are_capped():
-    V, F = icosphere(2)
-    w = np.ones(F.shape[0])
-    M = triangle_metrics(V, F, w)
-    np.testing.assert_allclose(M, np.swapaxes(M, 1, 2), atol=1e-15)
-    assert np.linalg.eigvalsh(M).min() > 0
+def test_triangle_metric_is_the_finite_element_metric_and_matches_the_edges_on_the_median_triangle():
+    V, F = icosphere(2)  # every angle acute: the clamping does nothing
+    M = triangle_metrics(V, F, np.ones(F.shape[0]))
+    x1 = V[F[:, 0]]
+    E = np.stack([V[F[:, 1]] - x1, V[F[:, 2]] - x1], axis=2)
+    EtE = np.einsum("mki,mkj->mij", E, E)
+    area = 0.5 * np.linalg.norm(np.cross(E[:, :, 0], E[:, :, 1]), axis=1)
+    c = np.median(np.trace(EtE, axis1=1, axis2=2) / (2 * area))
+    np.testing.assert_allclose(M, c * area[:, None, None] * np.linalg.inv(EtE), rtol=1e-12)
     # A gradient error G in a triangle's plane leaves the edge residuals R = G E and costs tr(R M R^T);
     # the paper's energy is |G e1|^2 + |G e2|^2. For a uniform scaling error (G the projection on the
     # plane) the two agree on the median triangle.
-    x1 = V[F[:, 0]]
-    E = np.stack([V[F[:, 1]] - x1, V[F[:, 2]] - x1], axis=2)
     fem = np.einsum("mki,mij,mkj->m", E, M, E)
     paper = np.einsum("mki,mki->m", E, E)
     assert np.median(fem / paper) == pytest.approx(1.0, rel=1e-3)
-    # A nearly degenerate triangle: finite, no stiffer than the cap; a zero-weight one: no metric.
-    V2 = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0], [1.0, 1e-7, 0]])
-    F2 = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3], [0, 4, 5]])
-    M2 = triangle_metrics(V2, F2, np.array([1.0, 1.0, 1.0, 1.0]))
-    assert np.isfinite(M2).all()
-    cap = METRIC_CAP * np.median(np.trace(M2, axis1=1, axis2=2)) / 2
-    assert np.linalg.eigvalsh(M2[3]).max() == pytest.approx(cap, rel=1e-9)
-    assert not triangle_metrics(V2, F2, np.array([1.0, 1.0, 1.0, 0.0]))[3].any()
 
+
+def test_triangle_metric_weighs_every_edge_positively_and_caps_thin_triangles():
+    # An obtuse triangle (its negative cotangent clamped), a nearly degenerate one, a zero-weight one.
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0], [1.0, 1e-7, 0], [1.0, 0.2, 0]])
+    F = np.array([[0, 1, 2], [1, 3, 2], [1, 4, 3], [0, 4, 5], [0, 4, 6]])
+    M = triangle_metrics(V, F, np.ones(F.shape[0]))
+    assert np.isfinite(M).all()
+    np.testing.assert_allclose(M, np.swapaxes(M, 1, 2), atol=0)
+    # Edge weights: k1 = -M01 (edge 2-3), k3 = M00 + M01 (edge 1-2), k2 = M11 + M01 (edge 1-3).
+    k = np.stack([-M[:, 0, 1], M[:, 1, 1] + M[:, 0, 1], M[:, 0, 0] + M[:, 0, 1]], axis=1)
+    assert (k >= 0).all()
+    # The obtuse angle at vertex 6 (the triangle's third): the edge 0-4 opposite it gets nothing.
+    assert k[4, 2] == 0 and k[4, 0] > 0 and k[4, 1] > 0
+    # The thin triangle's largest weight is the cap: METRIC_CAP times the median cotangent, scaled as
+    # every weight is (the right isosceles triangle's cotangent of 45 degrees, 1, gives the scale).
+    cot = []
+    for f in F:
+        for i in range(3):
+            u, v = V[f[(i + 1) % 3]] - V[f[i]], V[f[(i + 2) % 3]] - V[f[i]]
+            cot.append(max(0.0, u @ v / np.linalg.norm(np.cross(u, v))))
+    np.testing.assert_allclose(np.sort(k[0]), np.array([0, 1, 1]) * k[0].max(), atol=1e-12)
+    assert k[3].max() == pytest.approx(METRIC_CAP * np.median(cot) * k[0].max(), rel=1e-9)
+    assert not triangle_metrics(V, F, np.array([1.0, 1.0, 1.0, 0.0, 1.0]))[3].any()
 
 def _garment_pair():
     """A garment on two bodies: MakeHuman's suit when the fixtures are there, else a waved sheet."""
