@@ -10,8 +10,8 @@ residuals ``(y_tk - y_t1) - Q_t (x_tk - x_t1)`` of triangle t's two edges (k = 2
   weight clamped to be positive: ``triangle_metrics``). It does not depend on which vertex of a
   triangle comes first, and a thin triangle resists being turned as much as a well-shaped one: with the
   paper's metric a thin triangle's short edge costs little to turn, so whatever strain the anchors leave
-  gathers there and folds it over (on MakeHuman's suits with the learned placement: MDC 0.0146 against
-  0.0093 for ``male_casualsuit02`` on ``female_pear``, ``python -m lab.poisson_energy``). ``c`` makes a
+  gathers there and folds it over (MakeHuman's ``male_casualsuit02`` on ``female_pear`` with its own placement:
+  MDC 0.0146 against 0.0093, ``python -m lab.poisson_energy``). ``c`` makes a
   median triangle cost what it costs with the paper's metric; an edge's weight is capped at
   ``METRIC_CAP`` times the median (angles under about 1 degree are held no stiffer).
 - ``"edges"``: ``M_t = I``, the paper's eq. 5, ``sum_k |Q_t (x_tk - x_t1) - (y_tk - y_t1)|^2``.
@@ -128,8 +128,9 @@ def triangle_metrics(V, F, weights):
     (``k_i``: the cotangent of the angle at vertex i, ``c`` times), that is ``1/2 sum_e k_e |r_e|^2`` over
     the three edges' residuals, each ``k`` clamped to ``[0, METRIC_CAP x the median]``. Without an obtuse
     angle (and under the cap) it is the finite-element metric itself; the clamping keeps every edge's
-    weight positive, so the system stays a graph Laplacian plus a diagonal (the multigrid's
-    aggregation needs that: with the unclamped metric the bench dress needs 118 iterations instead of 12).
+    weight positive, so the system stays a graph Laplacian plus a diagonal, which the multigrid's
+    aggregation expects (with the unclamped metric and the earlier cycle the bench dress needed 118
+    iterations instead of 12).
 
     Parameters
     ----------
