@@ -45,6 +45,9 @@ class Method:
         model's field halfway back to the body's own.
     interpolate, fix_penetration : bool
         ``transfer_garment``'s options.
+    energy : str
+        ``prepare_garment``'s: the Poisson solve's finite-element energy (``"gradients"``) or the paper's
+        sum over edges (``"edges"``).
     anchoring : str
         ``transfer_garment``'s: ``everywhere`` or ``contact``.
     placement : str, optional
@@ -61,6 +64,7 @@ class Method:
     field: str = "mean_latent"
     interpolate: bool = True
     fix_penetration: bool = True
+    energy: str = "gradients"
     anchoring: str = "everywhere"
     placement: str | None = None
     field_share: float = 0.5
@@ -94,8 +98,8 @@ def train_placement(tables, targets, seed=0, threads=None, **options):
 #: Every method the lab compares, by key.
 METHODS = {m.key: m for m in (
     Method("ours", "Ours: model (masked loss), interpolated field, penetration fix", "model", "ours"),
-    Method("paper", "Paper as written: model (unmasked loss), nearest-triangle embedding, no fix", "model",
-           "paper", interpolate=False, fix_penetration=False),
+    Method("paper", "Paper as written: model (unmasked loss), nearest-triangle embedding, the paper's Poisson "
+           "energy, no fix", "model", "paper", interpolate=False, fix_penetration=False, energy="edges"),
     Method("direct", "Direct deformation transfer: the body's own gradients, interpolated, penetration fix",
            "direct"),
     Method("surface", "Body-driven fit (like Surface Deform): the garment follows the body alone", "surface"),
@@ -322,10 +326,11 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         for g in test:
             garment = ds.garment(g, source)
             prepared, prep_seconds = {}, {}
-            for key in sorted({(m.interpolate, m.anchoring) for m in methods if m.kind != "external"},
+            for key in sorted({(m.interpolate, m.anchoring, m.energy) for m in methods if m.kind != "external"},
                               reverse=True):
                 t = time.perf_counter()
-                prepared[key] = prepare_garment(source_body, garment, interpolate=key[0], anchoring=key[1])
+                prepared[key] = prepare_garment(source_body, garment, interpolate=key[0], anchoring=key[1],
+                                                energy=key[2])
                 prep_seconds[key] = time.perf_counter() - t
             gi = fields.garments.index(g) if fields is not None and g in fields.garments else None
             for b in targets:
@@ -355,7 +360,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                             add(m.key, got[0], got[1], seconds_reused=got[2])
                         continue
                     model, Q = None, None
-                    key = (m.interpolate, m.anchoring)
+                    key = (m.interpolate, m.anchoring, m.energy)
                     if m.kind == "model":
                         model = _field_source(m, models[m.variant], fields, gi, targets)
                         if field_error and getattr(model, "conditions_on_garment", False):

@@ -12,3 +12,11 @@ def test_a_field_share_method_is_the_half_field_method_at_another_share():
     assert method_of("direct") is METHODS["direct"]
     with pytest.raises(KeyError, match="garment_share_placed"):
         method_of("garment_share_placed")
+
+
+def test_only_the_paper_as_written_solves_with_the_papers_edge_energy():
+    from garment_transfer.poisson import ENERGIES
+
+    assert METHODS["paper"].energy == "edges"
+    assert {m.energy for k, m in METHODS.items() if k != "paper"} == {"gradients"}
+    assert {m.energy for m in METHODS.values()} <= set(ENERGIES)
