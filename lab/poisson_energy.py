@@ -13,8 +13,9 @@ Run::
         [--targets b1,b2] [--json out.json]
 
 ``--data``: a dataset folder (default: the MakeHuman fixtures, ``GARMENT_TRANSFER_MAKEHUMAN``, or the
-folder ``python -m lab.makehuman_drape --out DIR`` writes, whose garments are simulated); its manifest's
-source body unless ``--source``.
+folder ``python -m lab.makehuman_drape --out DIR`` writes, whose garments are simulated); the source body is
+``--source``, else the manifest's, else ``female_average``; the garments are the folder's own (not the catalogue
+garments nor the looser cuts those lab modules add), the targets every other body.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ RUNS = [(e, placed) for placed in (False, True) for e in ENERGIES]
 
 
 def run(folder, source, garments, targets, progress=print):
-    """Rows: one per garment, target, energy and placement (``evaluate``'s figures and ``solver_seconds``)."""
+    """Rows: one per garment, target, energy and placement (``evaluate``'s figures, ``garment``, ``target``,
+    ``energy``, ``placed`` and ``prepare_seconds``)."""
     ds = load_dataset(folder)
     body = ds.body(source)
     rows = []
