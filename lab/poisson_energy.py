@@ -43,6 +43,7 @@ def run(folder, source, garments, targets, progress=print):
     ``energy``, ``placed`` and ``prepare_seconds``)."""
     ds = load_dataset(folder)
     body = ds.body(source)
+    bodies = {b: ds.body(b) for b in targets}
     rows = []
     for g in garments:
         garment = ds.garment(g, source)
@@ -52,7 +53,7 @@ def run(folder, source, garments, targets, progress=print):
             prepared[e] = prepare_garment(body, garment, energy=e)
             seconds[e] = time.perf_counter() - t
         for b in targets:
-            target, ref = ds.body(b), ds.garment(g, b)
+            target, ref = bodies[b], ds.garment(g, b)
             own = true_offsets(prepared["gradients"].binding, body, target, ref.V)[0]
             for e, placed in RUNS:
                 r = transfer_garment(body, target, garment, prepared=prepared[e], placement=own if placed else None)

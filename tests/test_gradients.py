@@ -129,8 +129,8 @@ def _sheet_with_thin_column():
     """A flat sheet whose middle column of quads is squeezed to 1:20 slivers, the vertex columns on
     either side of them, a target field that keeps it flat and anchors that ask for a bump and a shear
     (which it cannot follow exactly)."""
-    V = grid(12, 12).V.copy()
-    F = grid(12, 12).F
+    sheet = grid(12, 12)
+    V, F = sheet.V.copy(), sheet.F
     xs = np.unique(V[:, 0])
     V[np.isclose(V[:, 0], xs[6]), 0] = xs[5] + 0.004
     thin = np.isclose(V[:, 0], xs[5]) | np.isclose(V[:, 0], xs[5] + 0.004)
