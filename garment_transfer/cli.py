@@ -331,7 +331,7 @@ def _train_garment(args, targets, garments):
         args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
         placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
         progress=stderr_progress("train"), threads=args.threads, placement_members=args.placement_members,
-        placement_residual=not args.placement_absolute)
+        placement_residual=not args.placement_absolute, library_share=args.nearest_garments)
     parts = [f"field {summary['field']['epochs']} passes over {summary['field']['samples']} samples, final loss "
              f"{summary['field']['final_loss']:.4g}"]
     if summary["placement"]:
@@ -339,6 +339,9 @@ def _train_garment(args, targets, garments):
         parts.append(f"placement {summary['placement']['epochs']} passes over {summary['placement']['samples']} "
                      f"samples{f' for each of {members} members' if members > 1 else ''}, final loss "
                      f"{summary['placement']['final_loss']:.4g}")
+    if summary.get("library"):
+        parts.append(f"nearest garments' placement ({summary['library']['entries']} entries) at share "
+                     f"{summary['library']['share']:g}")
     what = "garment fit model and learned placement" if summary["placement"] else "garment fit model"
     _emit(args, summary, [f"wrote {args.out}: {what}; {'; '.join(parts)}; {summary['seconds']:.1f} s"])
 
@@ -352,6 +355,7 @@ def cmd_batch(args):
 def build_parser():
     from .garment_training import PLACEMENT_MEMBERS
     from .model_files import DEFAULT_FIELD_SHARE
+    from .placement import LIBRARY_SHARE
 
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
                                 description="Design-preserving garment transfer between body shapes.",
@@ -491,7 +495,12 @@ def build_parser():
     r.add_argument("--placement-absolute", action="store_true",
                    help="garment only: the placement networks learn the offset itself, not its difference from "
                         "the training garments' mean offset per body triangle (the default, chosen on held-out "
-                        "training garments); the file then reads with earlier versions too")
+                        "training garments); with --nearest-garments 0 the file then reads with earlier "
+                        "versions too")
+    r.add_argument("--nearest-garments", type=share_option, default=None, metavar="SHARE",
+                   help="garment only: the share of the nearest garments' placement (the training garments' own "
+                        "placements, weighted by how alike each is to the new garment around each body triangle) "
+                        f"mixed with the networks' (default {LIBRARY_SHARE:g}); 0 leaves it out")
     r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
                                                 "replacing a writable file of that name")
     r.add_argument("--json", action="store_true", help="print one JSON object")
@@ -519,11 +528,15 @@ def _check_train_options(parser, args):
     other = {"shared": [("--placement-epochs", args.placement_epochs is not None),
                         ("--placement-members", args.placement_members is not None),
                         ("--no-placement", args.no_placement),
-                        ("--placement-absolute", args.placement_absolute)],
+                        ("--placement-absolute", args.placement_absolute),
+                        ("--nearest-garments", args.nearest_garments is not None)],
              "garment": [("--latent", args.latent is not None), ("--unmasked", args.unmasked)]}[args.kind]
     wrong = [name for name, given in other if given]
     if wrong:
         parser.error(f"{', '.join(wrong)} {'is' if len(wrong) == 1 else 'are'} not for train --kind {args.kind}")
+    if args.kind == "garment" and args.no_placement and args.nearest_garments is not None:
+        parser.error("--nearest-garments mixes the nearest garments' placement with the learned placement, which "
+                     "--no-placement leaves out")
     if args.kind == "garment" and args.placement_epochs is None:
         from .garment_training import PLACEMENT_EPOCHS
 

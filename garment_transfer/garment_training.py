@@ -274,6 +274,67 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
     info = {"seconds": metadata["training"]["seconds"], "samples": len(Y), "epochs": epochs, "losses": losses}
     return PlacementModel(arrays, metadata, "placement model"), info
 
+def nearest_garments(tables, targets, garments=None, width=None, length_share=None):
+    """The nearest garments' placement (``placement.NearestGarments``) of ``placement_tables``.
+
+    Every training garment's placement on every target and its ``placement.similarity_features``, kept on
+    the body triangles it is bound to; nothing is trained.
+
+    Parameters
+    ----------
+    tables : dict
+        ``placement_tables``' (``garment_X``, ``garment_context``, ``context_shares``, ``offset``, ``bound``,
+        ``bodies``, ``body``).
+    targets : list of str
+        In the order of ``tables``.
+    garments : list of str, optional
+        The training garments' names, in the order of ``tables`` (kept in the metadata).
+    width : float, optional
+        ``placement.SIMILARITY_WIDTH`` by default.
+    length_share : float, optional
+        The smoothing of its predictions (default ``placement.SMOOTHING_SHARE``).
+
+    Returns
+    -------
+    placement.NearestGarments
+    """
+    from .placement import (LIBRARY_FORMAT, LIBRARY_FORMAT_VERSION, SIMILARITY_WIDTH, SMOOTHING_SHARE,
+                            NearestGarments, similarity_features)
+
+    GX, context = tables["garment_X"], tables["garment_context"]
+    offset, bound = tables["offset"], tables["bound"]
+    G = offset.shape[0]
+    names = [f"garment {g}" for g in range(G)] if garments is None else list(garments)
+    if len(names) != G or len(targets) != offset.shape[1]:
+        raise ValueError(f"{len(names)} garment names and {len(targets)} targets for placement tables of "
+                         f"{G} garments and {offset.shape[1]} targets")
+    tri, gar, feats, offs, wts = [], [], [], [], []
+    for g in range(G):
+        idx = np.nonzero(bound[g] > 0)[0]
+        tri.append(idx)
+        gar.append(np.full(len(idx), g))
+        feats.append(similarity_features(GX[g][idx], context[g][idx]))
+        offs.append(offset[g][:, idx])
+        wts.append(bound[g][idx])
+    features = np.concatenate(feats)
+    if features.shape[0] == 0:
+        raise ValueError("no training garment is bound to the body")
+    scale = features.std(axis=0)
+    scale[~(scale > 1e-9)] = 1.0
+    body = tables["body"]
+    arrays = {"triangles": np.concatenate(tri).astype(np.int32), "garment": np.concatenate(gar).astype(np.int32),
+              "features": features.astype(np.float32), "offsets": np.concatenate(offs, axis=1).astype(np.float32),
+              "weights": np.concatenate(wts).astype(np.float32), "feature_scale": scale.astype(np.float32),
+              "label_bodies": np.asarray(tables["bodies"], dtype=np.float32)}
+    metadata = {"format": LIBRARY_FORMAT, "format_version": LIBRARY_FORMAT_VERSION, "targets": list(targets),
+                "source": {"name": body.name, "n_vertices": body.n_vertices, "n_faces": body.n_faces,
+                           "n_triangles": body.n_triangles, "faces_hash": faces_hash(body)},
+                "cover_distance": None, "context_shares": list(tables["context_shares"]),
+                "smoothing_share": float(SMOOTHING_SHARE if length_share is None else length_share),
+                "similarity_width": float(SIMILARITY_WIDTH if width is None else width), "garments": names}
+    return NearestGarments(arrays, metadata, "nearest garments placement")
+
+
 def train_placement_ensemble(tables, targets, members=None, seed=0, progress=None, **options):
     """``train_placement_model`` ``members`` times, with seeds ``seed``, ``seed + 1``, ...: their mean
     (``placement.PlacementEnsemble``) predicts with less of a single network's variance.
@@ -407,7 +468,7 @@ PLACEMENT_RESIDUAL = True
 def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, epochs=FIELD_EPOCHS,
                                    placement_epochs=PLACEMENT_EPOCHS, placement=True, seed=0, out=None,
                                    progress=None, threads=None, placement_members=PLACEMENT_MEMBERS,
-                                   placement_residual=PLACEMENT_RESIDUAL):
+                                   placement_residual=PLACEMENT_RESIDUAL, library_share=None):
     """Read a dataset folder, train the garment fit model and its learned placement, and write both to
     one file (``model_files.save_garment_fit_bundle``).
 
@@ -441,6 +502,9 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     placement_residual : bool
         Each placement network learns the offset less the training garments' mean offset per triangle
         (``train_placement_model``'s ``residual``; the file's placement is then of format version 2).
+    library_share : float, optional
+        The share of the nearest garments' placement (``nearest_garments``) mixed with the networks'
+        (``placement.MixedPlacement``; default ``placement.LIBRARY_SHARE``); 0 leaves it out of the file.
 
     Returns
     -------
@@ -454,7 +518,12 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     from .dataset import build_training_fields, load_dataset
     from .training import default_threads
 
+    from .placement import LIBRARY_SHARE
+
     threads = default_threads() if threads is None else max(1, int(threads))
+    library_share = LIBRARY_SHARE if library_share is None else float(library_share)
+    if not 0.0 <= library_share <= 1.0:
+        raise ValueError(f"library_share must be between 0 and 1, got {library_share}")
     if isinstance(targets, str):
         targets = [t for t in targets.split(",") if t]
     for what, n in (("epochs", epochs), ("placement_epochs", placement_epochs),
@@ -480,13 +549,15 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
 
     field_model, field_info = train_garment_model(tables, targets, epochs=int(epochs), seed=seed, threads=threads,
                                                   progress=span(0.1, end))
-    placement_model, placement_info = None, None
+    placement_model, placement_info, library = None, None, None
     if placement:
         placement_tables(ds, source, targets, garments, tables)
         placement_model, placement_info = train_placement_ensemble(tables, targets, int(placement_members),
                                                                    seed=seed, progress=span(0.5, 1.0),
                                                                    epochs=int(placement_epochs), threads=threads,
                                                                    residual=bool(placement_residual))
+        if library_share > 0:
+            library = nearest_garments(tables, targets, garments)
     dataset_info = {"folder": os.path.basename(os.path.abspath(os.fspath(dataset_dir))), "units": ds.units,
                     "up_axis": ds.up_axis}
     placed = [] if placement_model is None else getattr(placement_model, "members", [placement_model])
@@ -495,7 +566,8 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     if out is not None:
         from .model_files import save_garment_fit_bundle
 
-        save_garment_fit_bundle(out, field_model, placement_model, dataset=dataset_info)
+        save_garment_fit_bundle(out, field_model, placement_model, dataset=dataset_info, library=library,
+                                library_share=library_share)
 
     def part(info):
         return None if info is None else {"epochs": info["epochs"], "samples": int(info["samples"]),
@@ -505,4 +577,6 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     return {"kind": "garment", "out": None if out is None else os.fspath(out), "source": source,
             "targets": targets, "garments": garments, "dataset": os.fspath(dataset_dir), "threads": threads,
             "read_seconds": round(read_seconds, 3), "seconds": round(time.perf_counter() - t0, 2),
-            "field": part(field_info), "placement": part(placement_info)}
+            "field": part(field_info), "placement": part(placement_info),
+            "library": None if library is None else {"share": library_share,
+                                                     "entries": int(library.arrays["triangles"].shape[0])}}

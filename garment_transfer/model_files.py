@@ -23,6 +23,12 @@ single placement model is written as version 1 (as before), and both versions ar
 It is read with ``allow_pickle=False`` only; its parts are checked as the single-model files are
 (their own formats and versions), and must have been trained on the same source body.
 
+A bundle may also hold the nearest garments' placement (``placement.NearestGarments``: the training
+garments' own placements, no network), mixed with the networks' (``placement.MixedPlacement``): format
+version 3, its arrays prefixed ``library.``, its metadata ``"library"`` and the share ``"library_share"``;
+the placement networks are then listed as in version 2 (``placement_members`` >= 1). Versions 1 and 2 are
+read as before; a reader of those versions refuses a version 3 file rather than leave its part out.
+
 A placement model alone is refused: it is meant to go with the field it was measured with.
 """
 
@@ -39,6 +45,8 @@ BUNDLE_FORMAT = "garment_transfer.garment_fit_bundle"
 #: The version written with a single placement model (or none); ``ENSEMBLE_BUNDLE_VERSION`` with several.
 BUNDLE_VERSION = 1
 ENSEMBLE_BUNDLE_VERSION = 2
+#: The version written with the nearest garments' placement (``placement.NearestGarments``).
+LIBRARY_BUNDLE_VERSION = 3
 #: Placement members a bundle may hold (a damaged count is refused before anything is built).
 MAX_PLACEMENT_MEMBERS = 64
 #: The share of the garment fit model's field used by default (``GarmentFitModel.with_field_share``):
@@ -120,11 +128,14 @@ class ModelFile:
             return f"shared deformation model ({base})"
         text = f"garment fit model ({base}), field share {self.field_share:g}"
         if self.placement is not None:
-            return text + ", learned placement"
+            share = getattr(getattr(self.placement, "model", None), "share", None)
+            return text + (", learned placement" if share is None else
+                           f", learned placement mixed with the nearest garments' at share {share:g}")
         return text + (", placement left out" if self.has_placement else ", no placement in the file")
 
 
-def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=None, inputs=()):
+def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=None, inputs=(), library=None,
+                            library_share=None):
     """Write a garment fit model and its learned placement to one ``.npz`` file, atomically.
 
     Parameters
@@ -133,6 +144,9 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
     field_model : garment_model.GarmentFitModel
     placement_model : placement.PlacementModel or placement.PlacementEnsemble, optional
         Trained on the same source body.
+    library : placement.NearestGarments, optional
+        The nearest garments' placement, mixed with ``placement_model``'s (needs one) at ``library_share``
+        (default ``placement.LIBRARY_SHARE``).
     dataset : dict, optional
         ``folder``, ``units``, ``up_axis`` of the training data (the Blender layer reads the up axis).
     inputs : iterable of paths
@@ -144,6 +158,14 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
         raise ModelError(os.fspath(path), "the field and placement models were trained on different source bodies")
     arrays = {f"field.{k}": np.asarray(v) for k, v in field_model.arrays.items()}
     members = getattr(placement_model, "members", None)
+    if library is not None:
+        from .placement import LIBRARY_SHARE, MixedPlacement
+
+        if placement_model is None:
+            raise ModelError(os.fspath(path), "the nearest garments' placement goes with the placement networks; "
+                                              "none was given")
+        library_share = LIBRARY_SHARE if library_share is None else float(library_share)
+        MixedPlacement(placement_model, library, library_share)  # checks that the two fit together
     if members is not None and len(members) > MAX_PLACEMENT_MEMBERS:
         raise ModelError(os.fspath(path), f"the placement has {len(members)} members; a model file holds at most "
                                           f"{MAX_PLACEMENT_MEMBERS}")
@@ -162,6 +184,14 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
                 "source": field_model.metadata["source"], "targets": list(field_model.targets)}
     if version == ENSEMBLE_BUNDLE_VERSION:
         metadata["placement_members"] = len(members)
+    if library is not None:
+        if version == BUNDLE_VERSION:
+            arrays = {(f"placement.0.{k[len('placement.'):]}" if k.startswith("placement.") else k): v
+                      for k, v in arrays.items()}
+            metadata["placement"] = [placement_md]
+        metadata.update(format_version=LIBRARY_BUNDLE_VERSION, placement_members=len(metadata["placement"]),
+                        library=library.metadata, library_share=library_share)
+        arrays.update({f"library.{k}": np.asarray(v) for k, v in library.arrays.items()})
     save_npz_atomic(path, arrays, metadata, inputs=inputs)
 
 
@@ -212,7 +242,7 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
                                "the garment fit model and its placement in one file")
     if fmt != BUNDLE_FORMAT:
         raise ModelError(path, f"is not a garment transfer model (metadata 'format' is {fmt!r})")
-    need_format_version(path, metadata, (BUNDLE_VERSION, ENSEMBLE_BUNDLE_VERSION))
+    need_format_version(path, metadata, (BUNDLE_VERSION, ENSEMBLE_BUNDLE_VERSION, LIBRARY_BUNDLE_VERSION))
     members = _placement_members(path, metadata, metadata["format_version"])
     # (prefix of the arrays, metadata, module, what): the field model and each placement member.
     specs = [("field", metadata.get("field"), garment_model, "field")]
@@ -239,7 +269,11 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         if kind == "placement" and "smoothing_share" not in md:
             raise ModelError(path, f"its {what} metadata lacks 'smoothing_share'")
         parts[prefix] = (own, md)
-    strays = sorted(k for k in arrays if not any(k.startswith(p + ".") for p in parts))
+    library = None
+    if metadata["format_version"] == LIBRARY_BUNDLE_VERSION:
+        library = _library(path, metadata, arrays)
+    prefixes = [*parts, *(["library"] if library is not None else [])]
+    strays = sorted(k for k in arrays if not any(k.startswith(p + ".") for p in prefixes))
     if strays:
         raise ModelError(path, f"has arrays of no part: {', '.join(strays[:5])}")
     model = _build(path, garment_model.GarmentFitModel, *parts.pop("field"))
@@ -249,7 +283,17 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         if not all(_same_source(model, m) for m in built):
             raise ModelError(path, "its field and placement models were trained on different source bodies")
         # One member: the model itself (the same prediction as an ensemble of one).
-        placed = built[0] if members is None else placement.PlacementEnsemble(built, path)
+        placed = built[0] if members is None or len(built) == 1 else placement.PlacementEnsemble(built, path)
+    if library is not None:
+        if placed is None:
+            raise ModelError(path, "has the nearest garments' placement but no placement networks to mix it with")
+        if not _same_source(model, library):
+            raise ModelError(path, "its field model and nearest garments' placement were made on different source "
+                                   "bodies")
+        mix = metadata.get("library_share")
+        if isinstance(mix, bool) or not isinstance(mix, (int, float)) or not 0.0 <= mix <= 1.0:
+            raise ModelError(path, f"has a bad 'library_share' ({mix!r}): a number between 0 and 1")
+        placed = placement.MixedPlacement(placed, library, float(mix))
     # A body the placement was not trained on gets the blend of its training bodies' placements (on the
     # demo's hourglass held out: 1.23x the error of a training body against 1.48x for the network's own
     # prediction at the mixed label); a training body gets the network's own.
@@ -261,16 +305,17 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
 
 def _placement_members(path, metadata, version):
     """How many placement members a bundle holds: None for version 1 (one placement model or none); for
-    version 2 the checked ``placement_members``, which its ``placement`` metadata list must match."""
+    versions 2 and 3 the checked ``placement_members``, which its ``placement`` metadata list must match."""
     count = metadata.get("placement_members")
     if version == BUNDLE_VERSION:
         if count is not None:
             raise ModelError(path, f"has 'placement_members' ({count!r}), which format version {BUNDLE_VERSION} "
                                    "does not have")
         return None
-    if isinstance(count, bool) or not isinstance(count, int) or not 2 <= count <= MAX_PLACEMENT_MEMBERS:
+    least = 2 if version == ENSEMBLE_BUNDLE_VERSION else 1
+    if isinstance(count, bool) or not isinstance(count, int) or not least <= count <= MAX_PLACEMENT_MEMBERS:
         raise ModelError(path, f"has a bad 'placement_members' ({count!r}): a format version "
-                               f"{ENSEMBLE_BUNDLE_VERSION} file holds 2 to {MAX_PLACEMENT_MEMBERS} placement "
+                               f"{version} file holds {least} to {MAX_PLACEMENT_MEMBERS} placement "
                                "members")
     listed = metadata.get("placement")
     if not isinstance(listed, list) or len(listed) != count:
@@ -278,6 +323,22 @@ def _placement_members(path, metadata, version):
         raise ModelError(path, f"says it holds {count} placement members, but its 'placement' metadata has "
                                f"{have}")
     return count
+
+
+def _library(path, metadata, arrays):
+    """The nearest garments' placement of a version 3 bundle, checked (a ModelError naming the file)."""
+    from . import placement
+    from .model import need_format_version
+
+    md = metadata.get("library")
+    if not isinstance(md, dict):
+        raise ModelError(path, "has no nearest garments' placement ('library' metadata), which format version "
+                               f"{LIBRARY_BUNDLE_VERSION} has")
+    if md.get("format") != placement.LIBRARY_FORMAT:
+        raise ModelError(path, f"its 'library' part is not a nearest garments' placement (format {md.get('format')!r})")
+    need_format_version(path, md, placement.LIBRARY_FORMAT_VERSION, "its nearest garments' placement")
+    own = {k[len("library."):]: v for k, v in arrays.items() if k.startswith("library.")}
+    return _build(path, placement.NearestGarments, own, md)
 
 
 def _same_source(field_model, placement_model):

@@ -18,9 +18,9 @@ import numpy as np
 from garment_transfer.dataset import build_training_fields, load_dataset
 from garment_transfer.gradients import deformation_gradients
 from garment_transfer.metrics import evaluate
-from garment_transfer.garment_training import (placement_tables, train_garment_model, train_placement_ensemble,
-                                               training_tables)
-from garment_transfer.placement import true_offsets
+from garment_transfer.garment_training import (nearest_garments, placement_tables, train_garment_model,
+                                               train_placement_ensemble, training_tables)
+from garment_transfer.placement import MixedPlacement, true_offsets
 from garment_transfer.training import train_model
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -52,7 +52,9 @@ class Method:
         ``transfer_garment``'s: ``everywhere`` or ``contact``.
     placement : str, optional
         ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
-        fold's garments) or ``"oracle"`` (the held-out garment's own placement, from its simulation).
+        fold's garments), ``"nearest"`` (the fold's nearest garments' placement, ``placement.NearestGarments``),
+        ``"mixed"`` (the two mixed, ``placement.MixedPlacement`` at ``LIBRARY_SHARE``) or ``"oracle"`` (the
+        held-out garment's own placement, from its simulation).
     field_share : float
         For ``field="half"``: the share of the garment model's field (``with_field_share``).
     """
@@ -86,6 +88,8 @@ PLACEMENT_MEMBERS = 1
 #: Further ``garment_training.train_placement_model`` arguments of every placement the lab trains (hidden
 #: widths, learning rate and its schedule, weight decay, a loss weighted by bound points); empty: its defaults.
 PLACEMENT_OPTIONS = {}
+#: The nearest garments' share in the ``mixed`` placement (``placement.MixedPlacement``).
+LIBRARY_SHARE = 0.5
 
 
 def train_placement(tables, targets, seed=0, threads=None, **options):
@@ -131,6 +135,15 @@ METHODS = {m.key: m for m in (
            placement="model"),
     Method("garment_half_placed", "Garment fit model's field halfway back to the body's own, learned placement, "
            "anchors everywhere", "model", "garment", field="half", placement="model"),
+    Method("direct_nearest_placed", "Direct deformation transfer and the nearest garments' placement, anchors "
+           "everywhere", "direct", placement="nearest"),
+    Method("direct_mixed_placed", "Direct deformation transfer and the learned placement mixed with the nearest "
+           "garments', anchors everywhere", "direct", placement="mixed"),
+    Method("garment_half_nearest_placed", "Garment fit model's field halfway back to the body's own, the nearest "
+           "garments' placement, anchors everywhere", "model", "garment", field="half", placement="nearest"),
+    Method("garment_half_mixed_placed", "Garment fit model's field halfway back to the body's own, the learned "
+           "placement mixed with the nearest garments', anchors everywhere", "model", "garment", field="half",
+           placement="mixed"),
     Method("direct_oracle_placed", "Direct deformation transfer and the held-out garment's own placement, "
            "anchors everywhere", "direct", placement="oracle"),
     Method("garment_oracle_placed", "Garment fit model and the held-out garment's own placement, anchors "
@@ -268,7 +281,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     external = external or {}
     reference_seconds = reference_seconds or {}
     variants = sorted({m.variant for m in methods if m.kind == "model"}
-                      | ({"placement"} if any(m.placement == "model" for m in methods) else set()),
+                      | ({"placement"} if any(m.placement in ("model", "mixed") for m in methods) else set()),
                       key=list(VARIANTS).index)
 
     def step(fraction, stage):
@@ -320,6 +333,13 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
             trainings.append({"fold": i, "test": list(test), "variant": v,
                               "masked": VARIANTS[v].get("masked", True), **{k: info[k] for k in kept},
                               "curve": thin(curve, 100)})
+        if any(m.placement in ("nearest", "mixed") for m in methods):
+            tables = tables or training_tables(ds, source, targets, list(train), fields=part)
+            if "offset" not in tables:
+                placement_tables(ds, source, targets, list(train), tables)
+            models["nearest"] = nearest_garments(tables, targets, list(train))
+            if "placement" in models:
+                models["mixed"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE)
         if on_models:
             on_models(i, models)
         step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
@@ -369,8 +389,8 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                             Q = model.body_field(b)
                     elif m.kind == "direct":
                         Q = body_fields.get(b)
-                    placement = {None: None, "model": models.get("placement"),
-                                 "oracle": oracle_placement}[m.placement]
+                    placement = {None: None, "model": models.get("placement"), "nearest": models.get("nearest"),
+                                 "mixed": models.get("mixed"), "oracle": oracle_placement}[m.placement]
                     r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
                                          prepared=prepared[key], interpolate=m.interpolate,
                                          fix_penetration=m.fix_penetration, placement=placement)

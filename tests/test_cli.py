@@ -142,10 +142,14 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert (data["method"], data["model"], data["model_kind"], data["field_share"], data["placement"]) == \
         ("model", str(model), "garment", 0.5, True)
     loaded = read_model_file(model)
-    assert isinstance(loaded.placement.model, PlacementEnsemble)
-    assert len(loaded.placement.model.members) == PLACEMENT_MEMBERS
+    # The networks mixed with the nearest garments' placement (the default share).
+    from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement
+
+    mixed = loaded.placement.model
+    assert isinstance(mixed, MixedPlacement) and mixed.share == LIBRARY_SHARE == summary["library"]["share"]
+    assert isinstance(mixed.model, PlacementEnsemble) and len(mixed.model.members) == PLACEMENT_MEMBERS
     # Each member learned the offset less the training garments' mean offset (placement format version 2).
-    assert all(m.metadata["format_version"] == 2 and "offset_base" in m.arrays for m in loaded.placement.model.members)
+    assert all(m.metadata["format_version"] == 2 and "offset_base" in m.arrays for m in mixed.model.members)
     expect = transfer_garment(read_obj(src), read_obj(tgt), read_obj(garment), method="model", model=loaded.model,
                               placement=loaded.placement).V
     # The same to the last digit of the file (9 significant digits).
@@ -159,14 +163,19 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
                                     model=whole.model).V
     np.testing.assert_array_equal(read_obj(tmp_path / "whole.obj").V, as_written(expect_whole))
     assert np.abs(expect_whole - expect).max() > 1e-5
-    # --placement-absolute: the placement as before (format version 1, no mean offset).
+    # --placement-absolute --nearest-garments 0: the placement as before (format version 1, no mean offset,
+    # no nearest garments).
     absolute = tmp_path / "absolute.npz"
     p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
             "--garments", "band,skirt", "--placement-epochs", "10", "--placement-members", "1",
-            "--placement-absolute", "--out", absolute)
+            "--placement-absolute", "--nearest-garments", "0", "--out", absolute, "--json")
     assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["library"] is None
     placed = read_model_file(absolute).placement.model
     assert placed.metadata["format_version"] == 1 and "offset_base" not in placed.arrays
+    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
+            "--garments", "band,skirt", "--nearest-garments", "1.5", "--out", tmp_path / "bad.npz")
+    assert p.returncode == 2 and "--nearest-garments" in p.stderr and not (tmp_path / "bad.npz").exists()
 
 
 def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):

@@ -27,7 +27,8 @@ def bundle(tmp_path_factory):
     ds = make_tiny_dataset(folder / "ds")
     path = folder / "garment.npz"
     info = train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3,
-                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=1)
+                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=1,
+                                          library_share=0)
     return ds, path, info
 
 
@@ -39,7 +40,8 @@ def ensemble_bundle(bundle):
     ds, single, _ = bundle
     path = single.parent / "ensemble.npz"
     info = train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3,
-                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=2)
+                                          placement_epochs=10, seed=1, out=path, threads=1, placement_members=2,
+                                          library_share=0)
     return ds, path, info
 
 
@@ -112,8 +114,8 @@ def rewrite(path, out, metadata=None, drop=(), add=None):
 def test_wrong_or_damaged_files_are_refused_naming_them(bundle, tmp_path):
     _, path, _ = bundle
     cases = {
-        "newer.npz": (lambda p: rewrite(path, p, lambda md: md.update(format_version=3)),
-                      "has format version 3; this version of garment_transfer reads versions 1 and 2"),
+        "newer.npz": (lambda p: rewrite(path, p, lambda md: md.update(format_version=4)),
+                      "has format version 4; this version of garment_transfer reads versions 1, 2 and 3"),
         "v1_members.npz": (lambda p: rewrite(path, p, lambda md: md.update(placement_members=1)),
                            "has 'placement_members' (1), which format version 1 does not have"),
         "newer_part.npz": (lambda p: rewrite(path, p, lambda md: md["placement"].update(format_version=7)),
@@ -300,7 +302,8 @@ def test_the_default_placement_is_residual_and_a_file_without_the_base_still_rea
     # Without the residual: a placement of format version 1, as files written before it, read alike.
     old = tmp_path / "old.npz"
     train_garment_fit_from_dataset(ds, "src", TARGETS, garments=["band", "skirt"], epochs=3, placement_epochs=10,
-                                   seed=1, out=old, threads=1, placement_members=1, placement_residual=False)
+                                   seed=1, out=old, threads=1, placement_members=1, placement_residual=False,
+                                   library_share=0)
     field_old, placed_old, md_old = parts_by_hand(old)
     assert md_old["placement"]["format_version"] == 1 and "offset_base" not in placed_old.arrays
     dataset = load_dataset(ds)
