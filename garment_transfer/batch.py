@@ -709,7 +709,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         rec.update(outcome="done", output=str(obj_path), worker=_where(),
                    seconds=time.perf_counter() - t1, prepare_seconds=prepare_seconds)
         used = {} if model is None else {k: v for k, v in model.summary().items()
-                                         if k in ("model_kind", "field_share", "placement")}
+                                         if k in ("model_kind", "field_share", "placement", "nearest_garments")}
         record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s), **used,
                       inputs=digests, stage_seconds=result.seconds,
                       crossings_left=int(result.info.get("crossings_after") or 0),

@@ -219,7 +219,7 @@ def _model_for(args):
 def _model_summary(model):
     """What the JSON output says of the model used: file, kind, field share, placement (or all None)."""
     if model is None:
-        return {"model": None, "model_kind": None, "field_share": None, "placement": False}
+        return {"model": None, "model_kind": None, "field_share": None, "placement": False, "nearest_garments": None}
     return {k: v for k, v in model.summary().items() if k != "targets"}
 
 

@@ -117,9 +117,11 @@ class ModelFile:
         self.model.check_source_body(mesh)
 
     def summary(self) -> dict:
-        """JSON-ready: ``model`` (file), ``model_kind``, ``field_share``, ``placement``, ``targets``."""
+        """JSON-ready: ``model`` (file), ``model_kind``, ``field_share``, ``placement``, ``nearest_garments`` (the
+        share of the nearest garments' placement in it, or None), ``targets``."""
+        share = getattr(getattr(self.placement, "model", None), "share", None)
         return {"model": self.path, "model_kind": self.kind, "field_share": self.field_share,
-                "placement": self.placement is not None, "targets": self.targets}
+                "placement": self.placement is not None, "nearest_garments": share, "targets": self.targets}
 
     def describe(self) -> str:
         """One line: which model, which share of its field, with or without the placement."""
@@ -128,7 +130,7 @@ class ModelFile:
             return f"shared deformation model ({base})"
         text = f"garment fit model ({base}), field share {self.field_share:g}"
         if self.placement is not None:
-            share = getattr(getattr(self.placement, "model", None), "share", None)
+            share = self.summary()["nearest_garments"]
             return text + (", learned placement" if share is None else
                            f", learned placement mixed with the nearest garments' at share {share:g}")
         return text + (", placement left out" if self.has_placement else ", no placement in the file")

@@ -60,7 +60,8 @@ from garment_transfer import placement
 from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
 from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import SCHEDULES, placement_tables, train_garment_model, training_tables
+from garment_transfer.garment_training import (SCHEDULES, nearest_garments, placement_tables, train_garment_model,
+                                               training_tables)
 from garment_transfer.metrics import evaluate
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -119,6 +120,14 @@ def demo_part(args, say):
             "train": train, "test": test}
 
 
+def with_nearest(placer, tables, targets, train, share):
+    """The placement networks mixed with the training garments' nearest garments' placement at ``share``
+    (``placement.MixedPlacement``, as ``train --kind garment`` writes it); 0: the networks alone."""
+    if not share:
+        return placer
+    return placement.MixedPlacement(placer, nearest_garments(tables, targets, list(train)), share)
+
+
 def model_runs(model, half, placer, label):
     """The learned methods the unseen_body and between parts run, as (key, anchoring, transfer_garment's
     arguments): the garment model with contact anchors, and with a placement ``placer`` (None: none) the
@@ -161,6 +170,7 @@ def unseen_body_part(args, say):
             placer, _ = experiment.train_placement(tables, targets, seed=args.seed, threads=args.threads,
                                                    use_label=not args.placement_nolabel,
                                                    body_offset=args.placement_body_offset)
+            placer = with_nearest(placer, tables, targets, train, args.nearest_garments)
             if args.placement_blend:
                 placer = placement.BlendedPlacement(placer)
         weights = model.label_weights_for(body, args.unseen if with_it else None)
@@ -251,7 +261,7 @@ def between_part(args, say):
         placer, pinfo = experiment.train_placement(tables, tgts, seed=args.seed, threads=args.threads,
                                                    use_label=not args.placement_nolabel,
                                                    body_offset=args.placement_body_offset)
-        placer = placement.BlendedPlacement(placer)
+        placer = placement.BlendedPlacement(with_nearest(placer, tables, tgts, train, args.nearest_garments))
         half = model.with_field_share(args.field_share)
         say(f"between ({variant}): trained on {tgts} in {tinfo['seconds']:.0f} + {pinfo['seconds']:.0f} s")
         if variant == "unseen":
@@ -395,6 +405,11 @@ def main(argv=None):
     ap.add_argument("--placement-smoothing", type=float, default=placement.SMOOTHING_SHARE,
                     help="smoothing length of the placement (its training targets and predictions), as a share "
                          "of the body scale")
+    ap.add_argument("--nearest-garments", type=float, default=0.0,
+                    help="unseen_body, between: the share of the nearest garments' placement mixed with the "
+                         "networks' (placement.MixedPlacement; train --kind garment's default is "
+                         "placement.LIBRARY_SHARE); 0: the networks alone. The demo and makehuman parts run it "
+                         "as the methods *_mixed_placed")
     ap.add_argument("--field-share", type=float, default=0.5,
                     help="unseen_body: the garment model's field share of garment_half_placed")
     ap.add_argument("--threads", type=int, default=1)

@@ -242,6 +242,9 @@ def test_a_garment_fit_model_file_with_its_placement_and_a_field_share(tmp_path)
     assert s.ok and s.counts["done"] == 1
     record = json.loads((out / "top" / "pear.json").read_text())
     assert (record["model_kind"], record["field_share"], record["placement"]) == ("garment", 0.5, True)
+    from garment_transfer.placement import LIBRARY_SHARE
+
+    assert record["nearest_garments"] == LIBRARY_SHARE          # the default training mixes them in
     assert "field_share" not in record["settings"]          # unset: not part of the result's key
     loaded = read_model_file(model)
     expected = transfer_garment(read_obj(ds / "bodies" / "src.obj"), read_obj(ds / "bodies" / "pear.obj"),

@@ -141,6 +141,7 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     data = json.loads(p.stdout)
     assert (data["method"], data["model"], data["model_kind"], data["field_share"], data["placement"]) == \
         ("model", str(model), "garment", 0.5, True)
+    assert data["nearest_garments"] == summary["library"]["share"]
     loaded = read_model_file(model)
     # The networks mixed with the nearest garments' placement (the default share).
     from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement

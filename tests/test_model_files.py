@@ -68,6 +68,7 @@ def test_training_writes_one_file_with_both_models(bundle):
     assert model.kind == "garment" and model.field_share == DEFAULT_FIELD_SHARE == 0.5
     assert model.placement is not None and model.has_placement
     assert model.summary() == {"model": str(path), "model_kind": "garment", "field_share": 0.5, "placement": True,
+                               "nearest_garments": None,
                                "targets": TARGETS}
     assert model.describe() == "garment fit model (garment.npz), field share 0.5, learned placement"
 

@@ -92,7 +92,8 @@ def test_train_the_garment_fit_model_with_its_placement(dressed, tmp_path, exten
     read = extension.garment_transfer.model_files.read_model_file(tmp_path / "garment.npz")
     assert read.kind == "garment" and read.has_placement and read.targets == ["female_pear"]
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
-    assert settings.last_model == "Model: garment fit model (garment.npz), field share 0.5, learned placement"
+    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
+                                   "with the nearest garments' at share 0.5")
 
 
 def test_cancelled_training_writes_nothing(dressed, tmp_path, extension):

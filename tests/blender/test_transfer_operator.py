@@ -187,7 +187,8 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
     assert settings.model_kind == 'GARMENT' and settings.target_label == "female_pear"
     assert settings.field_share == 0.5
     result = transfer_result()
-    assert settings.last_model == "Model: garment fit model (garment.npz), field share 0.5, learned placement"
+    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
+                                   "with the nearest garments' at share 0.5")
 
     # The same as the core with the file's models, in the model's frame (a Y-up dataset).
     convert = extension.operators.convert
@@ -202,7 +203,8 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
 
     settings.field_share = 1.0
     whole = transfer_result()
-    assert settings.last_model == "Model: garment fit model (garment.npz), field share 1, learned placement"
+    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 1, learned placement mixed "
+                                   "with the nearest garments' at share 0.5")
     assert np.abs(world_vertices(whole) - world_vertices(result)).max() > 1e-4
     settings.method = 'DIRECT'
     transfer_result()
@@ -210,8 +212,8 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
 
     # A placement model alone is refused, naming the file, and nothing in the scene changes.
     placement_alone = tmp_path / "placement_alone.npz"
-    placed = loaded.placement.model          # the default: an ensemble of placement networks; one of them
-    getattr(placed, "members", [placed])[0].save(placement_alone)
+    placed = loaded.placement.model.model    # the default: an ensemble of placement networks (mixed with the
+    getattr(placed, "members", [placed])[0].save(placement_alone)   # nearest garments'); one of them
     settings.method = 'MODEL'
     settings.model_path = str(placement_alone)
     assert "placement_alone.npz: holds a placement model alone" in settings.model_status
