@@ -90,6 +90,8 @@ PLACEMENT_MEMBERS = 1
 PLACEMENT_OPTIONS = {}
 #: The nearest garments' share in the ``mixed`` placement (``placement.MixedPlacement``).
 LIBRARY_SHARE = 0.5
+#: The nearest garments' similarity width (None: ``placement.SIMILARITY_WIDTH``).
+NEAREST_WIDTH = None
 
 
 def train_placement(tables, targets, seed=0, threads=None, **options):
@@ -337,7 +339,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
             tables = tables or training_tables(ds, source, targets, list(train), fields=part)
             if "offset" not in tables:
                 placement_tables(ds, source, targets, list(train), tables)
-            models["nearest"] = nearest_garments(tables, targets, list(train))
+            models["nearest"] = nearest_garments(tables, targets, list(train), width=NEAREST_WIDTH)
             if "placement" in models:
                 models["mixed"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE)
         if on_models:

@@ -125,7 +125,8 @@ def with_nearest(placer, tables, targets, train, share):
     (``placement.MixedPlacement``, as ``train --kind garment`` writes it); 0: the networks alone."""
     if not share:
         return placer
-    return placement.MixedPlacement(placer, nearest_garments(tables, targets, list(train)), share)
+    return placement.MixedPlacement(placer, nearest_garments(tables, targets, list(train),
+                                                             width=experiment.NEAREST_WIDTH), share)
 
 
 def model_runs(model, half, placer, label):
@@ -410,6 +411,8 @@ def main(argv=None):
                          "networks' (placement.MixedPlacement; train --kind garment's default is "
                          "placement.LIBRARY_SHARE); 0: the networks alone. The demo and makehuman parts run it "
                          "as the methods *_mixed_placed")
+    ap.add_argument("--nearest-width", type=float, default=None,
+                    help="the nearest garments' similarity width (default placement.SIMILARITY_WIDTH)")
     ap.add_argument("--field-share", type=float, default=0.5,
                     help="unseen_body: the garment model's field share of garment_half_placed")
     ap.add_argument("--threads", type=int, default=1)
@@ -423,6 +426,7 @@ def main(argv=None):
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     experiment.PLACEMENT_MEMBERS = args.placement_members
     experiment.PLACEMENT_OPTIONS = placement_options(args)
+    experiment.NEAREST_WIDTH = args.nearest_width
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]
