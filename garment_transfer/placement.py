@@ -525,10 +525,10 @@ LIBRARY_FORMAT = "garment_transfer.nearest_garments_placement"
 LIBRARY_FORMAT_VERSION = 1
 #: How alike two garments are around a body triangle: the distance between their ``similarity_features``
 #: there, each feature over its spread in the training garments; a training garment weighs
-#: ``exp(-d^2 / (2 w^2))`` times its bound points, ``w`` this width. Measured on MakeHuman's suits held out
-#: in turn (7 + 60 training garments): the placement's RMS error on the bound triangles 12.1 / 11.8 / 10.4 /
-#: 11.1 mm on ``female_pear`` for widths 0.25 / 0.5 / 1 / 2 (10.6 with no placement; docs/garment-model.md).
-SIMILARITY_WIDTH = 1.0
+#: ``exp(-d^2 / (2 w^2))`` times its bound points, ``w`` this width. Chosen among 0.5, 1 and 2 on held-out
+#: training garments (the demo's validation fold, pear, half the field and the mixed placement): drape error
+#: 0.403, 0.411 and 0.420 (docs/garment-model.md, "The nearest garments' placement").
+SIMILARITY_WIDTH = 0.5
 #: The nearest garments' share in a ``MixedPlacement`` of them and the placement networks (docs/garment-model.md,
 #: "The nearest garments' placement").
 LIBRARY_SHARE = 0.5
