@@ -72,8 +72,8 @@ class ModelFile:
         ``transfer_garment``'s ``model`` (the garment fit model with ``field_share`` applied).
     placement : placement.BlendedPlacement or None
         ``transfer_garment``'s ``placement``: the file's learned placement (a ``PlacementModel`` or a
-        ``PlacementEnsemble``, blended over its training bodies for a body it was not trained on), unless
-        left out.
+        ``PlacementEnsemble``, or either mixed with the nearest garments' in a ``MixedPlacement``; blended
+        over its training bodies for a body it was not trained on), unless left out.
     field_share : float or None
         The share of the garment fit model's field (None for the shared model).
     has_placement : bool
