@@ -221,23 +221,31 @@ def _target_features_cached(source_V, target_V, F, shares):
     """``target_features``, kept for the last few bodies; the arrays returned are read-only."""
     arrays = [np.ascontiguousarray(source_V, dtype=np.float64), np.ascontiguousarray(target_V, dtype=np.float64),
               np.ascontiguousarray(F, dtype=np.int64)]
+    return recall_by_content(_TARGET_CACHE, _TARGET_CACHE_LOCK, _TARGET_CACHE_SIZE, arrays,
+                             tuple(float(x) for x in shares), lambda: target_features(*arrays, shares))
+
+
+def recall_by_content(cache, lock, size, arrays, params, compute):
+    """``compute()`` (a tuple of arrays), kept in ``cache`` (an ``OrderedDict``, at most ``size`` entries, the
+    least recently used dropped first) under the content of ``arrays`` and the hashable ``params``; the arrays
+    returned are read-only, and the same for the same content."""
     h = hashlib.sha256()
     for a in arrays:
-        h.update(str(a.shape).encode())
-        h.update(a.tobytes())
-    key = (h.hexdigest(), tuple(float(x) for x in shares))
-    with _TARGET_CACHE_LOCK:
-        if key in _TARGET_CACHE:
-            _TARGET_CACHE.move_to_end(key)
-            return _TARGET_CACHE[key]
-    X, dev = target_features(*arrays, shares)
-    X.setflags(write=False)
-    dev.setflags(write=False)
-    with _TARGET_CACHE_LOCK:
-        _TARGET_CACHE[key] = (X, dev)
-        while len(_TARGET_CACHE) > _TARGET_CACHE_SIZE:
-            _TARGET_CACHE.popitem(last=False)
-    return X, dev
+        h.update(f"{a.shape}{a.dtype}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    key = (h.hexdigest(), params)
+    with lock:
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+    value = compute()
+    for a in value:
+        a.setflags(write=False)
+    with lock:
+        cache[key] = value
+        while len(cache) > size:
+            cache.popitem(last=False)
+    return value
 
 
 def label_weights(target_V, label_bodies):

@@ -255,3 +255,33 @@ def test_a_bundle_with_the_nearest_garments_round_trips_and_is_checked(tiny, tmp
         with pytest.raises(ModelError) as exc:
             read_model_file(bad)
         assert str(exc.value).startswith(str(bad)) and problem in str(exc.value), (name, str(exc.value))
+
+
+def test_one_transfer_computes_the_garment_s_context_once(tiny, network, monkeypatch):
+    from collections import OrderedDict
+
+    import garment_transfer.placement as pl
+
+    folder, tables = tiny
+    ds = load_dataset(folder)
+    src, tgt, garment = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    calls = []
+    real = pl.garment_context
+    monkeypatch.setattr(pl, "garment_context", lambda *a: calls.append(a) or real(*a))
+    monkeypatch.setattr(pl, "_CONTEXT_CACHE", OrderedDict())
+    mixed = BlendedPlacement(MixedPlacement(network, nearest_garments(tables, TARGETS, TRAINING), 0.5))
+    mid = src.with_vertices(0.5 * (ds.body("similar").V + tgt.V))
+    # The networks and the nearest garments, on a body blended from both training bodies: one context.
+    first = transfer_garment(src, mid, garment, placement=mixed).V
+    assert len(calls) == 1
+    np.testing.assert_array_equal(transfer_garment(src, mid, garment, placement=mixed).V, first)
+    assert len(calls) == 1
+    from garment_transfer.garment_model import garment_features
+
+    X = garment_features(src.V, src.F, garment.V, garment.F)[0]
+    shares = tuple(tables["context_shares"])
+    ctx = pl._garment_context_cached(src.V, src.F, X, shares)
+    np.testing.assert_array_equal(ctx, real(src.V, src.F, X, shares))
+    assert not ctx.flags.writeable and len(calls) == 1
+    pl._garment_context_cached(src.V, src.F, 1.01 * X, shares)          # another garment: computed
+    assert len(calls) == 2
