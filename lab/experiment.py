@@ -20,7 +20,7 @@ from garment_transfer.gradients import deformation_gradients
 from garment_transfer.metrics import evaluate
 from garment_transfer.garment_training import (nearest_garments, placement_tables, train_garment_model,
                                                train_placement_ensemble, training_tables)
-from garment_transfer.placement import MixedPlacement, true_offsets
+from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement, true_offsets
 from garment_transfer.training import train_model
 from garment_transfer.transfer import prepare_garment, transfer_garment
 
@@ -53,8 +53,9 @@ class Method:
     placement : str, optional
         ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
         fold's garments), ``"nearest"`` (the fold's nearest garments' placement, ``placement.NearestGarments``),
-        ``"mixed"`` (the two mixed, ``placement.MixedPlacement`` at ``LIBRARY_SHARE``) or ``"oracle"`` (the
-        held-out garment's own placement, from its simulation).
+        ``"mixed"`` (the two mixed, ``placement.MixedPlacement`` at ``placement.LIBRARY_SHARE``, as ``train
+        --kind garment`` writes it) or ``"oracle"`` (the held-out garment's own placement, from its
+        simulation).
     field_share : float
         For ``field="half"``: the share of the garment model's field (``with_field_share``).
     """
@@ -88,8 +89,6 @@ PLACEMENT_MEMBERS = 1
 #: Further ``garment_training.train_placement_model`` arguments of every placement the lab trains (hidden
 #: widths, learning rate and its schedule, weight decay, a loss weighted by bound points); empty: its defaults.
 PLACEMENT_OPTIONS = {}
-#: The nearest garments' share in the ``mixed`` placement (``placement.MixedPlacement``).
-LIBRARY_SHARE = 0.5
 #: The nearest garments' similarity width (None: ``placement.SIMILARITY_WIDTH``).
 NEAREST_WIDTH = None
 
