@@ -707,9 +707,22 @@ class NearestGarments:
     frame_offsets = PlacementModel.frame_offsets
 
 
+def shrink_gain(y, difference, share, shrink):
+    """(M,) float64 in [0, 1]: the gain ``|y|^2 / (|y|^2 + c v)`` of a ``MixedPlacement`` shrunk where its two
+    predictions disagree, on each triangle: ``y`` the mix, ``v = ((1-share)^2 + share^2) |difference|^2 / 2``
+    its variance estimated from the two predictions' difference (two independent estimates of equal
+    spread), ``c = shrink`` (1: a Wiener filter's gain); 1 where nothing is predicted (no 0/0)."""
+    yy = np.einsum("mi,mi->m", y, y)
+    v = 0.5 * ((1.0 - share) ** 2 + share ** 2) * np.einsum("mi,mi->m", difference, difference)
+    den = yy + shrink * v
+    return np.divide(yy, den, out=np.ones_like(yy), where=den > 0)
+
+
 class MixedPlacement:
     """The placement networks' prediction and the nearest garments' (``NearestGarments``), mixed:
-    ``(1 - share) y_networks + share y_nearest`` in each triangle's unrotated frame.
+    ``(1 - share) y_networks + share y_nearest`` in each triangle's unrotated frame; optionally shrunk
+    towards no offset where the two disagree (``shrink``, ``shrink_gain``; measured, not what ``train`` writes:
+    docs/garment-model.md, "Shrinking the placement where its two predictions disagree").
 
     Goes wherever a ``PlacementModel`` goes (``transfer_garment``'s ``placement``, ``BlendedPlacement``).
 
@@ -720,12 +733,16 @@ class MixedPlacement:
         Of the same targets, source body and label bodies.
     share : float
         In [0, 1]: 0 the networks alone, 1 the nearest garments alone.
+    shrink : float
+        ``c >= 0`` of ``shrink_gain``; 0 (the default): the plain mix.
     """
 
-    def __init__(self, model, library, share=LIBRARY_SHARE):
-        share = float(share)
+    def __init__(self, model, library, share=LIBRARY_SHARE, shrink=0.0):
+        share, shrink = float(share), float(shrink)
         if not 0.0 <= share <= 1.0:
             raise ValueError(f"the nearest garments' share must be between 0 and 1, got {share}")
+        if not (np.isfinite(shrink) and shrink >= 0.0):
+            raise ValueError(f"the disagreement shrink must be a number >= 0, got {shrink}")
         if list(library.targets) != list(model.targets):
             raise ModelError(library.name, f"the nearest garments' placement has the targets {library.targets}, "
                                            f"the placement networks {model.targets}")
@@ -735,7 +752,7 @@ class MixedPlacement:
         if not np.array_equal(library.arrays["label_bodies"], model.arrays["label_bodies"]):
             raise ModelError(library.name, "the nearest garments' placement and the placement networks differ in "
                                            "their label bodies")
-        self.model, self.library, self.share = model, library, share
+        self.model, self.library, self.share, self.shrink = model, library, share, shrink
         self.name = model.name
 
     @property
@@ -757,15 +774,16 @@ class MixedPlacement:
         return self.model.label_weights_for(target_body, target)
 
     def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
-        """(M,3) float64: the mix of the two predictions (each smoothed)."""
-        parts = []
-        if self.share < 1.0:
-            parts.append((1.0 - self.share) * self.model.unrotated_offsets(binding, source_body, target_body,
-                                                                           garment, target))
-        if self.share > 0.0:
-            parts.append(self.share * self.library.unrotated_offsets(binding, source_body, target_body, garment,
-                                                                     target))
-        return sum(parts)
+        """(M,3) float64: the mix of the two predictions (each smoothed), shrunk where they disagree."""
+        s = self.share
+        a = self.model.unrotated_offsets(binding, source_body, target_body, garment, target) \
+            if s < 1.0 or self.shrink else None
+        b = self.library.unrotated_offsets(binding, source_body, target_body, garment, target) \
+            if s > 0.0 or self.shrink else None
+        y = b if s == 1.0 else a if s == 0.0 else (1.0 - s) * a + s * b
+        if self.shrink:
+            y = y * shrink_gain(y, a - b, s, self.shrink)[:, None]
+        return y
 
     frame_offsets = PlacementModel.frame_offsets
 

@@ -54,8 +54,9 @@ class Method:
         ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
         fold's garments), ``"nearest"`` (the fold's nearest garments' placement, ``placement.NearestGarments``),
         ``"mixed"`` (the two mixed, ``placement.MixedPlacement`` at ``placement.LIBRARY_SHARE``, as ``train
-        --kind garment`` writes it) or ``"oracle"`` (the held-out garment's own placement, from its
-        simulation).
+        --kind garment`` writes it), ``"shrunk"`` (the mix shrunk where its two
+        predictions disagree by ``DISAGREEMENT_SHRINK`` below, ``placement.shrink_gain``) or
+        ``"oracle"`` (the held-out garment's own placement, from its simulation).
     field_share : float
         For ``field="half"``: the share of the garment model's field (``with_field_share``).
     """
@@ -91,6 +92,8 @@ PLACEMENT_MEMBERS = 1
 PLACEMENT_OPTIONS = {}
 #: The nearest garments' similarity width (None: ``placement.SIMILARITY_WIDTH``).
 NEAREST_WIDTH = None
+#: The ``"shrunk"`` placement's factor ``c`` of ``placement.shrink_gain`` (1: the variance as estimated).
+DISAGREEMENT_SHRINK = 1.0
 
 
 def train_placement(tables, targets, seed=0, threads=None, **options):
@@ -142,6 +145,11 @@ METHODS = {m.key: m for m in (
            "garments', anchors everywhere", "direct", placement="mixed"),
     Method("garment_half_nearest_placed", "Garment fit model's field halfway back to the body's own, the nearest "
            "garments' placement, anchors everywhere", "model", "garment", field="half", placement="nearest"),
+    Method("direct_shrunk_placed", "Direct deformation transfer and the mixed placement, shrunk where its two "
+           "predictions disagree, anchors everywhere", "direct", placement="shrunk"),
+    Method("garment_half_shrunk_placed", "Garment fit model's field halfway back to the body's own, the mixed "
+           "placement shrunk where its two predictions disagree, anchors everywhere", "model", "garment",
+           field="half", placement="shrunk"),
     Method("garment_half_mixed_placed", "Garment fit model's field halfway back to the body's own, the learned "
            "placement mixed with the nearest garments', anchors everywhere", "model", "garment", field="half",
            placement="mixed"),
@@ -282,7 +290,8 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     external = external or {}
     reference_seconds = reference_seconds or {}
     variants = sorted({m.variant for m in methods if m.kind == "model"}
-                      | ({"placement"} if any(m.placement in ("model", "mixed") for m in methods) else set()),
+                      | ({"placement"} if any(m.placement in ("model", "mixed", "shrunk") for m in methods)
+                         else set()),
                       key=list(VARIANTS).index)
 
     def step(fraction, stage):
@@ -334,13 +343,15 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
             trainings.append({"fold": i, "test": list(test), "variant": v,
                               "masked": VARIANTS[v].get("masked", True), **{k: info[k] for k in kept},
                               "curve": thin(curve, 100)})
-        if any(m.placement in ("nearest", "mixed") for m in methods):
+        if any(m.placement in ("nearest", "mixed", "shrunk") for m in methods):
             tables = tables or training_tables(ds, source, targets, list(train), fields=part)
             if "offset" not in tables:
                 placement_tables(ds, source, targets, list(train), tables)
             models["nearest"] = nearest_garments(tables, targets, list(train), width=NEAREST_WIDTH)
             if "placement" in models:
                 models["mixed"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE)
+                models["shrunk"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE,
+                                                  DISAGREEMENT_SHRINK)
         if on_models:
             on_models(i, models)
         step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
@@ -391,7 +402,8 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                     elif m.kind == "direct":
                         Q = body_fields.get(b)
                     placement = {None: None, "model": models.get("placement"), "nearest": models.get("nearest"),
-                                 "mixed": models.get("mixed"), "oracle": oracle_placement}[m.placement]
+                                 "mixed": models.get("mixed"), "shrunk": models.get("shrunk"),
+                                 "oracle": oracle_placement}[m.placement]
                     r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
                                          prepared=prepared[key], interpolate=m.interpolate,
                                          fix_penetration=m.fix_penetration, placement=placement)

@@ -12,7 +12,8 @@ Parts (``--parts``, default all):
   garment's own placement (``*_oracle_placed*``, ``oracle_placed*``: the ceiling of a placement).
   ``--validation g1,g2``: test on these training garments instead (held out with their loose and tight
   variants), to choose settings such as the field share (``garment_share<s>_placed``) without the test
-  garments.
+  garments; in the ``makehuman`` part these are catalogue garments (``lab.makehuman_procedural``), one fold
+  trained on every other garment, the fixture garments included.
 * ``unseen_body``: one target body (``--unseen``, one of ``--targets``) is left out of training; the
   test garments go to it with label weights read from its shape (between the training bodies), against
   the same model trained on every target (``--placement``: also with the learned placement, with the body's
@@ -74,7 +75,7 @@ DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact"
 MH_METHODS = ["direct", "direct_contact", "ours", "garment_contact", "garment_blind_contact", "oracle_contact",
               "direct_placed", "garment_placed", "garment_half_placed", "direct_oracle_placed", "garment_oracle_placed",
               "direct_nearest_placed", "direct_mixed_placed", "garment_half_nearest_placed",
-              "garment_half_mixed_placed"]
+              "garment_half_mixed_placed", "direct_shrunk_placed", "garment_half_shrunk_placed"]
 FIGURES = [("vertex_error_mean", "vertex error", 1000.0), ("drape_error_relative", "drape rel.", 1.0),
            ("mdc", "MDC", 1.0), ("penetrating_vertices", "inside", 1.0)]
 
@@ -102,15 +103,22 @@ def summarise(rows, methods, reference, targets, scale=1000.0, unit="mm"):
     return "\n".join(lines), table
 
 
+def validation_fold(train, styles):
+    """A validation fold that never touches the test garments: the training styles ``styles`` held out
+    with their loose and tight variants. Returns (training garments, held-out garments)."""
+    held = set(styles) | {f"{g}_{v}" for g in styles for v in ("loose", "tight")}
+    missing = [g for g in styles if g not in train]
+    if missing:
+        raise SystemExit(f"--validation: {', '.join(missing)} not among the training garments")
+    return [g for g in train if g not in held], list(styles)
+
+
 def demo_part(args, say):
     ds = load_dataset(args.data)
     train = list(ds.manifest["train_garments"]) + [g for g in ds.garments if g in (args.extra or [])]
     test = list(ds.manifest["test_garments"])
     if args.validation:
-        # Held-out training styles with their loose and tight variants: a validation fold that never
-        # touches the test garments.
-        held = set(args.validation) | {f"{g}_{v}" for g in args.validation for v in ("loose", "tight")}
-        train, test = [g for g in train if g not in held], list(args.validation)
+        train, test = validation_fold(train, args.validation)
     say(f"demo: {len(train)} training garments, {len(test)} test garments, targets {args.targets}")
     res = run_experiment(args.data, ds.manifest["source"], args.targets, [(train, test)], args.methods,
                          args.epochs, seed=args.seed, threads=args.threads,
@@ -336,6 +344,10 @@ def makehuman_part(args, say):
         return None
     ds = load_dataset(folder)
     held, folds = makehuman_folds(ds.garments, ds.manifest, args.makehuman_garments)
+    if args.validation:
+        # One fold: catalogue garments held out with their variants, every fixture garment in training.
+        train, held = validation_fold(list(ds.garments), args.validation)
+        folds = [(train, held)]
     methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
     # simulated by the cloth solver (its manifest says so).
@@ -368,8 +380,9 @@ def main(argv=None):
     ap.add_argument("--between-in-training", action="store_true",
                     help="between: also train with the in-between bodies (every training garment draped on them)")
     ap.add_argument("--validation", default="",
-                    help="demo: test on these training garments instead (held out with their _loose and _tight "
-                         "variants), to choose settings without the test garments")
+                    help="demo, makehuman: test on these training garments instead (held out with their _loose and "
+                         "_tight variants; makehuman: catalogue garments, one fold with every fixture garment "
+                         "in training), to choose settings without the test garments")
     ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
     ap.add_argument("--methods", default=",".join(DEMO_METHODS),
                     help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
@@ -410,9 +423,12 @@ def main(argv=None):
                     help="unseen_body, between: the share of the nearest garments' placement mixed with the "
                          "networks' (placement.MixedPlacement; train --kind garment's default is "
                          "placement.LIBRARY_SHARE); 0: the networks alone. The demo and makehuman parts run it "
-                         "as the methods *_mixed_placed")
+                         "as the methods *_mixed_placed (not shrunk) and *_shrunk_placed")
     ap.add_argument("--nearest-width", type=float, default=None,
                     help="the nearest garments' similarity width (default placement.SIMILARITY_WIDTH)")
+    ap.add_argument("--shrink-disagreement", type=float, default=experiment.DISAGREEMENT_SHRINK,
+                    help="the *_shrunk_placed methods' factor c of placement.shrink_gain (default 1): the mixed "
+                         "placement shrunk where its two predictions disagree")
     ap.add_argument("--field-share", type=float, default=0.5,
                     help="unseen_body: the garment model's field share of garment_half_placed")
     ap.add_argument("--threads", type=int, default=1)
@@ -427,6 +443,7 @@ def main(argv=None):
     experiment.PLACEMENT_MEMBERS = args.placement_members
     experiment.PLACEMENT_OPTIONS = placement_options(args)
     experiment.NEAREST_WIDTH = args.nearest_width
+    experiment.DISAGREEMENT_SHRINK = args.shrink_disagreement
     args.extra = [g for g in args.extra.split(",") if g]
     args.validation = [g for g in args.validation.split(",") if g]
     args.makehuman_garments = [g for g in args.makehuman_garments.split(",") if g]

@@ -235,3 +235,12 @@ def test_makehuman_folds_never_train_on_the_held_out_garment_or_its_looser_cut()
         (["suit_a", "suit_c", "suit_a_loose", "trousers", "tshirt"], ["suit_b"])]
     # A plain fixture folder: every garment held out in turn, trained on the others.
     assert makehuman_folds(["a", "b"], {})[1] == [(["b"], ["a"]), (["a"], ["b"])]
+
+
+def test_a_validation_fold_holds_out_styles_with_their_variants():
+    from lab.garment_model import validation_fold
+
+    garments = ["suit_a", "trousers", "trousers_loose", "trousers_tight", "tshirt", "sweater", "sweater_tight"]
+    assert validation_fold(garments, ["trousers", "sweater"]) == (["suit_a", "tshirt"], ["trousers", "sweater"])
+    with pytest.raises(SystemExit, match="skirt not among the training garments"):
+        validation_fold(garments, ["skirt"])

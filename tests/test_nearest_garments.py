@@ -188,9 +188,34 @@ def test_the_mix_is_the_share_weighted_mean_of_the_networks_and_the_nearest_garm
     np.testing.assert_allclose(r.V, transfer_garment(src, mid, garment, placement=C).V, atol=1e-9)
     with pytest.raises(ValueError, match="between 0 and 1"):
         MixedPlacement(network, lib, 1.5)
+    with pytest.raises(ValueError, match=">= 0"):
+        MixedPlacement(network, lib, 0.5, -0.1)
+    # Shrunk where the two disagree: the mix times |m|^2 / (|m|^2 + c v), v = (0.7^2 + 0.3^2) |a - b|^2 / 2,
+    # written out here (the frames keep lengths, so the gain is the same in either frame).
+    net = network.frame_offsets(binding, src, tgt, garment, "pear")
+    near = lib.frame_offsets(binding, src, tgt, garment, "pear")
+    plain = 0.7 * net + 0.3 * near
+    mm, v = (plain ** 2).sum(1), 2.0 * (0.49 + 0.09) / 2 * ((net - near) ** 2).sum(1)
+    gain = np.where(mm + v > 0, mm / np.where(mm + v > 0, mm + v, 1.0), 1.0)
+    got = MixedPlacement(network, lib, 0.3, 2.0).frame_offsets(binding, src, tgt, garment, "pear")
+    np.testing.assert_allclose(got, gain[:, None] * plain, rtol=0, atol=1e-12)
+    assert 0 < gain.min() < 0.99 and np.abs(got).sum() < np.abs(plain).sum()
     other = nearest_garments({**tables, "bodies": tables["bodies"][::-1]}, TARGETS[::-1], TRAINING)
     with pytest.raises(ModelError, match="targets"):
         MixedPlacement(network, other, 0.5)
+
+
+def test_the_shrink_gain_follows_its_formula():
+    from garment_transfer.placement import shrink_gain
+
+    y = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 0, 0], [0, 3.0, 4.0], [0, 0, 0]])
+    diff = np.array([[0.0, 0, 0], [2.0, 0, 0], [0, 0, 0], [0, 0, 1.0], [1.0, 0, 0]])
+    # share 0.5: v = (0.25 + 0.25) / 2 |d|^2 = |d|^2 / 4; agreeing predictions are kept whole, nothing
+    # predicted stays a gain of 1 (no 0/0), disagreement shrinks: 1 / (1 + 1), 25 / (25 + 0.25).
+    np.testing.assert_allclose(shrink_gain(y, diff, 0.5, 1.0), [1, 0.5, 1, 25 / 25.25, 0], rtol=0, atol=1e-15)
+    # share 0.2: v = (0.64 + 0.04) / 2 |d|^2; a factor c scales v.
+    np.testing.assert_allclose(shrink_gain(y[1:2], diff[1:2], 0.2, 4.0), [1 / (1 + 4 * 0.34 * 4)], rtol=1e-14)
+    np.testing.assert_allclose(shrink_gain(y, diff, 0.5, 0.0), 1.0)
 
 
 def test_a_bundle_with_the_nearest_garments_round_trips_and_is_checked(tiny, tmp_path):
