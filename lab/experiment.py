@@ -214,16 +214,19 @@ def field_rms(Q, true_dev, covered):
 
 
 def method_of(key):
-    """A key of ``METHODS``, or ``garment_share<s>_placed``: the garment model's field at share ``s`` (in
-    [0, 1]) with the learned placement, anchors everywhere (``garment_half_placed`` at another share)."""
+    """A key of ``METHODS``, or ``garment_share<s>_placed`` / ``garment_share<s>_mixed_placed``: the garment
+    model's field at share ``s`` (in [0, 1]) with the learned placement / the mixed placement, anchors
+    everywhere (``garment_half_placed`` / ``garment_half_mixed_placed`` at another share)."""
     if key in METHODS:
         return METHODS[key]
-    m = re.fullmatch(r"garment_share([0-9.]+)_placed", key)
+    m = re.fullmatch(r"garment_share([0-9.]+)(_mixed)?_placed", key)
     if m is None:
         raise KeyError(f"unknown method {key!r}")
     share = float(m.group(1))
-    return Method(key, f"Garment fit model's field at share {share} of the way from the body's own, learned "
-                  "placement, anchors everywhere", "model", "garment", field="half", placement="model",
+    mixed = bool(m.group(2))
+    what = "the learned placement mixed with the nearest garments'" if mixed else "learned placement"
+    return Method(key, f"Garment fit model's field at share {share} of the way from the body's own, {what}, "
+                  "anchors everywhere", "model", "garment", field="half", placement="mixed" if mixed else "model",
                   field_share=share)
 
 

@@ -348,7 +348,7 @@ def makehuman_part(args, say):
         # One fold: catalogue garments held out with their variants, every fixture garment in training.
         train, held = validation_fold(list(ds.garments), args.validation)
         folds = [(train, held)]
-    methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+_placed", m)]
+    methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+(_mixed)?_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
     # simulated by the cloth solver (its manifest says so).
     reference = "simulation" if "placed_by" in ds.manifest else "fitted"
