@@ -23,6 +23,7 @@ from garment_transfer.garment_training import (nearest_garments, placement_table
 from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement, true_offsets
 from garment_transfer.training import train_model
 from garment_transfer.transfer import prepare_garment, transfer_garment
+from .length_placement import LengthMixed, LengthPlacement
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +151,11 @@ METHODS = {m.key: m for m in (
     Method("garment_half_shrunk_placed", "Garment fit model's field halfway back to the body's own, the mixed "
            "placement shrunk where its two predictions disagree, anchors everywhere", "model", "garment",
            field="half", placement="shrunk"),
+    Method("direct_length_placed", "Direct deformation transfer and the placement from the cloth's length (nothing "
+           "learned), anchors everywhere", "direct", placement="length"),
+    Method("garment_half_length_placed", "Garment fit model's field halfway back to the body's own, the networks', "
+           "the nearest garments' and the length-keeping placements, a third each, anchors everywhere", "model",
+           "garment", field="half", placement="length_mixed"),
     Method("garment_half_mixed_placed", "Garment fit model's field halfway back to the body's own, the learned "
            "placement mixed with the nearest garments', anchors everywhere", "model", "garment", field="half",
            placement="mixed"),
@@ -211,6 +217,11 @@ def field_rms(Q, true_dev, covered):
     """RMS over the covered triangles of the difference between a field Q (M,3,3) and I + true_dev (M,9)."""
     d = Q.reshape(-1, 9)[covered] - (np.eye(3).reshape(9) + true_dev[covered])
     return float(np.sqrt(np.mean(d ** 2)))
+
+
+def _up_index(up_axis):
+    """0, 1 or 2 for a dataset's up axis ("X", "Y", "Z"; Z when not given)."""
+    return "XYZ".index((up_axis or "Z").upper()[-1])
 
 
 def method_of(key):
@@ -292,9 +303,9 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     methods = [method_of(k) for k in methods]
     external = external or {}
     reference_seconds = reference_seconds or {}
+    learned = ("model", "mixed", "shrunk", "length_mixed")
     variants = sorted({m.variant for m in methods if m.kind == "model"}
-                      | ({"placement"} if any(m.placement in ("model", "mixed", "shrunk") for m in methods)
-                         else set()),
+                      | ({"placement"} if any(m.placement in learned for m in methods) else set()),
                       key=list(VARIANTS).index)
 
     def step(fraction, stage):
@@ -346,7 +357,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
             trainings.append({"fold": i, "test": list(test), "variant": v,
                               "masked": VARIANTS[v].get("masked", True), **{k: info[k] for k in kept},
                               "curve": thin(curve, 100)})
-        if any(m.placement in ("nearest", "mixed", "shrunk") for m in methods):
+        if any(m.placement in ("nearest", "mixed", "shrunk", "length_mixed") for m in methods):
             tables = tables or training_tables(ds, source, targets, list(train), fields=part)
             if "offset" not in tables:
                 placement_tables(ds, source, targets, list(train), tables)
@@ -355,6 +366,9 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                 models["mixed"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE)
                 models["shrunk"] = MixedPlacement(models["placement"], models["nearest"], LIBRARY_SHARE,
                                                   DISAGREEMENT_SHRINK)
+                models["length_mixed"] = LengthMixed(models["mixed"], 1.0 / 3.0, up=_up_index(ds.up_axis))
+        if any(m.placement == "length" for m in methods):
+            models["length"] = LengthPlacement(up=_up_index(ds.up_axis))
         if on_models:
             on_models(i, models)
         step((i + 0.4) / len(folds), f"fold {i + 1}/{len(folds)} trained")
@@ -406,6 +420,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                         Q = body_fields.get(b)
                     placement = {None: None, "model": models.get("placement"), "nearest": models.get("nearest"),
                                  "mixed": models.get("mixed"), "shrunk": models.get("shrunk"),
+                                 "length": models.get("length"), "length_mixed": models.get("length_mixed"),
                                  "oracle": oracle_placement}[m.placement]
                     r = transfer_garment(source_body, body, garment, method=m.kind, model=model, target=b,
                                          prepared=prepared[key], interpolate=m.interpolate,

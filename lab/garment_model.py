@@ -75,7 +75,8 @@ DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact"
 MH_METHODS = ["direct", "direct_contact", "ours", "garment_contact", "garment_blind_contact", "oracle_contact",
               "direct_placed", "garment_placed", "garment_half_placed", "direct_oracle_placed", "garment_oracle_placed",
               "direct_nearest_placed", "direct_mixed_placed", "garment_half_nearest_placed",
-              "garment_half_mixed_placed", "direct_shrunk_placed", "garment_half_shrunk_placed"]
+              "garment_half_mixed_placed", "direct_shrunk_placed", "garment_half_shrunk_placed",
+              "direct_length_placed", "garment_half_length_placed"]
 FIGURES = [("vertex_error_mean", "vertex error", 1000.0), ("drape_error_relative", "drape rel.", 1.0),
            ("mdc", "MDC", 1.0), ("penetrating_vertices", "inside", 1.0)]
 
