@@ -93,8 +93,42 @@ PLACEMENT_MEMBERS = 1
 PLACEMENT_OPTIONS = {}
 #: The nearest garments' similarity width (None: ``placement.SIMILARITY_WIDTH``).
 NEAREST_WIDTH = None
+#: Garment fit models trained (seeds ``seed`` .. ``seed + n - 1``) and averaged (``FieldEnsemble``); 1: the
+#: single model.
+FIELD_MEMBERS = 1
 #: The ``"shrunk"`` placement's factor ``c`` of ``placement.shrink_gain`` (1: the variance as estimated).
 DISAGREEMENT_SHRINK = 1.0
+
+
+class FieldEnsemble:
+    """Several garment fit models trained alike (other seeds), read as one: the field is the mean of theirs
+    (each ``body_field`` at the same field share); anything else is the first member's."""
+
+    conditions_on_garment = True
+
+    def __init__(self, members):
+        self.members = list(members)
+
+    def __getattr__(self, name):
+        return getattr(self.members[0], name)
+
+    def with_field_share(self, share):
+        return FieldEnsemble([m.with_field_share(share) for m in self.members])
+
+    def body_field(self, target, garment=None, source_body=None, target_body=None):
+        return sum(m.body_field(target, garment, source_body, target_body) for m in self.members) / len(self.members)
+
+
+def train_field(tables, targets, seed=0, threads=None, **options):
+    """``garment_training.train_garment_model`` of ``GARMENT_EPOCHS`` passes, ``FIELD_MEMBERS`` times (seeds
+    ``seed``, ``seed + 1``, ...): the model, or a ``FieldEnsemble`` of them, and the first's info with the
+    seconds of all."""
+    trained = [train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed + j, threads=threads, **options)
+               for j in range(FIELD_MEMBERS)]
+    info = dict(trained[0][1], seconds=sum(i["seconds"] for _, i in trained))
+    if len(trained) == 1:
+        return trained[0][0], info
+    return FieldEnsemble([m for m, _ in trained]), info
 
 
 def train_placement(tables, targets, seed=0, threads=None, **options):
@@ -339,9 +373,9 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                     model, info = train_placement(tables, targets, seed=seed, threads=threads)
                 else:
                     options = {k: x for k, x in VARIANTS[v].items() if k != "garment_model"}
-                    model, info = train_garment_model(tables, targets, epochs=GARMENT_EPOCHS, seed=seed,
-                                                      threads=threads, **options)
-                model.metadata["dataset"] = dataset_info
+                    model, info = train_field(tables, targets, seed=seed, threads=threads, **options)
+                for member in getattr(model, "members", [model]):
+                    member.metadata["dataset"] = dataset_info
                 models[v] = model
                 trainings.append({"fold": i, "test": list(test), "variant": v, "masked": True,
                                   "seconds": info["seconds"], "epochs": info["epochs"], "samples": info["samples"],

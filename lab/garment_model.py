@@ -404,6 +404,9 @@ def main(argv=None):
     ap.add_argument("--placement-members", type=int, default=experiment.PLACEMENT_MEMBERS,
                     help="placement models trained with seeds seed, seed+1, ... and averaged "
                          "(placement.PlacementEnsemble); 1: one model")
+    ap.add_argument("--field-members", type=int, default=experiment.FIELD_MEMBERS,
+                    help="garment fit models trained with seeds seed, seed+1, ... and their fields averaged "
+                         "(experiment.FieldEnsemble); 1: one model")
     ap.add_argument("--placement-hidden", default=None,
                     help="hidden layer widths of the placement model, comma-separated (default "
                          "garment_training.train_placement_model's)")
@@ -442,6 +445,7 @@ def main(argv=None):
     placement.SMOOTHING_SHARE = args.placement_smoothing
     experiment.PLACEMENT_EPOCHS = args.placement_epochs
     experiment.PLACEMENT_MEMBERS = args.placement_members
+    experiment.FIELD_MEMBERS = args.field_members
     experiment.PLACEMENT_OPTIONS = placement_options(args)
     experiment.NEAREST_WIDTH = args.nearest_width
     experiment.DISAGREEMENT_SHRINK = args.shrink_disagreement

@@ -167,6 +167,25 @@ def test_field_share_goes_from_the_body_s_field_to_the_model_s(trained, tiny):
         model.with_field_share(1.5)
 
 
+def test_a_field_ensemble_is_the_mean_of_its_members_fields_at_the_same_share(trained, tiny):
+    from garment_transfer.garment_training import train_garment_model
+    from lab.experiment import FieldEnsemble
+
+    model, _, tables = trained
+    other, _ = train_garment_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=2, threads=1)
+    ds = load_dataset(tiny)
+    src, tgt, g = ds.body("src"), ds.body("pear"), ds.garment("top", "src")
+    ensemble = FieldEnsemble([model, other])
+    a, b = model.body_field("pear", g, src, tgt), other.body_field("pear", g, src, tgt)
+    assert np.abs(a - b).max() > 1e-4
+    np.testing.assert_allclose(ensemble.body_field("pear", g, src, tgt), 0.5 * (a + b), atol=1e-12)
+    half = ensemble.with_field_share(0.25)
+    np.testing.assert_allclose(half.body_field("pear", g, src, tgt),
+                               0.5 * (model.with_field_share(0.25).body_field("pear", g, src, tgt)
+                                      + other.with_field_share(0.25).body_field("pear", g, src, tgt)), atol=1e-12)
+    assert ensemble.targets == model.targets and ensemble.field_share == 1.0 and half.field_share == 0.25
+
+
 def test_saved_model_loads_without_pickle_and_transfers(trained, tiny, tmp_path):
     model, _, _ = trained
     path = tmp_path / "g.npz"
