@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from .errors import GarmentTransferError
+from .errors import GarmentTransferError, SettingError
 from .files import json_default
 
 log = logging.getLogger("garment_transfer")
@@ -311,17 +311,47 @@ def cmd_train(args):
     check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
+    held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
+    if held:
+        garments = _training_garments(args, targets, garments, held)
     if args.kind == "garment":
-        return _train_garment(args, targets, garments)
-    from .training import train_from_dataset
+        summary, lines = _train_garment(args, targets, garments)
+    else:
+        from .training import train_from_dataset
 
-    summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
-                                 epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
-                                 out=args.out,
-                                 progress=stderr_progress("train"),
-                                 masked=not args.unmasked, threads=args.threads)
-    _emit(args, summary, [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss "
-                          f"{summary.get('final_loss')}, {summary.get('seconds', 0):.1f} s"])
+        summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
+                                     epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
+                                     out=args.out,
+                                     progress=stderr_progress("train"),
+                                     masked=not args.unmasked, threads=args.threads)
+        lines = [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss {summary.get('final_loss')}, "
+                 f"{summary.get('seconds', 0):.1f} s"]
+    if held:
+        from .model_check import check_lines, check_model
+
+        summary["check"] = check_model(args.dataset, args.source, targets, held, args.out,
+                                       progress=stderr_progress("check"))
+        lines += check_lines(summary["check"])
+    _emit(args, summary, lines)
+
+
+def _training_garments(args, targets, garments, held):
+    """The garments to train on with ``--hold-out``: those given (or all) but the held-out ones, which must
+    be in the dataset with their drapes on the source and every target (checked before any training)."""
+    from .dataset import load_dataset
+
+    ds = load_dataset(args.dataset)
+    for g in held:
+        ds.require_garment(g)
+    both = [g for g in held if g in (garments or [])]
+    if both:
+        raise SettingError("--hold-out", f"{', '.join(both)} {'is' if len(both) == 1 else 'are'} in --garments too: "
+                                         "a held-out garment is not trained on")
+    ds.require_complete(held, [args.source, *targets])
+    left = [g for g in (ds.garments if garments is None else garments) if g not in held]
+    if not left:
+        raise SettingError("--hold-out", f"holds out every garment of {ds.folder}: none is left to train on")
+    return left
 
 
 def _train_garment(args, targets, garments):
@@ -343,7 +373,7 @@ def _train_garment(args, targets, garments):
         parts.append(f"nearest garments' placement ({summary['library']['entries']} entries) at share "
                      f"{summary['library']['share']:g}")
     what = "garment fit model and learned placement" if summary["placement"] else "garment fit model"
-    _emit(args, summary, [f"wrote {args.out}: {what}; {'; '.join(parts)}; {summary['seconds']:.1f} s"])
+    return summary, [f"wrote {args.out}: {what}; {'; '.join(parts)}; {summary['seconds']:.1f} s"]
 
 
 def cmd_batch(args):
@@ -501,6 +531,11 @@ def build_parser():
                    help="garment only: the share of the nearest garments' placement (the training garments' own "
                         "placements, weighted by how alike each is to the new garment around each body triangle) "
                         f"mixed with the networks' (default {LIBRARY_SHARE:g}); 0 leaves it out")
+    r.add_argument("--hold-out", metavar="GARMENTS",
+                   help="garments to leave out of training, comma-separated: once the model is written, each is "
+                        "transferred to every target with it and with direct transfer and measured against its "
+                        "own drape there (vertex error, MDC, vertices inside; the summary's 'check'), to see "
+                        "whether the model beats the body alone on garments it has not seen")
     r.add_argument("--out", required=True, help="model file to write (.npz); written once training is complete, "
                                                 "replacing a writable file of that name")
     r.add_argument("--json", action="store_true", help="print one JSON object")

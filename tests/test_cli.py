@@ -179,6 +179,66 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert p.returncode == 2 and "--nearest-garments" in p.stderr and not (tmp_path / "bad.npz").exists()
 
 
+def test_train_with_held_out_garments_checks_the_written_model_against_direct_transfer(tmp_path):
+    pytest.importorskip("torch")
+    import numpy as np
+
+    from garment_transfer.dataset import load_dataset
+    from garment_transfer.metrics import evaluate
+    from garment_transfer.model_files import read_model_file
+    from garment_transfer.transfer import transfer_garment
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    model = tmp_path / "m.npz"
+    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
+            "--hold-out", "top", "--placement-epochs", "10", "--placement-members", "1", "--out", model, "--json")
+    assert p.returncode == 0, p.stderr
+    summary = json.loads(p.stdout)
+    assert summary["garments"] == ["band", "skirt"]          # trained without the held-out garment
+    check = summary["check"]
+    assert (check["garments"], check["targets"], check["model"]) == (["top"], ["similar", "pear"], str(model))
+    data = load_dataset(ds)
+    src, garment = data.body("src"), data.garment("top", "src")
+    loaded = read_model_file(model)
+    for t in ("similar", "pear"):
+        body, ref = data.body(t), data.garment("top", t)
+        expect = {"model": transfer_garment(src, body, garment, method="model", model=loaded.model, target=t,
+                                            placement=loaded.placement).V,
+                  "direct": transfer_garment(src, body, garment).V}
+        for method, V in expect.items():
+            e = evaluate(garment, garment.with_vertices(V), body, reference=ref, intersections=False)
+            row = next(r for r in check["rows"] if r["target"] == t and r["method"] == method)
+            np.testing.assert_allclose([row["vertex_error_mean"], row["mdc"]], [e["vertex_error_mean"], e["mdc"]],
+                                       rtol=1e-9)
+            assert row["penetrating_vertices"] == e["penetrating_vertices"]
+        s = check["targets_summary"][t]
+        assert s["vertex_ratio"] == pytest.approx(s["model"]["vertex_error_mean"] / s["direct"]["vertex_error_mean"])
+        assert (t in check["beats_direct"]) == (s["vertex_ratio"] < 1)
+    # The direct transfer of the tiny garments follows the body exactly on 'similar' (an affine map), not on pear.
+    assert check["targets_summary"]["similar"]["direct"]["vertex_error_mean"] < 1e-6
+    assert check["targets_summary"]["pear"]["direct"]["vertex_error_mean"] > 1e-3
+    # As text: one line per target.
+    p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20", "--hold-out",
+            "top,band", "--out", tmp_path / "shared.npz")
+    assert p.returncode == 0, p.stderr
+    assert "held out of training: top, band" in p.stdout
+    assert sum(line.startswith("  pear: vertex error ") for line in p.stdout.splitlines()) == 1
+    assert "below direct transfer's on" in p.stdout
+    # Held-out garments that cannot be: refused before any training, nothing written.
+    for held, extra, problem in (("nope", (), "has no garment 'nope'"),
+                                 ("top", ("--garments", "top,band"), "top is in --garments too"),
+                                 ("top,band,skirt", (), "none is left to train on")):
+        out = tmp_path / "refused.npz"
+        p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--hold-out", held, *extra,
+                "--out", out)
+        assert p.returncode == 1 and problem in p.stderr and "train:" not in p.stderr, p.stderr
+        assert not out.exists()
+    (ds / "garments" / "top" / "pear.obj").unlink()
+    p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--hold-out", "top", "--out", out)
+    assert p.returncode == 1 and "pear.obj" in p.stderr and not out.exists()
+
+
 def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
     from test_dataset import make_tiny_dataset
 
