@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from .errors import GarmentTransferError, SettingError
+from .errors import GarmentTransferError
 from .files import json_default
 
 log = logging.getLogger("garment_transfer")
@@ -313,7 +313,9 @@ def cmd_train(args):
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
     if held:
-        garments = _training_garments(args, targets, garments, held)
+        from .model_check import training_garments
+
+        garments = training_garments(args.dataset, args.source, targets, garments, held)
     if args.kind == "garment":
         summary, lines = _train_garment(args, targets, garments)
     else:
@@ -333,25 +335,6 @@ def cmd_train(args):
                                        progress=stderr_progress("check"))
         lines += check_lines(summary["check"])
     _emit(args, summary, lines)
-
-
-def _training_garments(args, targets, garments, held):
-    """The garments to train on with ``--hold-out``: those given (or all) but the held-out ones, which must
-    be in the dataset with their drapes on the source and every target (checked before any training)."""
-    from .dataset import load_dataset
-
-    ds = load_dataset(args.dataset)
-    for g in held:
-        ds.require_garment(g)
-    both = [g for g in held if g in (garments or [])]
-    if both:
-        raise SettingError("--hold-out", f"{', '.join(both)} {'is' if len(both) == 1 else 'are'} in --garments too: "
-                                         "a held-out garment is not trained on")
-    ds.require_complete(held, [args.source, *targets])
-    left = [g for g in (ds.garments if garments is None else garments) if g not in held]
-    if not left:
-        raise SettingError("--hold-out", f"holds out every garment of {ds.folder}: none is left to train on")
-    return left
 
 
 def _train_garment(args, targets, garments):

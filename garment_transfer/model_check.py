@@ -22,6 +22,36 @@ FIGURES = ("vertex_error_mean", "mdc", "penetrating_vertices")
 METHODS = ("model", "direct")
 
 
+def training_garments(dataset, source, targets, garments, held):
+    """The garments to train on when ``held`` are held out for ``check_model``: ``garments`` (None: all the
+    dataset's) but those, checked before any training.
+
+    Raises
+    ------
+    DatasetError
+        Naming the folder or file: a held-out garment the dataset does not have, or without its drape on
+        ``source`` or a target.
+    SettingError
+        A held-out garment also among ``garments``; every garment held out.
+    """
+    from .dataset import load_dataset
+    from .errors import SettingError
+
+    ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
+    held = list(held)
+    for g in held:
+        ds.require_garment(g)
+    both = [g for g in held if g in (garments or [])]
+    if both:
+        raise SettingError("held-out garments", f"{', '.join(both)} {'is' if len(both) == 1 else 'are'} also "
+                                                "among the garments to train on: a held-out garment is not trained on")
+    ds.require_complete(held, [source, *targets])
+    left = [g for g in (ds.garments if garments is None else garments) if g not in held]
+    if not left:
+        raise SettingError("held-out garments", f"every garment of {ds.folder} is held out: none is left to train on")
+    return left
+
+
 def check_model(dataset, source, targets, garments, model_path, progress=None) -> dict:
     """Transfer held-out ``garments`` with the model in ``model_path`` and with direct transfer; compare.
 
@@ -37,6 +67,7 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
     model_path : str or Path
         A model file of either kind (``train``'s output).
     progress : callable(fraction, stage), optional
+        Returning True cancels (raises Cancelled; the model file is left as it is).
 
     Returns
     -------
@@ -56,6 +87,7 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
         Naming the model file.
     """
     from .dataset import load_dataset
+    from .errors import Cancelled
     from .metrics import evaluate
     from .model_files import read_model_file
     from .transfer import prepare_garment, transfer_garment
@@ -77,8 +109,9 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
         garment = ds.garment(g, source)
         prepared = prepare_garment(source_body, garment)
         for j, t in enumerate(targets):
-            if progress is not None:
-                progress((i * len(targets) + j) / steps, f"{g} on {t}")
+            if progress is not None and progress((i * len(targets) + j) / steps, f"{g} on {t}"):
+                raise Cancelled(f"the check of {os.fspath(model_path)} on held-out garments was cancelled (the model "
+                                "file is written)")
             body, reference = ds.body(t), ds.garment(g, t)
             results = {
                 "model": transfer_garment(source_body, body, garment, method="model", model=loaded.model, target=t,

@@ -9,6 +9,7 @@ only reports its progress and passes a cancel request on.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import threading
@@ -103,23 +104,41 @@ def training_plan(settings):
     targets = targets or [b for b in dataset.bodies if b != source]
     if not targets:
         raise DatasetError(folder, f"has no body besides the source body {source!r} to train for")
+    held = [g.strip() for g in settings.train_hold_out.split(",") if g.strip()]
+    extra = {}
+    if held:
+        from ..garment_transfer.model_check import training_garments
+
+        extra = dict(garments=training_garments(dataset, source, targets, None, held), hold_out=held)
     if settings.train_kind == 'GARMENT':
-        return dict(dataset_dir=folder, source=source, targets=targets, out=out, kind="garment")
+        return dict(dataset_dir=folder, source=source, targets=targets, out=out, kind="garment", **extra)
     return dict(dataset_dir=folder, source=source, targets=targets, epochs=settings.train_epochs,
-                latent=settings.train_latent, out=out)
+                latent=settings.train_latent, out=out, **extra)
+
+
+#: The share of the progress bar that training takes when held-out garments are checked after it.
+TRAINING_SHARE = 0.9
 
 
 def training_call(plan):
     """A function of a progress callback that trains and saves the model of ``plan`` (the garment fit model
-    and its placement, in one file, for ``kind="garment"``; else the shared deformation model)."""
+    and its placement, in one file, for ``kind="garment"``; else the shared deformation model), then checks
+    it on the plan's held-out garments (``model_check.check_model``: the result's ``check``)."""
     from ..garment_transfer.garment_training import train_garment_fit_from_dataset
+    from ..garment_transfer.model_check import check_model
     from ..garment_transfer.training import train_from_dataset
 
-    options = {k: v for k, v in plan.items() if k != "kind"}
+    options = {k: v for k, v in plan.items() if k not in ("kind", "hold_out")}
     train = train_garment_fit_from_dataset if plan.get("kind") == "garment" else train_from_dataset
+    held = plan.get("hold_out")
 
     def call(progress):
-        return train(progress=progress, **options)
+        if not held:
+            return train(progress=progress, **options)
+        info = train(progress=lambda f, *loss: progress(TRAINING_SHARE * f, *loss), **options)
+        info["check"] = check_model(plan["dataset_dir"], plan["source"], plan["targets"], held, plan["out"],
+                                    progress=lambda f, _stage: progress(TRAINING_SHARE + (1 - TRAINING_SHARE) * f))
+        return info
 
     return call
 
@@ -203,9 +222,17 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
             loss = info.get("final_loss")
             loss_text = f", loss {loss:.4g}" if isinstance(loss, (int, float)) else ""
             what, detail = "Model", f"{info.get('epochs')} epochs{loss_text}"
+        check = info.get("check")
+        settings.train_check = json.dumps(check) if check else ""
+        checked = ""
+        if check:
+            ratios = ", ".join(f"{t} {s['vertex_ratio']:.2f}x" for t, s in check["targets_summary"].items()
+                               if s["vertex_ratio"] is not None)
+            checked = (f"; on the held-out {', '.join(check['garments'])} its vertex error is below direct "
+                       f"transfer's on {len(check['beats_direct'])} of {len(check['targets'])} targets ({ratios})")
         self.report({'INFO'}, f"{what} for {', '.join(self._plan['targets'])} (source "
                               f"{self._plan['source']}) saved to {self._plan['out']}: {detail}, "
-                              f"{info.get('seconds', 0.0):.1f} s")
+                              f"{info.get('seconds', 0.0):.1f} s{checked}")
         return {'FINISHED'}
 
     def execute(self, context):
@@ -219,6 +246,9 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
 
     def _on_progress(self, context, fraction):
         context.scene.garment_transfer.train_progress = 100.0 * fraction
+        if self._plan.get("hold_out") and fraction >= TRAINING_SHARE:
+            # Training is over and the file written: Esc now stops the check only.
+            self.cancel_text = f"Check on the held-out garments cancelled; the model was saved to {self._plan['out']}"
 
 
 CLASSES = (GARMENT_TRANSFER_OT_train,)

@@ -227,7 +227,7 @@ def test_train_with_held_out_garments_checks_the_written_model_against_direct_tr
     assert "below direct transfer's on" in p.stdout
     # Held-out garments that cannot be: refused before any training, nothing written.
     for held, extra, problem in (("nope", (), "has no garment 'nope'"),
-                                 ("top", ("--garments", "top,band"), "top is in --garments too"),
+                                 ("top", ("--garments", "top,band"), "top is also among the garments to train on"),
                                  ("top,band,skirt", (), "none is left to train on")):
         out = tmp_path / "refused.npz"
         p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--hold-out", held, *extra,

@@ -174,11 +174,31 @@ class VIEW3D_PT_garment_transfer_training(GarmentPanel, bpy.types.Panel):
             # The garment kind trains for its measured passes (the core's defaults).
             layout.prop(settings, "train_epochs")
             layout.prop(settings, "train_latent")
+        layout.prop(settings, "train_hold_out")
         if not torch_available():
             box = layout.box()
             box.label(text="Training needs PyTorch (not installed)", icon='ERROR')
             box.label(text="pip install torch==2.13.0")
         layout.operator("garment_transfer.train", icon='PLAY')
+        if settings.train_check:
+            box = layout.box()
+            for line in check_summary_lines(settings.train_check):
+                box.label(text=line)
+
+
+def check_summary_lines(text):
+    """The panel's lines for the last check of a trained model on held-out garments (its JSON)."""
+    try:
+        check = json.loads(text)
+        lines = [f"Held out: {', '.join(check['garments'])}"]
+        for t in check["targets"]:
+            s = check["targets_summary"][t]
+            ratio, mdc = s["vertex_ratio"], s["mdc_ratio"]
+            lines.append(f"{t}: vertex error {'n/a' if ratio is None else f'{ratio:.2f}x'} direct's, MDC "
+                         f"{'n/a' if mdc is None else f'{mdc:.2f}x'}, {s['model']['penetrating_vertices']} inside")
+        return lines
+    except (ValueError, KeyError, TypeError):
+        return ["The last check could not be read"]
 
 
 class VIEW3D_PT_garment_transfer_drape(GarmentPanel, bpy.types.Panel):

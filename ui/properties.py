@@ -175,6 +175,14 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     train_latent: IntProperty(name="Latent Size", default=30, min=1, soft_max=256,
                               description="Size of the shared deformation space")
     train_progress: FloatProperty(name="Training Progress", subtype='PERCENTAGE', min=0, max=100)
+    train_hold_out: StringProperty(
+        name="Hold Out", default="",
+        description="Comma-separated garments of the dataset to leave out of training: once the model is saved, "
+                    "each is transferred with it and with direct transfer and measured against its own drape, "
+                    "to see whether the model beats the body alone on garments it has not seen")
+    train_check: StringProperty(
+        name="Last Check",
+        description="The last trained model measured on its held-out garments (JSON; empty: none held out)")
 
     drape_frames: IntProperty(
         name="Frames", default=30, min=1, soft_max=400,

@@ -8,6 +8,7 @@ either) the test of what the user then sees runs instead.
 from __future__ import annotations
 
 import importlib.util
+import json
 import sys
 import time
 from types import SimpleNamespace
@@ -94,6 +95,56 @@ def test_train_the_garment_fit_model_with_its_placement(dressed, tmp_path, exten
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
                                    "with the nearest garments' at share 0.5")
+
+
+def test_train_with_held_out_garments_checks_the_model_on_them(dressed, tmp_path, extension):
+    pytest.importorskip("torch", reason=NO_TORCH)
+    core = extension.garment_transfer
+    settings = dressed.settings
+    ds = make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01", "male_casualsuit04"))
+    settings.dataset_path = str(ds)
+    settings.dataset_source = "female_average"
+    settings.train_output = str(tmp_path / "shared.npz")
+    settings.train_epochs = 20
+    settings.train_latent = 2
+    settings.train_hold_out = "male_casualsuit04"
+    assert bpy.ops.garment_transfer.train() == {'FINISHED'}
+    check = json.loads(settings.train_check)
+    assert (check["garments"], check["targets"]) == (["male_casualsuit04"], ["female_pear"])
+    # The direct transfer it was compared with is the core's, measured against the garment's own drape.
+    data = core.dataset.load_dataset(ds)
+    src, body = data.body("female_average"), data.body("female_pear")
+    garment, ref = data.garment("male_casualsuit04", "female_average"), data.garment("male_casualsuit04", "female_pear")
+    V = core.transfer.transfer_garment(src, body, garment).V
+    e = core.metrics.evaluate(garment, garment.with_vertices(V), body, reference=ref, intersections=False)
+    direct = check["targets_summary"]["female_pear"]["direct"]
+    assert direct["vertex_error_mean"] == pytest.approx(e["vertex_error_mean"], rel=1e-9)
+    lines = extension.ui.panels.check_summary_lines(settings.train_check)
+    assert lines[0] == "Held out: male_casualsuit04" and lines[1].startswith("female_pear: vertex error ")
+    # A garment the dataset lacks: refused before training, nothing written.
+    settings.train_output = str(tmp_path / "never.npz")
+    settings.train_hold_out = "no_such_garment"
+    with pytest.raises(RuntimeError, match="no_such_garment"):
+        bpy.ops.garment_transfer.train()
+    assert not (tmp_path / "never.npz").exists()
+    # Esc during the check: the model is written, the check stops.
+    train = extension.operators.train
+    settings.train_output = str(tmp_path / "checked.npz")
+    settings.train_hold_out = "male_casualsuit04"
+    run = train.TrainingRun(train.training_call(train.training_plan(settings)))
+    steps = run.steps()
+    for fraction in steps:
+        if fraction >= train.TRAINING_SHARE:
+            break
+        time.sleep(0.01)
+    steps.close()
+    assert type(run.error).__name__ == "Cancelled" and "held-out" in str(run.error)
+    assert (tmp_path / "checked.npz").is_file()
+    # A training without held-out garments clears the last check.
+    settings.train_hold_out = ""
+    settings.train_output = str(tmp_path / "plain.npz")
+    assert bpy.ops.garment_transfer.train() == {'FINISHED'}
+    assert settings.train_check == ""
 
 
 def test_cancelled_training_writes_nothing(dressed, tmp_path, extension):
