@@ -4,6 +4,7 @@ Panels only draw with a window; here each draw function runs on a recording layo
 
 from __future__ import annotations
 
+import json
 from types import SimpleNamespace
 
 import bpy
@@ -75,6 +76,34 @@ def test_training_panel_says_when_torch_is_missing(extension, monkeypatch):
         SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
     texts = [k.get("text", "") for kind, _, k in calls if kind == "label"]
     assert "pip install torch==2.13.0" in texts
+
+
+def test_training_panel_shows_the_last_check_of_held_out_garments(extension):
+    settings = bpy.context.scene.garment_transfer
+    summary = {"model": {"vertex_error_mean": 0.9, "mdc": 0.02, "penetrating_vertices": 0},
+               "direct": {"vertex_error_mean": 1.5, "mdc": 0.025, "penetrating_vertices": 0},
+               "vertex_ratio": 0.6, "mdc_ratio": 0.8}
+    settings.train_check = json.dumps({"garments": ["skirt", "coat"], "targets": ["pear", "heavy"],
+                                       "targets_summary": {"pear": summary, "heavy": dict(summary, mdc_ratio=None)}})
+
+    def labels():
+        calls = []
+        bpy.types.VIEW3D_PT_garment_transfer_training.draw(SimpleNamespace(layout=RecordingLayout(calls)),
+                                                           bpy.context)
+        assert ("prop", (settings, "train_hold_out"), {}) in calls
+        return [k.get("text", "") for kind, _, k in calls if kind == "label"]
+
+    try:
+        shown = labels()
+        assert "Held out: skirt, coat" in shown
+        assert "pear: vertex error 0.60x direct's, MDC 0.80x, 0 inside" in shown
+        assert "heavy: vertex error 0.60x direct's, MDC n/a, 0 inside" in shown
+        settings.train_check = "{not json"
+        assert "The last check could not be read" in labels()
+        settings.train_check = ""
+        assert not any(t.startswith("Held out") for t in labels())
+    finally:
+        settings.train_check = ""
 
 
 def test_operators_have_tooltips_and_undo(extension):
