@@ -223,7 +223,9 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
             loss_text = f", loss {loss:.4g}" if isinstance(loss, (int, float)) else ""
             what, detail = "Model", f"{info.get('epochs')} epochs{loss_text}"
         check = info.get("check")
-        settings.train_check = json.dumps(check) if check else ""
+        # The summary per target (the panel's), not every garment's figures: the scene keeps it.
+        kept = ("model", "garments", "targets", "units", "targets_summary", "beats_direct")
+        settings.train_check = json.dumps({k: check[k] for k in kept}) if check else ""
         checked = ""
         if check:
             ratios = ", ".join(f"{t} {s['vertex_ratio']:.2f}x" for t, s in check["targets_summary"].items()
