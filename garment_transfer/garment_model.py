@@ -121,7 +121,7 @@ def garment_features(body_V, body_F, garment_V, garment_F, cover_distance=None):
     return X, covered
 
 
-def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_CHUNK):
+def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_CHUNK, rows=None):
     """Area-weighted mean of per-triangle values over the triangles within ``radius`` of each one.
 
     Parameters
@@ -131,6 +131,8 @@ def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_
     radius : float
     weights : (M,) float
         Positive.
+    rows : (M,) bool, optional
+        The triangles whose means are wanted (default all); the others' are NaN.
 
     Returns
     -------
@@ -144,13 +146,14 @@ def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_
     """
     centroids = np.asarray(centroids, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
-    m = centroids.shape[0]
     tree = cKDTree(centroids)
     weighted = np.concatenate([weights[:, None], weights[:, None] * values], axis=1)
-    out = np.empty_like(values)
+    out = np.full_like(values, np.nan)
     r2 = float(radius) ** 2
     order = _morton_order(centroids)
-    for start in range(0, m, chunk):
+    if rows is not None:
+        order = order[np.asarray(rows, dtype=bool)[order]]
+    for start in range(0, len(order), chunk):
         rows = order[start:start + chunk]
         C = centroids[rows]
         lo, hi = C.min(axis=0), C.max(axis=0)
@@ -174,7 +177,7 @@ def _morton_order(P):
     return np.argsort(code, kind="stable")
 
 
-def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
+def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES, rows=None):
     """The target body as seen from every source body triangle.
 
     Parameters
@@ -184,6 +187,9 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
     F : (M,3) int
     shares : tuple of float
         Neighbourhood radii as shares of the source body scale.
+    rows : (M,) bool, optional
+        The triangles whose neighbourhood means are wanted (default all; the others' are NaN): a garment
+        covers a part of the body, and the means are nearly all of the time.
 
     Returns
     -------
@@ -197,19 +203,20 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES):
     dev = (Q - np.eye(3)).reshape(-1, 9)
     c = triangle_centroids(source_V, F)
     area = triangle_normals(np.asarray(source_V, dtype=np.float64), F)[1]
-    return with_neighbourhood_means(dev, c, area, body_scale(source_V), shares), dev
+    return with_neighbourhood_means(dev, c, area, body_scale(source_V), shares, rows), dev
 
 
-def with_neighbourhood_means(values, centroids, area, scale, shares):
+def with_neighbourhood_means(values, centroids, area, scale, shares, rows=None):
     """``values`` (M,k) per body triangle, then their area-weighted means over the neighbourhoods of each
-    radius ``share * scale``: (M, k * (1 + len(shares))) float64."""
-    parts = [values] + [_neighbourhood_mean(centroids, values, s * scale, area + 1e-300) for s in shares]
+    radius ``share * scale``: (M, k * (1 + len(shares))) float64 (the means NaN outside ``rows``, if given)."""
+    parts = [values] + [_neighbourhood_mean(centroids, values, s * scale, area + 1e-300, rows=rows) for s in shares]
     return np.concatenate(parts, axis=1)
 
 
-#: The last few ``target_features`` of the models' inputs, by content: the field model and the placement
-#: model of one transfer need the same ones (on a 26,756-triangle MakeHuman body about 2 s each, nearly all of
-#: it the neighbourhood means), and so do further garments sent to the same target body; a body that is not a
+#: The last few ``target_features`` of the models' inputs, by content, with the triangles computed so far: the
+#: field model and the placement model of one transfer need them on the triangles the garment covers and is
+#: bound to (on a 26,756-triangle MakeHuman body about 0.9 s for every triangle, nearly all of it the
+#: neighbourhood means), and so do further garments sent to the same target body; a body that is not a
 #: training target also needs those of the training bodies its placement is blended from
 #: (``placement.BlendedPlacement``). About 6 MB each on that body.
 _TARGET_CACHE = OrderedDict()
@@ -217,23 +224,55 @@ _TARGET_CACHE_SIZE = 8
 _TARGET_CACHE_LOCK = threading.Lock()
 
 
-def _target_features_cached(source_V, target_V, F, shares):
-    """``target_features``, kept for the last few bodies; the arrays returned are read-only."""
+def _target_features_cached(source_V, target_V, F, shares, rows=None):
+    """``target_features``, kept for the last few bodies and computed only on triangles not computed before:
+    ``rows (M,) bool`` (default all) must be read from the result, whose other rows may be NaN. The arrays
+    returned are read-only."""
     arrays = [np.ascontiguousarray(source_V, dtype=np.float64), np.ascontiguousarray(target_V, dtype=np.float64),
               np.ascontiguousarray(F, dtype=np.int64)]
-    return recall_by_content(_TARGET_CACHE, _TARGET_CACHE_LOCK, _TARGET_CACHE_SIZE, arrays,
-                             tuple(float(x) for x in shares), lambda: target_features(*arrays, shares))
+    shares = tuple(float(x) for x in shares)
+    M = arrays[2].shape[0]
+    need = np.ones(M, bool) if rows is None else np.asarray(rows, dtype=bool)
+    key = content_key(arrays, shares)
+    with _TARGET_CACHE_LOCK:
+        entry = _TARGET_CACHE.get(key)
+        if entry is not None:
+            _TARGET_CACHE.move_to_end(key)
+            missing = need & ~entry["done"]
+        else:
+            missing = need
+    if entry is None or missing.any():
+        X, dev = target_features(*arrays, shares, rows=missing)
+        with _TARGET_CACHE_LOCK:
+            entry = _TARGET_CACHE.get(key)
+            if entry is None:
+                entry = {"X": X, "dev": dev, "done": missing.copy()}
+                _TARGET_CACHE[key] = entry
+                while len(_TARGET_CACHE) > _TARGET_CACHE_SIZE:
+                    _TARGET_CACHE.popitem(last=False)
+            else:
+                entry["X"][missing] = X[missing]
+                entry["done"] |= missing
+    X, dev = entry["X"].view(), entry["dev"].view()
+    X.setflags(write=False)
+    dev.setflags(write=False)
+    return X, dev
+
+
+def content_key(arrays, params):
+    """A key of ``arrays``' content (shapes, types, bytes) and the hashable ``params``."""
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(f"{a.shape}{a.dtype}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest(), params
 
 
 def recall_by_content(cache, lock, size, arrays, params, compute):
     """``compute()`` (a tuple of arrays), kept in ``cache`` (an ``OrderedDict``, at most ``size`` entries, the
     least recently used dropped first) under the content of ``arrays`` and the hashable ``params``; the arrays
     returned are read-only, and the same for the same content."""
-    h = hashlib.sha256()
-    for a in arrays:
-        h.update(f"{a.shape}{a.dtype}".encode())
-        h.update(np.ascontiguousarray(a).tobytes())
-    key = (h.hexdigest(), params)
+    key = content_key(arrays, params)
     with lock:
         if key in cache:
             cache.move_to_end(key)
@@ -271,6 +310,20 @@ def label_weights(target_V, label_bodies):
     big = 1e3 * np.sqrt(b.size)
     w, _ = nnls(np.vstack([A, big * np.ones((1, K))]), np.concatenate([b, [big]]))
     return w / max(w.sum(), 1e-300)
+
+
+#: The last few ``label_weights``, by content: the field model and each placement network of one transfer ask
+#: for the same body's (on a MakeHuman body about 0.1 s each).
+_LABEL_CACHE = OrderedDict()
+_LABEL_CACHE_SIZE = 8
+_LABEL_CACHE_LOCK = threading.Lock()
+
+
+def _label_weights_cached(target_V, label_bodies):
+    """``label_weights``, kept for the last few bodies and label sets (read-only)."""
+    arrays = [np.ascontiguousarray(target_V, dtype=np.float64), np.ascontiguousarray(label_bodies)]
+    return recall_by_content(_LABEL_CACHE, _LABEL_CACHE_LOCK, _LABEL_CACHE_SIZE, arrays, (),
+                             lambda: (label_weights(*arrays),))[0]
 
 
 class GarmentFitModel:
@@ -379,10 +432,17 @@ class GarmentFitModel:
             w = np.zeros(len(self.targets))
             w[self.targets.index(target)] = 1.0
             return w
-        return label_weights(target_body.V, self.arrays["label_bodies"])
+        return _label_weights_cached(target_body.V, self.arrays["label_bodies"])
 
-    def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+    def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None, rows=None,
+               covered_only=False):
         """The network's inputs for every source body triangle.
+
+        Parameters
+        ----------
+        rows : (M,) bool, optional
+            The triangles whose inputs are read (default all; ``covered_only``: those the garment covers); the
+            target's neighbourhood means are computed for those only, and may be NaN elsewhere.
 
         Returns
         -------
@@ -394,7 +454,8 @@ class GarmentFitModel:
         G, covered = garment_features(source_body.V, source_body.F, garment.V, garment.F,
                                       self.metadata.get("cover_distance"))
         T, dev = _target_features_cached(source_body.V, target_body.V, source_body.F,
-                                         tuple(self.metadata["neighbourhood_shares"]))
+                                         tuple(self.metadata["neighbourhood_shares"]),
+                                         covered if covered_only else rows)
         if not self.metadata.get("garment_inputs", True):
             G[:, 1:9] = 0.0
         parts = [G, T]
@@ -433,7 +494,7 @@ class GarmentFitModel:
         if garment is None or source_body is None or target_body is None:
             raise ModelError(self.name, "a garment-conditioned model needs the garment and both bodies")
         self.check_source_body(source_body)
-        X, covered, dev = self.inputs(source_body, target_body, garment, target)
+        X, covered, dev = self.inputs(source_body, target_body, garment, target, covered_only=True)
         y = self.forward(X[covered]) * np.asarray(self.metadata["output_scale"], dtype=np.float64)
         out = dev.copy()
         out[covered] += self.field_share * y

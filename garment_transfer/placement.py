@@ -36,8 +36,8 @@ import scipy.sparse.linalg as spla
 from .binding import Binding, carry
 from .embedding import body_scale, triangle_centroids
 from .errors import ModelError
-from .garment_model import (GARMENT_FEATURES, GarmentFitModel, _orthonormal_frames, label_weights, read_model_npz,
-                            recall_by_content)
+from .garment_model import (GARMENT_FEATURES, GarmentFitModel, _label_weights_cached, _orthonormal_frames,
+                            read_model_npz, recall_by_content)
 from .mesh import Mesh, require_same_topology, triangle_normals
 
 log = logging.getLogger(__name__)
@@ -350,10 +350,11 @@ class PlacementModel(GarmentFitModel):
         return (GarmentFitModel.n_inputs(md) + CONTEXT_COLUMNS * len(md.get("context_shares", []))
                 + (0 if offset is None else 3 * (1 + len(offset))))
 
-    def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
+    def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None, rows=None,
+               covered_only=False):
         """``GarmentFitModel.inputs`` with the garment's context after its own features (and the target's
         offset from the source body after the target's features)."""
-        X, covered, dev = super().inputs(source_body, target_body, garment, target)
+        X, covered, dev = super().inputs(source_body, target_body, garment, target, rows, covered_only)
         n = len(GARMENT_FEATURES)
         ctx = _garment_context_cached(source_body.V, source_body.F, X[:, :n],
                                       tuple(self.metadata.get("context_shares", [])))
@@ -491,7 +492,7 @@ def _mean_unrotated_offsets(models, binding: Binding, source_body: Mesh, target_
     M = F.shape[0]
     w = bound_counts(binding, M)
     sel = w > 0
-    X = first.inputs(source_body, target_body, garment, target)[0][sel]
+    X = first.inputs(source_body, target_body, garment, target, rows=sel)[0][sel]
     y = np.zeros((M, 3))
     if any("offset_base" in m.arrays for m in models):
         weights = first.label_weights_for(target_body, target)
@@ -528,7 +529,7 @@ class BlendedPlacement:
             return model.frame_offsets(binding, source_body, target_body, garment, target)
         model.check_source_body(source_body)
         require_same_topology(source_body, target_body)
-        weights = label_weights(target_body.V, model.arrays["label_bodies"])
+        weights = _label_weights_cached(target_body.V, model.arrays["label_bodies"])
         if weights.max() >= 1.0 - 1e-6:
             # A training body by its shape (the stored bodies are float32: within 1e-6 of one-hot): the
             # network's own prediction on it.

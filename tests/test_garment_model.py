@@ -57,6 +57,11 @@ def test_neighbourhood_mean_equals_every_pair_within_the_radius(share):
     expected = (within * weights) @ values / (within @ weights)[:, None]
     np.testing.assert_allclose(_neighbourhood_mean(P, values, radius, weights, chunk=64), expected,
                                rtol=0, atol=1e-12)
+    # Some rows only: theirs the same, the others NaN.
+    rows = rng.uniform(size=P.shape[0]) < 0.3
+    some = _neighbourhood_mean(P, values, radius, weights, chunk=64, rows=rows)
+    np.testing.assert_allclose(some[rows], expected[rows], rtol=0, atol=1e-12)
+    assert np.isnan(some[~rows]).all()
 
 
 def test_target_features_of_an_unchanged_and_a_scaled_body():
