@@ -329,10 +329,10 @@ def cmd_train(args):
         lines = [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss {summary.get('final_loss')}, "
                  f"{summary.get('seconds', 0):.1f} s"]
     if held:
-        from .model_check import check_lines, check_model
+        from .model_check import check_after_training, check_lines
 
-        summary["check"] = check_model(args.dataset, args.source, targets, held, args.out,
-                                       progress=stderr_progress("check"))
+        summary["check"] = check_after_training(args.dataset, args.source, targets, held, args.out,
+                                                progress=stderr_progress("check"))
         lines += check_lines(summary["check"])
     _emit(args, summary, lines)
 

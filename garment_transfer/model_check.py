@@ -112,7 +112,8 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
             if progress is not None and progress((i * len(targets) + j) / steps, f"{g} on {t}"):
                 raise Cancelled(f"the check of {os.fspath(model_path)} on held-out garments was cancelled (the model "
                                 "file is written)")
-            body, reference = ds.body(t), ds.garment(g, t)
+            body = ds.body(t)
+            reference = garment.with_vertices(ds.garment_pair(g, source, t)[1])
             results = {
                 "model": transfer_garment(source_body, body, garment, method="model", model=loaded.model, target=t,
                                           placement=loaded.placement, prepared=prepared),
@@ -138,6 +139,20 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
             "beats_direct": [t for t in targets if summary[t]["model"]["vertex_error_mean"]
                              < summary[t]["direct"]["vertex_error_mean"]],
             "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def check_after_training(dataset, source, targets, garments, model_path, progress=None) -> dict:
+    """``check_model`` of a model file just written by training: a failure says that the file was written
+    (only the check failed), and names what failed."""
+    from .errors import Cancelled, GarmentTransferError
+
+    try:
+        return check_model(dataset, source, targets, garments, model_path, progress)
+    except Cancelled:
+        raise
+    except GarmentTransferError as exc:
+        raise GarmentTransferError(f"{os.fspath(model_path)} was written, but its check on the held-out garments "
+                                   f"failed: {exc}") from exc
 
 
 def check_lines(check) -> list:

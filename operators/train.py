@@ -125,7 +125,7 @@ def training_call(plan):
     and its placement, in one file, for ``kind="garment"``; else the shared deformation model), then checks
     it on the plan's held-out garments (``model_check.check_model``: the result's ``check``)."""
     from ..garment_transfer.garment_training import train_garment_fit_from_dataset
-    from ..garment_transfer.model_check import check_model
+    from ..garment_transfer.model_check import check_after_training
     from ..garment_transfer.training import train_from_dataset
 
     options = {k: v for k, v in plan.items() if k not in ("kind", "hold_out")}
@@ -136,8 +136,9 @@ def training_call(plan):
         if not held:
             return train(progress=progress, **options)
         info = train(progress=lambda f, *loss: progress(TRAINING_SHARE * f, *loss), **options)
-        info["check"] = check_model(plan["dataset_dir"], plan["source"], plan["targets"], held, plan["out"],
-                                    progress=lambda f, _stage: progress(TRAINING_SHARE + (1 - TRAINING_SHARE) * f))
+        info["check"] = check_after_training(
+            plan["dataset_dir"], plan["source"], plan["targets"], held, plan["out"],
+            progress=lambda f, _stage: progress(TRAINING_SHARE + (1 - TRAINING_SHARE) * f))
         return info
 
     return call

@@ -234,6 +234,16 @@ def test_train_with_held_out_garments_checks_the_written_model_against_direct_tr
                 "--out", out)
         assert p.returncode == 1 and problem in p.stderr and "train:" not in p.stderr, p.stderr
         assert not out.exists()
+    # A held-out drape of other faces than the garment's: found by the check, after the file is written,
+    # and said so.
+    broken = tmp_path / "broken.npz"
+    top = read_obj(ds / "garments" / "top" / "pear.obj")
+    write_obj(ds / "garments" / "top" / "pear.obj", mesh_from_triangles(top.V, top.F[:-1]))
+    p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20", "--hold-out", "top",
+            "--out", broken)
+    assert p.returncode == 1 and broken.is_file(), p.stderr
+    assert f"{broken} was written, but its check on the held-out garments failed: " in p.stderr
+    assert "pear.obj" in p.stderr and "every file of one garment must have the same vertices" in p.stderr
     (ds / "garments" / "top" / "pear.obj").unlink()
     p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--hold-out", "top", "--out", out)
     assert p.returncode == 1 and "pear.obj" in p.stderr and not out.exists()
