@@ -104,13 +104,15 @@ def summarise(rows, methods, reference, targets, scale=1000.0, unit="mm"):
     return "\n".join(lines), table
 
 
-def validation_fold(train, styles):
+def validation_fold(train, styles, outfits=None):
     """A validation fold that never touches the test garments: the training styles ``styles`` held out
-    with their loose and tight variants. Returns (training garments, held-out garments)."""
+    with their loose and tight variants, and the outfits (``outfits``: name -> its pieces' garments) with a
+    piece among them. Returns (training garments, held-out garments)."""
     held = set(styles) | {f"{g}_{v}" for g in styles for v in ("loose", "tight")}
     missing = [g for g in styles if g not in train]
     if missing:
         raise SystemExit(f"--validation: {', '.join(missing)} not among the training garments")
+    held |= {name for name, pieces in (outfits or {}).items() if held & set(pieces)}
     return [g for g in train if g not in held], list(styles)
 
 
@@ -347,7 +349,7 @@ def makehuman_part(args, say):
     held, folds = makehuman_folds(ds.garments, ds.manifest, args.makehuman_garments)
     if args.validation:
         # One fold: catalogue garments held out with their variants, every fixture garment in training.
-        train, held = validation_fold(list(ds.garments), args.validation)
+        train, held = validation_fold(list(ds.garments), args.validation, ds.manifest.get("outfits"))
         folds = [(train, held)]
     methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+(_mixed)?_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments

@@ -30,6 +30,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from garment_transfer.obj import read_obj, write_text_atomic
 
 from .makehuman_drape import drape, other_settings, output_folder, read_json, simulation_arguments
@@ -41,6 +43,23 @@ GARMENTS = ("trousers", "trousers_loose", "trousers_tight", "culottes", "culotte
             "bermudas", "wide_trousers", "shorts", "tank_top", "tank_top_loose", "tank_top_tight", "sweater",
             "sweater_loose", "sweater_tight", "crop_top", "long_sleeve_top", "tunic", "tshirt",
             "straight_skirt", "aline_skirt", "pencil_skirt", "mini_skirt", "shift_dress")
+#: Two-piece outfits of the catalogue's tops and bottoms, each draped as one garment as the fixture suits are
+#: (trousers or shorts and a shirt in one mesh): pinned at the waist and hips (``makehuman_drape.waist_pins``), the
+#: top tucked in, where the catalogue's own tops hang from the shoulders.
+OUTFITS = {
+    "outfit_tshirt_trousers": ("tshirt", "trousers"),
+    "outfit_long_sleeve_top_trousers": ("long_sleeve_top", "trousers"),
+    "outfit_sweater_trousers": ("sweater", "trousers"),
+    "outfit_tank_top_trousers": ("tank_top", "trousers"),
+    "outfit_tshirt_shorts": ("tshirt", "shorts"),
+    "outfit_tank_top_shorts": ("tank_top", "shorts"),
+    "outfit_long_sleeve_top_bermudas": ("long_sleeve_top", "bermudas"),
+    "outfit_tshirt_bermudas": ("tshirt", "bermudas"),
+    "outfit_sweater_loose_trousers_loose": ("sweater_loose", "trousers_loose"),
+    "outfit_tank_top_tight_trousers_tight": ("tank_top_tight", "trousers_tight"),
+    "outfit_long_sleeve_top_wide_trousers": ("long_sleeve_top", "wide_trousers"),
+    "outfit_sweater_tight_culottes": ("sweater_tight", "culottes"),
+}
 #: The mannequin the catalogue is built on.
 MANNEQUIN = "banana"
 
@@ -104,19 +123,38 @@ def fit(name, mannequin, body, registration=None):
     return mesh.with_vertices(result.V, name=name), g.pin, info, registration
 
 
+def fit_outfit(name, mannequin, body, registration=None):
+    """The outfit ``name`` (``OUTFITS``) on the MakeHuman source body: its pieces carried as ``fit`` carries a
+    garment, in one mesh (the top's vertices first). Returns ``fit``'s values, the pins None (the drape pins it
+    at the waist, as the fixture suits)."""
+    from garment_transfer.mesh import mesh_from_polygons
+
+    meshes, infos = [], []
+    for part in OUTFITS[name]:
+        mesh, _, info, registration = fit(part, mannequin, body, registration)
+        meshes.append(mesh)
+        infos.append(info)
+    start = np.cumsum([0] + [m.n_vertices for m in meshes])
+    polygons = [p + s for m, s in zip(meshes, start) for p in m.polygons()]
+    mesh = mesh_from_polygons(np.vstack([m.V for m in meshes]), polygons, name=name)
+    info = {"inside_after_transfer": sum(i["inside_after_transfer"] for i in infos),
+            "registration_rms_share": infos[0]["registration_rms_share"], "pieces": list(OUTFITS[name])}
+    return mesh, None, info, registration
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="the folder (lab.makehuman_drape's, or a new one)")
-    ap.add_argument("--garments", nargs="+", default=list(GARMENTS), help="catalogue garments")
+    ap.add_argument("--garments", nargs="+", default=list(GARMENTS), help="catalogue garments or outfits (OUTFITS)")
     ap.add_argument("--targets", nargs="+", default=list(MAKEHUMAN_TARGETS))
     simulation_arguments(ap)
     args = ap.parse_args(argv)
     from .procedural.garments import EXTRA_GARMENTS, TEST_GARMENTS, TRAIN_GARMENTS
 
-    known = set(TRAIN_GARMENTS) | set(TEST_GARMENTS) | set(EXTRA_GARMENTS)
+    known = set(TRAIN_GARMENTS) | set(TEST_GARMENTS) | set(EXTRA_GARMENTS) | set(OUTFITS)
     unknown = [g for g in args.garments if g not in known]
     if unknown:
-        ap.error(f"--garments: not in the procedural catalogue: {', '.join(unknown)}")
+        ap.error(f"--garments: not in the procedural catalogue or its outfits: {', '.join(unknown)}")
     fixtures = json.loads((SHARED_MAKEHUMAN / "manifest.json").read_text())
     out, sim = output_folder(ap, args, SHARED_MAKEHUMAN)
     log_path = out / "drape_log.json"
@@ -144,7 +182,8 @@ def main(argv=None):
             dest.mkdir(parents=True, exist_ok=True)
             (dest / ".claimed").write_text(str(os.getpid()))
         try:
-            mesh, pins, info, registration = fit(name, mannequin, body, registration)
+            mesh, pins, info, registration = (fit_outfit if name in OUTFITS else fit)(name, mannequin, body,
+                                                                                      registration)
             say(f"{name}: on {MAKEHUMAN_SOURCE}, {info['inside_after_transfer']} vertices inside after the transfer")
             entry = drape(SHARED_MAKEHUMAN, out, name, args.targets, say, sim, mesh=mesh, pins=pins)
         finally:
@@ -159,6 +198,8 @@ def main(argv=None):
                                                          placed_by="Blender's cloth solver", simulation=sim)
             extra = list(dict.fromkeys(m.get("procedural_garments", []) + [name]))
             m.update(garments=list(dict.fromkeys(m["garments"] + [name])), procedural_garments=extra)
+            if name in OUTFITS:
+                m["outfits"] = dict(m.get("outfits", {}), **{name: list(OUTFITS[name])})
             write_text_atomic(out / "manifest.json", json.dumps(m, indent=1) + "\n")
     say(f"done: {out}")
     return 0

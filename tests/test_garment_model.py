@@ -268,3 +268,7 @@ def test_a_validation_fold_holds_out_styles_with_their_variants():
     assert validation_fold(garments, ["trousers", "sweater"]) == (["suit_a", "tshirt"], ["trousers", "sweater"])
     with pytest.raises(SystemExit, match="skirt not among the training garments"):
         validation_fold(garments, ["skirt"])
+    # An outfit with a held-out piece (or its variant) is held out of training too.
+    outfits = {"outfit_a": ["tshirt", "trousers_loose"], "outfit_b": ["tshirt", "shorts"]}
+    assert validation_fold(garments + list(outfits), ["trousers", "sweater"], outfits) == \
+        (["suit_a", "tshirt", "outfit_b"], ["trousers", "sweater"])

@@ -102,3 +102,27 @@ def test_a_claim_left_by_a_stopped_run_is_taken_over(tmp_path, makehuman):
     assert main(["--out", str(out), "--garments", GARMENT, *SHORT]) == 0
     assert GARMENT in json.loads((out / "drape_log.json").read_text())
     assert not (out / "garments" / GARMENT / ".claimed").exists()
+
+
+def test_an_outfit_is_draped_as_one_garment_pinned_at_the_waist(tmp_path, makehuman):
+    from garment_transfer.mesh import connected_pieces
+    from garment_transfer.obj import read_obj
+    from lab.makehuman_drape import to_blender, waist_pins
+    from lab.makehuman_procedural import MANNEQUIN, OUTFITS, fit_outfit, main
+    from lab.paths import DEMO_DATA
+
+    name = "outfit_tank_top_shorts"
+    out = tmp_path / "sim"
+    assert main(["--out", str(out), "--garments", name, *SHORT]) == 0
+    body = read_obj(makehuman / "bodies" / "female_average.obj")
+    mesh = fit_outfit(name, read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj"), body)[0]
+    log = json.loads((out / "drape_log.json").read_text())[name]
+    # Pinned as the fixture suits are (at the waist and hips), not where the catalogue pins its garments.
+    assert log["pinned"] == waist_pins(to_blender(mesh.V), mesh.F, to_blender(body.V), body.F).size > 0
+    assert log["pieces"] == list(OUTFITS[name]) and log["inside_after_fix"] == [0, 0]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["outfits"] == {name: list(OUTFITS[name])} and manifest["procedural_garments"] == [name]
+    for b in ("female_average", "female_pear"):
+        draped = read_obj(out / "garments" / name / f"{b}.obj")
+        assert connected_pieces(draped.n_vertices, draped.F)[0] == 2
+        assert all(np.array_equal(p, q) for p, q in zip(draped.polygons(), mesh.polygons()))
