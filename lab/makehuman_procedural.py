@@ -11,6 +11,11 @@ the fixtures' layout, units and axes, and are listed in its manifest under ``gar
 ``procedural_garments``: the MakeHuman study (``lab.garment_model --parts makehuman``, with
 ``--makehuman-garments`` naming the fixture garments to hold out) then trains every fold on them too.
 
+``OUTFITS`` are a top and a bottom of the catalogue in one mesh (two pieces), draped as the fixture suits are:
+pinned at the waist and hips (``makehuman_drape.waist_pins``), the top tucked in; the catalogue's own tops hang
+from the shoulders. The manifest lists their pieces under ``outfits`` (a validation fold holding out a piece's
+style holds out its outfits too).
+
     nice python -m lab.makehuman_procedural --out DIR [--garments g1 g2 ...] [--continuous] \
         [--source-frames 30] [--morph-frames 15] [--frames 15]
 
