@@ -68,6 +68,7 @@ from garment_transfer.transfer import prepare_garment, transfer_garment
 
 from . import experiment
 from .experiment import run_experiment
+from .makehuman_drape import failed_drapes
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
 DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
@@ -328,15 +329,18 @@ def between_part(args, say):
     return info
 
 
-def makehuman_folds(garments, manifest, held=None):
+def makehuman_folds(garments, manifest, held=None, failed=()):
     """Leave-one-garment-out folds of a MakeHuman folder: each held-out garment (``held``, else every fixture
     garment) tested on its own, trained on the folder's other garments. Garments of the procedural catalogue
     (``procedural_garments``, lab.makehuman_procedural) train every fold and are never held out by default;
     a looser cut of a fixture garment (``variants``, lab.makehuman_drape --loose) trains every fold but its
-    original's. Returns (held, [(training, [held garment]), ...])."""
+    original's; a garment whose drape failed (``failed``, lab.makehuman_drape.failed_drapes) is neither
+    trained on nor tested. Returns (held, [(training, [held garment]), ...])."""
     procedural = manifest.get("procedural_garments", [])
     variants = manifest.get("variants", {})
-    held = held or [g for g in garments if g not in procedural and g not in variants]
+    garments = [g for g in garments if g not in failed]
+    held = [g for g in held if g not in failed] if held else \
+        [g for g in garments if g not in procedural and g not in variants]
     return held, [([g for g in garments if g != h and variants.get(g) != h], [h]) for h in held]
 
 
@@ -346,10 +350,16 @@ def makehuman_part(args, say):
         say("makehuman: fixtures not found (set GARMENT_TRANSFER_MAKEHUMAN); skipped")
         return None
     ds = load_dataset(folder)
-    held, folds = makehuman_folds(ds.garments, ds.manifest, args.makehuman_garments)
+    failed = {} if args.keep_failed_drapes or "placed_by" not in ds.manifest else \
+        failed_drapes(ds, MAKEHUMAN_SOURCE, list(MAKEHUMAN_TARGETS))
+    for g, slid in failed.items():
+        say(f"makehuman: {g} left out, its drape slid off the shoulders on "
+            + ", ".join(f"{t} ({100 * d:.1f}% of the body's height)" for t, d in slid.items()))
+    held, folds = makehuman_folds(ds.garments, ds.manifest, args.makehuman_garments, failed)
     if args.validation:
         # One fold: catalogue garments held out with their variants, every fixture garment in training.
-        train, held = validation_fold(list(ds.garments), args.validation, ds.manifest.get("outfits"))
+        train, held = validation_fold([g for g in ds.garments if g not in failed], args.validation,
+                                      ds.manifest.get("outfits"))
         folds = [(train, held)]
     methods = [m for m in args.methods if m in MH_METHODS or re.fullmatch(r"garment_share[0-9.]+(_mixed)?_placed", m)]
     # The fixtures' own garments are MakeHuman's proxy fits; lab.makehuman_drape writes the same garments
@@ -361,7 +371,7 @@ def makehuman_part(args, say):
     # Decimetres: vertex errors in mm are 100 x.
     text, table = summarise(res["rows"], methods, reference, list(MAKEHUMAN_TARGETS), scale=100.0)
     return {"rows": res["rows"], "trainings": res["trainings"], "table": table, "text": text, "held_out": held,
-            "reference": reference, "folder": str(folder)}
+            "reference": reference, "folder": str(folder), "failed_drapes": failed}
 
 
 def placement_options(args):
@@ -387,6 +397,9 @@ def main(argv=None):
                          "_tight variants; makehuman: catalogue garments, one fold with every fixture garment "
                          "in training), to choose settings without the test garments")
     ap.add_argument("--makehuman-garments", default="female_casualsuit01,male_casualsuit02")
+    ap.add_argument("--keep-failed-drapes", action="store_true",
+                    help="makehuman: also train and test on garments whose drape slid off the shoulders "
+                         "(lab.makehuman_drape.failed_drapes; left out by default)")
     ap.add_argument("--methods", default=",".join(DEMO_METHODS),
                     help="keys of lab.experiment.METHODS (MakeHuman runs those of them in MH_METHODS)")
     ap.add_argument("--epochs", type=int, default=300, help="epochs of the paper's shared model")

@@ -32,7 +32,10 @@ proxy fit beside the simulation (Cycles on the CPU, ``lab/blender/render_columns
 
 Each garment is written as soon as it is done (atomically), and a garment already written is skipped,
 so an interrupted run continues where it stopped; a folder draped with other simulation settings is
-refused. ``DIR/drape_log.json`` records seconds, vertices, the settings and the penetration fix per garment.
+refused. ``DIR/drape_log.json`` records seconds, vertices, the settings and the penetration fix per garment,
+and how far the garment slid off the shoulders on each target (``shoulder_drop``); a drape that slid further
+than ``SLID_SHARE`` of the body's height has failed (the run says so, and the MakeHuman study leaves the garment
+out: ``failed_drapes``).
 """
 
 from __future__ import annotations
@@ -99,6 +102,60 @@ def waist_pins(G, F, body_V, body_F):
             idx = np.flatnonzero(piece)
             pinned[idx[d[idx] <= np.quantile(d[idx], 0.1)]] = True
     return np.flatnonzero(pinned)
+
+
+#: A drape has failed where a piece that reaches the shoulders has its top slid further than this share of the
+#: target body's height below where the body carries it (docs/garment-model.md, "A failed drape in the data").
+SLID_SHARE = 0.03
+#: The top of a piece: its highest share of vertices; a piece reaches the shoulders where that lies above this
+#: share of the source body's height from the soles.
+TOP_SHARE, SHOULDER_SHARE = 0.05, 0.75
+
+
+def shoulder_drop(source_body, garment, target_body, draped):
+    """How far a garment slid off the shoulders on a target body: over the pieces of ``garment`` (on
+    ``source_body``) that reach the shoulders, the largest drop of a piece's top (its highest ``TOP_SHARE`` of
+    vertices) in ``draped`` (the garment on ``target_body``) below where the body carries it, over the target
+    body's height; 0 where no piece dropped (or none reaches the shoulders). Fixture axes (Y up).
+
+    Parameters
+    ----------
+    source_body, garment, target_body : Mesh
+    draped : (n,3) float
+
+    Returns
+    -------
+    float
+    """
+    from garment_transfer.binding import bind, carry
+    from garment_transfer.mesh import connected_pieces
+
+    y0, height = source_body.V[:, 1].min(), np.ptp(source_body.V[:, 1])
+    offset = np.asarray(draped, dtype=np.float64) - carry(bind(garment.V, source_body.V, source_body.F),
+                                                          target_body.V, source_body.F)
+    pieces = connected_pieces(garment.n_vertices, garment.F)[1]
+    drop = 0.0
+    for p in np.unique(pieces[garment.F.reshape(-1)]):
+        idx = np.flatnonzero(pieces == p)
+        y = garment.V[idx, 1]
+        top = idx[y >= np.quantile(y, 1.0 - TOP_SHARE)]
+        if (garment.V[top, 1].mean() - y0) / height >= SHOULDER_SHARE:
+            drop = max(drop, -float(offset[top, 1].mean()))
+    return drop / float(np.ptp(target_body.V[:, 1]))
+
+
+def failed_drapes(dataset, source, targets, garments=None):
+    """The drapes of a dataset folder where a garment slid off the shoulders (``shoulder_drop`` over
+    ``SLID_SHARE``): {garment: {target: drop}}, only the garments with one."""
+    failed = {}
+    for g in garments or dataset.garments:
+        garment = dataset.garment(g, source)
+        drops = {t: shoulder_drop(dataset.body(source), garment, dataset.body(t), dataset.garment(g, t).V)
+                 for t in targets}
+        slid = {t: round(d, 4) for t, d in drops.items() if d > SLID_SHARE}
+        if slid:
+            failed[g] = slid
+    return failed
 
 
 def other_settings(log, sim, log_path):
@@ -169,12 +226,18 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, lo
                           obj_text(g.with_vertices(from_blender(S)),
                                    header=f"{garment} draped by Blender's cloth solver on {body} "
                                           f"(lab.makehuman_drape)", digits=7))
+    settled = g.with_vertices(from_blender(shapes[0]))
+    drops = [shoulder_drop(source, settled, bodies[b], from_blender(S)) for b, S in zip(targets, shapes[1:])]
     entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size), "simulation": sim,
              **({} if loose is None else {"variant_of": original, "ease": loose}),
              "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
-             "inside_after_fix": [r["inside_after"] for r in report]}
+             "inside_after_fix": [r["inside_after"] for r in report],
+             "shoulder_drop": [round(d, 4) for d in drops]}
     say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
         f"{entry['inside_before_fix']}/{entry['inside_after_fix']}")
+    slid = [f"{b} ({100 * d:.1f}% of its height)" for b, d in zip(targets, drops) if d > SLID_SHARE]
+    if slid:
+        say(f"{garment}: FAILED on {', '.join(slid)}: slid off the shoulders; lab.garment_model leaves it out")
     return entry
 
 

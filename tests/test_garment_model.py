@@ -259,6 +259,11 @@ def test_makehuman_folds_never_train_on_the_held_out_garment_or_its_looser_cut()
         (["suit_a", "suit_c", "suit_a_loose", "trousers", "tshirt"], ["suit_b"])]
     # A plain fixture folder: every garment held out in turn, trained on the others.
     assert makehuman_folds(["a", "b"], {})[1] == [(["b"], ["a"]), (["a"], ["b"])]
+    # A garment whose drape failed is neither trained on nor tested, named or not.
+    failed = {"suit_b": {"male_average": 0.085}}
+    held, folds = makehuman_folds(garments, manifest, failed=failed)
+    assert held == ["suit_a", "suit_c"] and folds[0] == (["suit_c", "suit_b_loose", "trousers", "tshirt"], ["suit_a"])
+    assert makehuman_folds(garments, manifest, ["suit_b", "suit_c"], failed)[0] == ["suit_c"]
 
 
 def test_a_validation_fold_holds_out_styles_with_their_variants():

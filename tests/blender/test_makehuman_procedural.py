@@ -30,6 +30,7 @@ def test_a_catalogue_garment_draped_on_the_makehuman_bodies(tmp_path, makehuman)
     catalogue = garment(GARMENT)
     log = json.loads((out / "drape_log.json").read_text())[GARMENT]
     assert log["procedural"] and log["pinned"] == catalogue.pin.size and log["inside_after_fix"] == [0, 0]
+    assert log["shoulder_drop"] == [0.0]                                  # a skirt: no piece at the shoulders
     for body in ("female_average", "female_pear"):
         draped = read_obj(out / "garments" / GARMENT / f"{body}.obj")
         assert np.array_equal(draped.polygons(), [list(p) for p in catalogue.polygons])
@@ -107,7 +108,7 @@ def test_a_claim_left_by_a_stopped_run_is_taken_over(tmp_path, makehuman):
 def test_an_outfit_is_draped_as_one_garment_pinned_at_the_waist(tmp_path, makehuman):
     from garment_transfer.mesh import connected_pieces
     from garment_transfer.obj import read_obj
-    from lab.makehuman_drape import to_blender, waist_pins
+    from lab.makehuman_drape import SLID_SHARE, to_blender, waist_pins
     from lab.makehuman_procedural import MANNEQUIN, OUTFITS, fit_outfit, main
     from lab.paths import DEMO_DATA
 
@@ -120,6 +121,7 @@ def test_an_outfit_is_draped_as_one_garment_pinned_at_the_waist(tmp_path, makehu
     # Pinned as the fixture suits are (at the waist and hips), not where the catalogue pins its garments.
     assert log["pinned"] == waist_pins(to_blender(mesh.V), mesh.F, to_blender(body.V), body.F).size > 0
     assert log["pieces"] == list(OUTFITS[name]) and log["inside_after_fix"] == [0, 0]
+    assert len(log["shoulder_drop"]) == 1 and 0.0 <= log["shoulder_drop"][0] < SLID_SHARE
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["outfits"] == {name: list(OUTFITS[name])} and manifest["procedural_garments"] == [name]
     for b in ("female_average", "female_pear"):
