@@ -33,7 +33,7 @@ proxy fit beside the simulation (Cycles on the CPU, ``lab/blender/render_columns
 Each garment is written as soon as it is done (atomically), and a garment already written is skipped,
 so an interrupted run continues where it stopped; a folder draped with other simulation settings is
 refused. ``DIR/drape_log.json`` records seconds, vertices, the settings and the penetration fix per garment,
-and how far the garment slid off the shoulders on each target (``shoulder_drop``); a drape that slid further
+and how far the garment slid off the shoulders on each target (``shoulder_drops``); a drape that slid further
 than ``SLID_SHARE`` of the body's height has failed (the run says so, and the MakeHuman study leaves the garment
 out: ``failed_drapes``).
 """
@@ -112,49 +112,58 @@ SLID_SHARE = 0.03
 TOP_SHARE, SHOULDER_SHARE = 0.05, 0.75
 
 
-def shoulder_drop(source_body, garment, target_body, draped):
-    """How far a garment slid off the shoulders on a target body: over the pieces of ``garment`` (on
+def shoulder_drops(source_body, garment, target_bodies, drapes):
+    """How far a garment slid off the shoulders on each target body: over the pieces of ``garment`` (on
     ``source_body``) that reach the shoulders, the largest drop of a piece's top (its highest ``TOP_SHARE`` of
-    vertices) in ``draped`` (the garment on ``target_body``) below where the body carries it, over the target
-    body's height; 0 where no piece dropped (or none reaches the shoulders). Fixture axes (Y up).
+    vertices) in the drape below where the body carries it, over the target body's height; 0 where no piece
+    dropped (or none reaches the shoulders). Fixture axes (Y up).
 
     Parameters
     ----------
-    source_body, garment, target_body : Mesh
-    draped : (n,3) float
+    source_body, garment : Mesh
+    target_bodies : list of Mesh
+    drapes : list of (n,3) float
+        The garment on each target body.
 
     Returns
     -------
-    float
+    list of float
     """
     from garment_transfer.binding import bind, carry
     from garment_transfer.mesh import connected_pieces
 
     y0, height = source_body.V[:, 1].min(), np.ptp(source_body.V[:, 1])
-    offset = np.asarray(draped, dtype=np.float64) - carry(bind(garment.V, source_body.V, source_body.F),
-                                                          target_body.V, source_body.F)
     pieces = connected_pieces(garment.n_vertices, garment.F)[1]
-    drop = 0.0
+    tops = []
     for p in np.unique(pieces[garment.F.reshape(-1)]):
         idx = np.flatnonzero(pieces == p)
         y = garment.V[idx, 1]
         top = idx[y >= np.quantile(y, 1.0 - TOP_SHARE)]
         if (garment.V[top, 1].mean() - y0) / height >= SHOULDER_SHARE:
-            drop = max(drop, -float(offset[top, 1].mean()))
-    return drop / float(np.ptp(target_body.V[:, 1]))
+            tops.append(top)
+    binding = bind(garment.V, source_body.V, source_body.F)
+    drops = []
+    for body, draped in zip(target_bodies, drapes):
+        fall = np.asarray(draped, dtype=np.float64)[:, 1] - carry(binding, body.V, source_body.F)[:, 1]
+        drop = max([0.0] + [-float(fall[top].mean()) for top in tops])
+        drops.append(drop / float(np.ptp(body.V[:, 1])))
+    return drops
+
+
+def slid(targets, drops):
+    """{target: drop} for the drops past ``SLID_SHARE`` (a failed drape), rounded as the drape log keeps them."""
+    return {t: round(d, 4) for t, d in zip(targets, drops) if d > SLID_SHARE}
 
 
 def failed_drapes(dataset, source, targets, garments=None):
-    """The drapes of a dataset folder where a garment slid off the shoulders (``shoulder_drop`` over
+    """The drapes of a dataset folder where a garment slid off the shoulders (``shoulder_drops`` over
     ``SLID_SHARE``): {garment: {target: drop}}, only the garments with one."""
+    body, bodies = dataset.body(source), [dataset.body(t) for t in targets]
     failed = {}
     for g in garments or dataset.garments:
-        garment = dataset.garment(g, source)
-        drops = {t: shoulder_drop(dataset.body(source), garment, dataset.body(t), dataset.garment(g, t).V)
-                 for t in targets}
-        slid = {t: round(d, 4) for t, d in drops.items() if d > SLID_SHARE}
-        if slid:
-            failed[g] = slid
+        drops = shoulder_drops(body, dataset.garment(g, source), bodies, [dataset.garment(g, t).V for t in targets])
+        if slid(targets, drops):
+            failed[g] = slid(targets, drops)
     return failed
 
 
@@ -226,8 +235,8 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, lo
                           obj_text(g.with_vertices(from_blender(S)),
                                    header=f"{garment} draped by Blender's cloth solver on {body} "
                                           f"(lab.makehuman_drape)", digits=7))
-    settled = g.with_vertices(from_blender(shapes[0]))
-    drops = [shoulder_drop(source, settled, bodies[b], from_blender(S)) for b, S in zip(targets, shapes[1:])]
+    drops = shoulder_drops(source, g.with_vertices(from_blender(shapes[0])), [bodies[b] for b in targets],
+                           [from_blender(S) for S in shapes[1:]])
     entry = {"garment": garment, "vertices": int(g.n_vertices), "pinned": int(pins.size), "simulation": sim,
              **({} if loose is None else {"variant_of": original, "ease": loose}),
              "seconds": round(secs, 1), "inside_before_fix": [r["inside_before"] for r in report],
@@ -235,9 +244,10 @@ def drape(folder, out, garment, targets, say, sim=None, mesh=None, pins=None, lo
              "shoulder_drop": [round(d, 4) for d in drops]}
     say(f"{garment}: {g.n_vertices} vertices, {pins.size} pinned, {secs:.1f}s, inside before/after the fix "
         f"{entry['inside_before_fix']}/{entry['inside_after_fix']}")
-    slid = [f"{b} ({100 * d:.1f}% of its height)" for b, d in zip(targets, drops) if d > SLID_SHARE]
-    if slid:
-        say(f"{garment}: FAILED on {', '.join(slid)}: slid off the shoulders; lab.garment_model leaves it out")
+    failed = slid(targets, drops)
+    if failed:
+        say(f"{garment}: FAILED on {', '.join(f'{b} ({100 * d:.1f}% of its height)' for b, d in failed.items())}: "
+            "slid off the shoulders; lab.garment_model leaves it out")
     return entry
 
 

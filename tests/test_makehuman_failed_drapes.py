@@ -31,25 +31,25 @@ def scene():
 
 
 def test_a_drape_where_the_body_carries_the_garment_did_not_slide(scene):
-    from lab.makehuman_drape import shoulder_drop
+    from lab.makehuman_drape import shoulder_drops
 
     body, garment, target, carried, _ = scene
-    assert shoulder_drop(body, garment, target, carried) == pytest.approx(0.0, abs=1e-12)
+    assert shoulder_drops(body, garment, [target], [carried]) == [pytest.approx(0.0, abs=1e-12)]
 
 
 def test_the_top_piece_slid_down_is_measured_over_the_target_height(scene):
-    from lab.makehuman_drape import shoulder_drop
+    from lab.makehuman_drape import shoulder_drops
 
     body, garment, target, carried, on_top = scene
     down = carried.copy()
     down[on_top, 1] -= 0.12
-    assert shoulder_drop(body, garment, target, down) == pytest.approx(0.12 / 2.4, rel=1e-9)
     up = carried.copy()
     up[on_top, 1] += 0.12                                                 # rising is not sliding off
-    assert shoulder_drop(body, garment, target, up) == pytest.approx(0.0, abs=1e-12)
     skirt_down = carried.copy()
     skirt_down[~on_top, 1] -= 0.5                                         # a piece below the shoulders
-    assert shoulder_drop(body, garment, target, skirt_down) == pytest.approx(0.0, abs=1e-12)
+    # Each target measured on its own, the garment bound once.
+    assert shoulder_drops(body, garment, [target] * 3, [down, up, skirt_down]) == [
+        pytest.approx(0.12 / 2.4, rel=1e-9), pytest.approx(0.0, abs=1e-12), pytest.approx(0.0, abs=1e-12)]
 
 
 def test_failed_drapes_lists_only_the_garments_and_targets_past_the_limit(scene):
