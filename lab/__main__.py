@@ -8,8 +8,8 @@ import json
 import os
 import sys
 
+from garment_transfer.cli.options import number_option, stderr_progress
 from garment_transfer.errors import GarmentTransferError
-from garment_transfer.cli import number_option, stderr_progress
 from garment_transfer.files import check_output_folder, json_default
 
 #: Commands that are whole scripts with their own options: name -> (module, what it does).

@@ -43,9 +43,9 @@ def _noop(i):
 
 
 def _timed_run(cat, out, **kw):
-    from garment_transfer import batch
+    from garment_transfer.pipeline import batch
 
-    batch._INPUTS.cache.clear()
+    batch.clear_input_cache()
     shutil.rmtree(out, ignore_errors=True)
     t = time.perf_counter()
     s = batch.run_batch(cat, out, **kw)
@@ -60,9 +60,8 @@ def _timed_run(cat, out, **kw):
 
 
 def _cluster(workers):
-    import distributed
-
     import dask
+    import distributed
 
     # As the batch command's own local cluster (garment_transfer.batch): no profiler sampling.
     with dask.config.set({"distributed.worker.profile.enabled": False}):
@@ -97,7 +96,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     if not (args.data / "bodies").is_dir():
         raise SystemExit(f"the MakeHuman fixtures are needed: {args.data} (--data)")
-    from garment_transfer.batch import read_catalogue
+    from garment_transfer.pipeline.batch import read_catalogue
 
     full = read_catalogue(args.data, source="female_average")
     cat = type(full)(full.origin, full.jobs[: args.garments])

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from garment_transfer.mesh import Mesh, mesh_from_polygons
+from garment_transfer.geometry.mesh import Mesh, mesh_from_polygons
 
 from .paths import MAKEHUMAN_SOURCE, makehuman_folder
 
@@ -35,7 +35,7 @@ def bench_bodies(n_targets=6):
     source : Mesh
     targets : list of Mesh
     """
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
 
     folder = makehuman_folder()
     if folder is not None:
@@ -104,8 +104,36 @@ def tube_dress(body: Mesh, triangles: int, folds=24, fold_depth=0.012):
     return mesh_from_polygons(P.reshape(-1, 3), quads, name=f"dress_{triangles}")
 
 
+def brute_force_distance(P, V, F, closest_on_triangles, chunk=8):
+    """Distance from each point to the nearest of all triangles, by evaluating every one."""
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    m = F.shape[0]
+    out = np.empty(P.shape[0])
+    for i in range(0, P.shape[0], chunk):
+        p = P[i:i + chunk]
+        k = p.shape[0]
+        Q, _ = closest_on_triangles(np.repeat(p, m, axis=0), np.tile(A, (k, 1)), np.tile(B, (k, 1)),
+                                    np.tile(C, (k, 1)))
+        out[i:i + k] = np.linalg.norm(np.repeat(p, m, axis=0) - Q, axis=1).reshape(k, m).min(axis=1)
+    return out
+
+
+def exactness(V_result, body, rng, sample=2000):
+    """Max relative difference of TriangleSurface.closest against brute force on ``sample`` points."""
+    from garment_transfer.geometry.proximity import TriangleSurface, closest_on_triangles
+
+    pick = rng.choice(V_result.shape[0], min(sample, V_result.shape[0]), replace=False)
+    P = V_result[pick].copy()
+    scale = float(np.ptp(body.V, axis=0).max())
+    # Half where the fix queries (the garment), half spread around it.
+    P[::2] += rng.normal(scale=0.03 * scale, size=P[::2].shape)
+    d = TriangleSurface(body.V, body.F).closest(P)[1]
+    ref = brute_force_distance(P, body.V, body.F, closest_on_triangles)
+    return float(np.max(np.abs(d - ref) / np.maximum(ref, 1e-300)))
+
+
 def _time_transfer(source, target, garment, prepared=None):
-    from garment_transfer.transfer import transfer_garment
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     t = time.perf_counter()
     r = transfer_garment(source, target, garment, prepared=prepared, resolve_crossings=TUBE_CROSSINGS)
@@ -130,9 +158,7 @@ def run_bench(sizes=(28000, 46000, 84000, 156000), repeats=3, targets=6, progres
         ``machine``, ``body``, ``sizes`` (a list of per-size records with per-stage ``cold`` and
         ``reused`` seconds and ``paper_seconds``), ``multi_target``.
     """
-    from garment_transfer.transfer import prepare_garment
-
-    from .speed import exactness
+    from garment_transfer.pipeline.transfer import prepare_garment
 
     source, bodies = bench_bodies(max(targets, 1))
     target = bodies[0]

@@ -25,12 +25,12 @@ PAIRS = {"female_pear": "pear", "female_slim_banana": "slim", "male_average": "h
 
 
 def run(epochs=400, pairs=None, say=print):
-    from garment_transfer.dataset import build_training_fields, load_dataset
-    from garment_transfer.field_mapping import model_field
-    from garment_transfer.metrics import mdc, vertex_error
-    from garment_transfer.obj import read_obj
-    from garment_transfer.training import train_model
-    from garment_transfer.transfer import prepare_garment, transfer_garment
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.learning.dataset import build_training_fields, load_dataset
+    from garment_transfer.learning.training import train_model
+    from garment_transfer.pipeline.field_mapping import model_field
+    from garment_transfer.pipeline.metrics import mdc, vertex_error
+    from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
     pairs = pairs or PAIRS
     root = makehuman_folder()
@@ -96,8 +96,8 @@ def renders(out, samples=16, say=print):
     import subprocess
     from pathlib import Path
 
-    from garment_transfer.obj import read_obj, write_obj
-    from garment_transfer.registration import transfer_to_any_body
+    from garment_transfer.geometry.obj import read_obj, write_obj
+    from garment_transfer.pipeline.any_body import transfer_to_any_body
 
     root = makehuman_folder()
     if root is None:

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from garment_transfer.files import write_json_atomic, write_text_atomic
-from garment_transfer.metrics import per_vertex_change
-from garment_transfer.obj import write_obj
+from garment_transfer.geometry.obj import write_obj
+from garment_transfer.pipeline.metrics import per_vertex_change
 
 from .experiment import METHODS as ALL_METHODS
 from .experiment import run_experiment
@@ -91,7 +91,7 @@ def run_demo(out="results", quick=False, progress=None, dataset=DEMO_DATA, epoch
     res = run_experiment(dataset, source, targets, [(train, test)], METHODS, epochs, reference="simulation",
                          on_result=save_result, on_models=save_models,
                          progress=lambda f, stage: step(0.3 + 0.6 * f, stage))
-    from garment_transfer.dataset import load_dataset
+    from garment_transfer.learning.dataset import load_dataset
 
     ds = load_dataset(dataset)
     for g in test:

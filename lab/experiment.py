@@ -15,14 +15,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from garment_transfer.dataset import build_training_fields, load_dataset
-from garment_transfer.gradients import deformation_gradients
-from garment_transfer.metrics import evaluate
-from garment_transfer.garment_training import (nearest_garments, placement_tables, train_garment_model,
-                                               train_placement_ensemble, training_tables)
-from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement, true_offsets
-from garment_transfer.training import train_model
-from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.geometry.gradients import deformation_gradients
+from garment_transfer.learning.dataset import build_training_fields, load_dataset
+from garment_transfer.learning.garment_training import (
+    nearest_garments,
+    placement_tables,
+    train_garment_model,
+    train_placement_ensemble,
+    training_tables,
+)
+from garment_transfer.learning.placement import LIBRARY_SHARE, MixedPlacement, true_offsets
+from garment_transfer.learning.training import train_model
+from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
+
 from .length_placement import LengthMixed, LengthPlacement
 
 log = logging.getLogger(__name__)

@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from garment_transfer.files import atomic_path, write_json_atomic
-from garment_transfer.mesh import mesh_from_polygons
-from garment_transfer.obj import obj_text, read_obj, write_text_atomic
+from garment_transfer.geometry.mesh import mesh_from_polygons
+from garment_transfer.geometry.obj import obj_text, read_obj, write_text_atomic
 
 from .paths import BLENDER_SCRIPTS, DEMO_DATA, ROOT
 

@@ -57,14 +57,19 @@ import time
 
 import numpy as np
 
-from garment_transfer import placement
-from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
-from garment_transfer.garment_model import label_weights
-from garment_transfer.garment_training import (SCHEDULES, nearest_garments, placement_tables, train_garment_model,
-                                               training_tables)
-from garment_transfer.metrics import evaluate
-from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.learning import placement
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.garment_model import label_weights
+from garment_transfer.learning.garment_training import (
+    SCHEDULES,
+    nearest_garments,
+    placement_tables,
+    train_garment_model,
+    training_tables,
+)
+from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from . import experiment
 from .experiment import run_experiment

@@ -37,8 +37,8 @@ import time
 
 import numpy as np
 
-from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic, write_text_atomic
+from garment_transfer.learning.dataset import load_dataset
 
 from .experiment import METHODS as ALL_METHODS
 from .experiment import run_experiment

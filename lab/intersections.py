@@ -25,12 +25,12 @@ import time
 
 import numpy as np
 
-from garment_transfer.clearance import separate
-from garment_transfer.intersections import crossings, minimum_distance, self_intersections
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.metrics import mdc
-from garment_transfer.obj import read_obj
-from garment_transfer.transfer import transfer_garment
+from garment_transfer.geometry.clearance import separate
+from garment_transfer.geometry.intersections import crossings, minimum_distance, self_intersections
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.pipeline.metrics import mdc
+from garment_transfer.pipeline.transfer import transfer_garment
 
 from .outfits import crossings_left
 from .outfits import run_outfits as run_outfit_study

@@ -15,9 +15,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
-from garment_transfer.binding import carry
-from garment_transfer.garment_model import _orthonormal_frames
-from garment_transfer.placement import true_offsets
+from garment_transfer.geometry.binding import carry
+from garment_transfer.geometry.gradients import orthonormal_frames
+from garment_transfer.learning.placement import true_offsets
 
 #: Share of a piece's height whose highest vertices are its top (where it hangs from).
 TOP_SHARE = 0.03
@@ -99,7 +99,7 @@ class LengthPlacement:
 
     def frame_offsets(self, binding, source_body, target_body, garment, target=None):
         y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+        return np.einsum("mij,mj->mi", orthonormal_frames(source_body.V, source_body.F), y)
 
 
 class LengthMixed(LengthPlacement):

@@ -51,8 +51,8 @@ from pathlib import Path
 
 import numpy as np
 
-from garment_transfer.obj import obj_text, read_obj, write_text_atomic
-from garment_transfer.proximity import TriangleSurface
+from garment_transfer.geometry.obj import obj_text, read_obj, write_text_atomic
+from garment_transfer.geometry.proximity import TriangleSurface
 
 from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN, makehuman_folder
 
@@ -129,8 +129,8 @@ def shoulder_drops(source_body, garment, target_bodies, drapes):
     -------
     list of float
     """
-    from garment_transfer.binding import bind, carry
-    from garment_transfer.mesh import connected_pieces
+    from garment_transfer.geometry.binding import bind, carry
+    from garment_transfer.geometry.mesh import connected_pieces
 
     y0, height = source_body.V[:, 1].min(), np.ptp(source_body.V[:, 1])
     pieces = connected_pieces(garment.n_vertices, garment.F)[1]
@@ -189,7 +189,7 @@ def loose_variant(G, F, body_V, body_F, pins, ease, fade=LOOSE_FADE):
     move alike), fading to nothing within ``fade`` of the pinned vertices (the waistband stays where it was)."""
     from scipy.spatial import cKDTree
 
-    from garment_transfer.penetration import vertex_adjacency
+    from garment_transfer.geometry.penetration import vertex_adjacency
 
     normal = TriangleSurface(body_V, body_F).signed_distance(G)[2]
     A = vertex_adjacency(G.shape[0], F)

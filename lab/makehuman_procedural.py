@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from garment_transfer.obj import read_obj, write_text_atomic
+from garment_transfer.geometry.obj import read_obj, write_text_atomic
 
 from .makehuman_drape import drape, other_settings, output_folder, read_json, simulation_arguments
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, SHARED_MAKEHUMAN
@@ -114,8 +114,8 @@ def fit(name, mannequin, body, registration=None):
     registration : Registration
         For the next garment.
     """
-    from garment_transfer.mesh import mesh_from_polygons
-    from garment_transfer.registration import transfer_to_any_body
+    from garment_transfer.geometry.mesh import mesh_from_polygons
+    from garment_transfer.pipeline.any_body import transfer_to_any_body
 
     from .procedural.garments import garment
 
@@ -132,7 +132,7 @@ def fit_outfit(name, mannequin, body, registration=None):
     """The outfit ``name`` (``OUTFITS``) on the MakeHuman source body: its pieces carried as ``fit`` carries a
     garment, in one mesh (the top's vertices first). Returns ``fit``'s values, the pins None (the drape pins it
     at the waist, as the fixture suits)."""
-    from garment_transfer.mesh import mesh_from_polygons
+    from garment_transfer.geometry.mesh import mesh_from_polygons
 
     meshes, infos = [], []
     for part in OUTFITS[name]:

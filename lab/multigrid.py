@@ -28,7 +28,7 @@ import numpy as np
 def systems(triangles):
     """The Poisson matrix (n,n), right-hand sides (3,n) and starts (3,n) of a cold transfer of the
     benchmark dress of ``triangles`` triangles."""
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     from .bench import bench_bodies, tube_dress
     from .speed import _transfer
@@ -55,7 +55,7 @@ def systems(triangles):
 def compare(K, R, S, repeats):
     import pyamg
 
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     tol = poisson.MULTIGRID_TOLERANCE
 

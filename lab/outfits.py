@@ -16,12 +16,12 @@ import json
 import time
 from pathlib import Path
 
-from garment_transfer.intersections import crossings, intersection_report, minimum_distance
-from garment_transfer.metrics import mdc
-from garment_transfer.obj import read_obj
-from garment_transfer.outfit import OutfitError, merge_meshes, transfer_outfit
+from garment_transfer.geometry.intersections import crossings, intersection_report, minimum_distance
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.pipeline.metrics import mdc
+from garment_transfer.pipeline.outfit import OutfitError, merge_meshes, transfer_outfit
 
-from .paths import DEMO_DATA
+from .paths import DEMO_DATA, mm_per_unit
 
 #: Outfits of the demo garments, from the body out.
 OUTFITS = (("tshirt", "shift_dress"), ("shorts", "wrap_dress"))
@@ -148,12 +148,10 @@ def _mm(v, unit_mm):
 
 def outfits_markdown(res, command="python -m lab.intersections --only outfits") -> list:
     """The report's outfits section (markdown lines); lengths in mm when the dataset names its units."""
-    from .report import _mm_per_unit
-
     lines = ["## Outfits of several layers", ""]
     if "skipped" in res:
         return lines + [f"Skipped: {res['skipped']}.", ""]
-    unit_mm = _mm_per_unit(res.get("units"))
+    unit_mm = mm_per_unit(res.get("units"))
     unit = "mm" if unit_mm else "dataset units"
     unit_mm = unit_mm or 1.0
     lines += [

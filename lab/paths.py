@@ -24,3 +24,14 @@ def makehuman_folder():
         if (c / "bodies").is_dir():
             return c
     return None
+
+
+#: Millimetres per unit of a dataset's ``units`` (its manifest), for figures in millimetres.
+MM_PER_UNIT = {"metres": 1000.0, "meters": 1000.0, "m": 1000.0, "decimetres": 100.0, "decimeters": 100.0,
+               "dm": 100.0, "centimetres": 10.0, "centimeters": 10.0, "cm": 10.0, "millimetres": 1.0,
+               "millimeters": 1.0, "mm": 1.0}
+
+
+def mm_per_unit(units):
+    """Millimetres per unit of a dataset's ``units`` name, or None for an unknown one."""
+    return MM_PER_UNIT.get((units or "").strip().lower())

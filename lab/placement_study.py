@@ -15,11 +15,11 @@ import json
 
 import numpy as np
 
-from garment_transfer.embedding import body_scale
 from garment_transfer.errors import MeshError
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.transfer import prepare_garment
+from garment_transfer.geometry.embedding import body_scale
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.transfer import prepare_garment
 
 from .paths import DEMO_DATA as DEMO
 from .paths import SHARED_MAKEHUMAN as MAKEHUMAN

@@ -26,12 +26,12 @@ import time
 
 import numpy as np
 
-from garment_transfer.dataset import load_dataset
 from garment_transfer.files import write_json_atomic
-from garment_transfer.metrics import evaluate
-from garment_transfer.placement import true_offsets
-from garment_transfer.poisson import ENERGIES
-from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.geometry.poisson import ENERGIES
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.placement import true_offsets
+from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, makehuman_folder
 

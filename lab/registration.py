@@ -38,11 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.registration import register, shape_basis_from_bodies, transfer_to_any_body
-from garment_transfer.transfer import transfer_garment
+from garment_transfer.fitting.registration import register
+from garment_transfer.fitting.shape_basis import shape_basis_from_bodies
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.any_body import transfer_to_any_body
+from garment_transfer.pipeline.transfer import transfer_garment
 
 from .paths import DEMO_DATA as DEMO
 from .paths import MAKEHUMAN_SOURCE as SOURCE
@@ -110,10 +112,10 @@ def region_errors(fitted, truth, F):
     The normal part is along the true target's vertex normal: a fit that lies on the target's
     surface but slides along it has a small normal and a large tangential part.
     """
-    from garment_transfer.registration import _vertex_normals, vertex_areas
+    from garment_transfer.geometry.mesh import vertex_areas, vertex_normals
 
     d = fitted - truth
-    N = _vertex_normals(truth, F)
+    N = vertex_normals(truth, F)
     dn = np.einsum("ij,ij->i", d, N)
     dt = np.linalg.norm(d - dn[:, None] * N, axis=1)
     e = np.linalg.norm(d, axis=1)
@@ -180,7 +182,7 @@ def body_study(bodies, sizes, garments, prior="both", all_bodies=None, body_mode
     variants = {"off": [False], "on": [True], "both": [False, True], "makehuman": ["makehuman"]}[prior]
     model = None
     if prior == "makehuman":
-        from garment_transfer.body_model import makehuman_shape_basis
+        from garment_transfer.fitting.body_model import makehuman_shape_basis
 
         model = makehuman_shape_basis(source, makehuman_targets(body_model), exclude_groups=exclude_groups)
         print(f"body model: {model.basis.shape[0]} sliders from {model.path}"
@@ -358,7 +360,7 @@ def speed_study(repeats=3, prior="off", target_name="female_pear", body_model=No
     target = mesh_from_triangles(U, G, name=f"{target_name}_50k")
     bounds, model = (0.0, 1.0), prior == "makehuman"
     if model:
-        from garment_transfer.body_model import makehuman_shape_basis
+        from garment_transfer.fitting.body_model import makehuman_shape_basis
 
         m = makehuman_shape_basis(source, makehuman_targets(body_model))
         names, basis, bounds = ["MakeHuman targets"], m.basis, m.bounds

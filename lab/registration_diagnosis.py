@@ -27,13 +27,14 @@ import json
 
 import numpy as np
 
-from garment_transfer.binding import carry
-from garment_transfer.embedding import unembed, unembed_with_matrix
-from garment_transfer.gradients import deformation_gradients
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj
-from garment_transfer.registration import register, transfer_to_any_body, vertex_areas
-from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.fitting.registration import register
+from garment_transfer.geometry.binding import carry
+from garment_transfer.geometry.embedding import unembed, unembed_with_matrix
+from garment_transfer.geometry.gradients import deformation_gradients
+from garment_transfer.geometry.mesh import mesh_from_triangles, vertex_areas
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.pipeline.any_body import transfer_to_any_body
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .registration import MAKEHUMAN, MM_PER_UNIT, REGIONS, SOURCE, body_regions, leave_one_out_basis, remesh
 

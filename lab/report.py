@@ -49,7 +49,7 @@ from .bench import PAPER_SECONDS, TUBE_CROSSINGS, machine_description, solver_te
 from .experiment import METHODS as ALL_METHODS
 from .experiment import curve_recorder, run_experiment, thin
 from .outfits import outfits_markdown, run_outfits
-from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder
+from .paths import BLENDER_SCRIPTS, DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, ROOT, makehuman_folder, mm_per_unit
 
 log = logging.getLogger(__name__)
 
@@ -79,10 +79,6 @@ FIGURES = ["mdc", "penetration_ratio", "max_penetration_depth", "drape_error", "
            "vertex_error_mean", "seconds"]
 _LENGTHS = {"max_penetration_depth", "drape_error", "vertex_error_mean", "vertex_error_max",
             "drape_error_source"}
-_MM = {"metres": 1000.0, "meters": 1000.0, "m": 1000.0, "decimetres": 100.0, "decimeters": 100.0,
-       "dm": 100.0, "centimetres": 10.0, "centimeters": 10.0, "cm": 10.0, "millimetres": 1.0,
-       "millimeters": 1.0, "mm": 1.0}
-
 
 @dataclass
 class ReportSettings:
@@ -138,10 +134,6 @@ def quick_settings() -> ReportSettings:
                           makehuman_garments=3, makehuman_targets=2, makehuman_folds=1, outfit_targets=1,
                           exact_sample=40,
                           quick=True)
-
-
-def _mm_per_unit(units):
-    return _MM.get((units or "").strip().lower())
 
 
 # --------------------------------------------------------------------------------------------------
@@ -238,8 +230,8 @@ def quality(folder, source, targets, folds, epochs, reference_kind, sim_seconds=
         ``seconds``), ``trainings`` (per fold and variant: seconds, epochs, losses, loss ``curve``),
         ``surface_deform`` (the script's run), ``read_seconds``, ``units``, ``mm_per_unit``.
     """
-    from garment_transfer.dataset import load_dataset
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.learning.dataset import load_dataset
 
     ds = load_dataset(folder)
     tests = [g for g in ds.garments if any(g in te for _, te in folds)]
@@ -262,7 +254,7 @@ def quality(folder, source, targets, folds, epochs, reference_kind, sim_seconds=
     out = run_experiment(folder, source, targets, folds, METHODS, epochs, reference=reference_kind, seed=seed,
                          reference_seconds=sim_seconds, external={"surface_deform": external},
                          progress=progress)
-    out.update(surface_deform=sd_summary, mm_per_unit=_mm_per_unit(ds.units))
+    out.update(surface_deform=sd_summary, mm_per_unit=mm_per_unit(ds.units))
     return out
 
 
@@ -361,7 +353,7 @@ def demo_outfits(settings, dataset=DEMO_DATA, progress=None):
 
 def makehuman_quality(settings, folder=None, progress=None):
     """Leave-one-garment-out quality on the MakeHuman fixtures; ``{"skipped": why}`` without them."""
-    from garment_transfer.dataset import load_dataset
+    from garment_transfer.learning.dataset import load_dataset
 
     folder = folder or makehuman_folder()
     if folder is None:
@@ -410,7 +402,7 @@ def memory_case(triangles) -> dict:
         ``triangles``, ``vertices``, ``seconds`` (per stage), ``rss_before_mb`` (peak once the bodies
         and the garment are built), ``peak_rss_mb``, ``penetrating_vertices``.
     """
-    from garment_transfer.transfer import transfer_garment
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     from .bench import bench_bodies, tube_dress
 
@@ -451,7 +443,7 @@ def training_at_scale(epochs) -> dict:
         (steady), threads, the loss ``curve`` (``[epoch, seconds, loss]``), the paper's time and its ratio
         to ours (with the paper's epoch count only); or ``skipped``.
     """
-    from garment_transfer.training import train_model
+    from garment_transfer.learning.training import train_model
 
     from . import training_scale as bt
 

@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.shape_keys import all_pairs, body_at, fit_shape_keys, keep_outside
-from garment_transfer.transfer import prepare_garment, transfer_garment
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.shape_keys import all_pairs, body_at, fit_shape_keys, keep_outside
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 

@@ -31,40 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .bench import PAPER_SECONDS, TUBE_CROSSINGS, bench_bodies, exactness, machine_description, tube_dress
+
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The paper's table 2 ("T", laptop i7-8750H, 6 cores), seconds for a whole transfer.
-PAPER_SECONDS = {28000: 0.764, 46000: 1.301, 84000: 2.822, 156000: 5.928}
 SIZES = (28000, 46000, 84000, 156000)
 SAMPLE = 2000
-
-
-def brute_force_distance(P, V, F, closest_on_triangles, chunk=8):
-    """Distance from each point to the nearest of all triangles, by evaluating every one."""
-    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    m = F.shape[0]
-    out = np.empty(P.shape[0])
-    for i in range(0, P.shape[0], chunk):
-        p = P[i:i + chunk]
-        k = p.shape[0]
-        Q, _ = closest_on_triangles(np.repeat(p, m, axis=0), np.tile(A, (k, 1)), np.tile(B, (k, 1)),
-                                    np.tile(C, (k, 1)))
-        out[i:i + k] = np.linalg.norm(np.repeat(p, m, axis=0) - Q, axis=1).reshape(k, m).min(axis=1)
-    return out
-
-
-def exactness(V_result, body, rng, sample=SAMPLE):
-    """Max relative difference of TriangleSurface.closest against brute force on ``sample`` points."""
-    from garment_transfer.proximity import TriangleSurface, closest_on_triangles
-
-    pick = rng.choice(V_result.shape[0], min(sample, V_result.shape[0]), replace=False)
-    P = V_result[pick].copy()
-    scale = float(np.ptp(body.V, axis=0).max())
-    # Half where the fix queries (the garment), half spread around it.
-    P[::2] += rng.normal(scale=0.03 * scale, size=P[::2].shape)
-    d = TriangleSurface(body.V, body.F).closest(P)[1]
-    ref = brute_force_distance(P, body.V, body.F, closest_on_triangles)
-    return float(np.max(np.abs(d - ref) / np.maximum(ref, 1e-300)))
 
 
 def _transfer(*args, **options):
@@ -72,9 +44,8 @@ def _transfer(*args, **options):
     where the package measured has one (a baseline commit may predate it)."""
     import inspect
 
-    from garment_transfer.transfer import transfer_garment
+    from garment_transfer.pipeline.transfer import transfer_garment
 
-    from .bench import TUBE_CROSSINGS
 
     if "resolve_crossings" in inspect.signature(transfer_garment).parameters:
         options["resolve_crossings"] = TUBE_CROSSINGS
@@ -83,8 +54,7 @@ def _transfer(*args, **options):
 
 def measure(sizes, repeats, check=True):
     """Cold and reused transfers at each size; returns a list of records."""
-    from .bench import bench_bodies, tube_dress
-    from garment_transfer.transfer import prepare_garment
+    from garment_transfer.pipeline.transfer import prepare_garment
 
     source, bodies = bench_bodies(1)
     target = bodies[0]
@@ -105,14 +75,13 @@ def measure(sizes, repeats, check=True):
         rec = {"requested": n, "triangles": garment.n_triangles, "vertices": garment.n_vertices, **best,
                "paper": PAPER_SECONDS.get(n)}
         if check:
-            rec["exact"] = exactness(r.V, target, rng)
+            rec["exact"] = exactness(r.V, target, rng, SAMPLE)
         records.append(rec)
     return records
 
 
 def million(triangles=1_000_000):
     """One cold transfer of a garment of ``triangles`` triangles; its time and this process's peak."""
-    from .bench import bench_bodies, tube_dress
 
     source, bodies = bench_bodies(1)
     garment = tube_dress(source, triangles)
@@ -232,7 +201,6 @@ def main(argv=None):
             base = run_worker(["sizes", *common], pkg)
             base_mill = None if args.no_million else run_worker(["million"], pkg)
     load1 = os.getloadavg() if hasattr(os, "getloadavg") else None
-    from .bench import machine_description
 
     machine = machine_description()
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, numpy {machine['numpy']}; "

@@ -33,8 +33,8 @@ import time
 
 import numpy as np
 
-from garment_transfer.dataset import TrainingFields
-from garment_transfer.mesh import mesh_from_polygons
+from garment_transfer.geometry.mesh import mesh_from_polygons
+from garment_transfer.learning.dataset import TrainingFields
 
 from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
@@ -98,8 +98,8 @@ def mean_field_error(model, held):
 
 def compare_optimisers(epochs, threads, holdout="female_casualsuit01"):
     """Every optimiser on one MakeHuman fold: list of dicts (optimiser, lr, losses, seconds)."""
-    from garment_transfer.dataset import build_training_fields
-    from garment_transfer.training import train_model
+    from garment_transfer.learning.dataset import build_training_fields
+    from garment_transfer.learning.training import train_model
 
     folder = makehuman_folder()
     if folder is None:
@@ -156,7 +156,7 @@ def main(argv=None):
             print(f"held-out error of the plain mean of the training fields: {res['mean_field_heldout']:.4f}")
         return
 
-    from garment_transfer.training import default_threads, train_model
+    from garment_transfer.learning.training import default_threads, train_model
 
     fields = synthetic_fields(args.garments, args.targets)
     t0, c0 = time.perf_counter(), time.process_time()

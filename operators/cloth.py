@@ -10,10 +10,7 @@ import time
 import bpy
 import numpy as np
 
-from ..garment_transfer.binding import follow_nearest_vertex
-from ..garment_transfer.errors import Cancelled, MeshError
-from ..garment_transfer.penetration import fix_penetration
-from ..garment_transfer.proximity import TriangleSurface
+from ..garment_transfer import Cancelled, MeshError, TriangleSurface, fix_penetration, follow_nearest_vertex
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..garment_transfer.errors import MeshError
-from ..garment_transfer.mesh import Mesh, mesh_from_polygons
+from ..garment_transfer import Mesh, MeshError, mesh_from_polygons
 
 # Modifiers that only refine a surface that is already in place. In the base-mesh mode a result keeps
 # these (they act on the transferred positions); anything else, and every modifier in the evaluated

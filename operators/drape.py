@@ -18,7 +18,7 @@ def pinned_vertices(garment, group_name, n_vertices):
     """(k,) int64 indices of the garment's vertices in vertex group ``group_name`` with weight >= 0.5."""
     import numpy as np
 
-    from ..garment_transfer.errors import MeshError
+    from ..garment_transfer import MeshError
 
     if not group_name:
         return None
@@ -56,8 +56,7 @@ def drape_objects(context, source_body, target_body, garment, *, frames=40, pin_
     bpy.types.Object
         ``<garment>_draped_on_<target>``, linked next to the garment.
     """
-    from ..garment_transfer.errors import MeshError
-    from ..garment_transfer.mesh import require_same_topology
+    from ..garment_transfer import MeshError, require_same_topology
     from .cloth import drape_garment
 
     for role, obj in (("source body", source_body), ("target body", target_body), ("garment", garment)):

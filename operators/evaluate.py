@@ -40,8 +40,7 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
         ``written`` (bool), ``scale`` (value shown in full red), ``max``, and ``reason`` why it was
         not written (None when it was).
     """
-    from ..garment_transfer.errors import MeshError
-    from ..garment_transfer.metrics import evaluate, per_vertex_change
+    from ..garment_transfer import MeshError, evaluate, per_vertex_change
 
     for role, obj in (("result", result_obj), ("garment", garment), ("target body", target_body)):
         convert.require_mesh_object(obj, role)

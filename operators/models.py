@@ -23,7 +23,7 @@ def load_model_cached(path):
     ModelError
         From the core: missing, unreadable or corrupt file, or a kind this version does not read.
     """
-    from ..garment_transfer.model_files import read_model_file
+    from ..garment_transfer import read_model_file
 
     path = model_file_path(path)
     try:

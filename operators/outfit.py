@@ -29,7 +29,7 @@ def outfit_offsets(settings):
 
 def check_outfit_objects(source_body, target_body, garments):
     """Raise MeshError naming the object when the layers cannot be an outfit on these bodies."""
-    from ..garment_transfer.errors import MeshError
+    from ..garment_transfer import MeshError
 
     if not garments:
         raise MeshError("outfit", "has no layers; add garments in the Outfit panel")
@@ -69,12 +69,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
-    from ..garment_transfer.embedding import body_scale
-    from ..garment_transfer.errors import TopologyMismatchError
-    from ..garment_transfer.metrics import mdc
-    from ..garment_transfer.outfit import transfer_outfit
-    from ..garment_transfer.registration import same_mesh
-    from ..garment_transfer.transfer import OFFSET_SHARE
+    from ..garment_transfer import OFFSET_SHARE, TopologyMismatchError, body_scale, mdc, same_mesh, transfer_outfit
 
     convert.require_mesh_object(source_body, "source body")
     convert.require_mesh_object(target_body, "target body")

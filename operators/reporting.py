@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import logging
 
-from ..garment_transfer.errors import GarmentTransferError
+from ..garment_transfer import GarmentTransferError
 
 log = logging.getLogger(__name__)
 

@@ -54,7 +54,7 @@ def body_key_shapes(body, names=None):
     basis : (n,3) float64
     shapes : dict of str to (n,3) float64
     """
-    from ..garment_transfer.errors import MeshError
+    from ..garment_transfer import MeshError
 
     key = body.data.shape_keys
     if key is None or len(key.key_blocks) < 2:
@@ -98,7 +98,7 @@ def broken_drivers(obj):
 
 def check_garment(garment, body, key_names):
     """Raise MeshError for a garment whose own shape keys cannot be kept; return their names."""
-    from ..garment_transfer.errors import MeshError
+    from ..garment_transfer import MeshError
 
     key = garment.data.shape_keys
     if key is None:
@@ -236,9 +236,8 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
 
     Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note)``.
     """
-    from ..garment_transfer.errors import MeshError
-    from ..garment_transfer.shape_keys import all_pairs, fit_steps as core_steps
-    from ..garment_transfer.weights import surface_weights
+    from ..garment_transfer import MeshError, all_pairs, surface_weights
+    from ..garment_transfer import fit_steps as core_steps
 
     convert.require_mesh_object(body, "source body")
     convert.require_mesh_object(garment, "garment")

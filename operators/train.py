@@ -72,8 +72,7 @@ class TrainingRun:
 def training_output(settings):
     """The model file to write, and the training numbers, checked: a missing or read-only folder must
     not cost a whole training (nor an install of torch). Returns the path."""
-    from ..garment_transfer.files import check_output
-    from ..garment_transfer.training import check_training_settings
+    from ..garment_transfer import check_output, check_training_settings
 
     out = bpy.path.abspath(settings.train_output)
     if not out.lower().endswith(".npz") and not os.path.isdir(out):
@@ -91,8 +90,7 @@ def training_plan(settings):
     dict
         Keyword arguments for ``training.train_from_dataset`` (``progress`` excepted).
     """
-    from ..garment_transfer.dataset import load_dataset
-    from ..garment_transfer.errors import DatasetError
+    from ..garment_transfer import DatasetError, load_dataset
 
     out = training_output(settings)
     folder = bpy.path.abspath(settings.dataset_path)
@@ -107,7 +105,7 @@ def training_plan(settings):
     held = [g.strip() for g in settings.train_hold_out.split(",") if g.strip()]
     extra = {}
     if held:
-        from ..garment_transfer.model_check import training_garments
+        from ..garment_transfer import training_garments
 
         extra = dict(garments=training_garments(dataset, source, targets, None, held), hold_out=held)
     if settings.train_kind == 'GARMENT':
@@ -124,9 +122,7 @@ def training_call(plan):
     """A function of a progress callback that trains and saves the model of ``plan`` (the garment fit model
     and its placement, in one file, for ``kind="garment"``; else the shared deformation model), then checks
     it on the plan's held-out garments (``model_check.check_model``: the result's ``check``)."""
-    from ..garment_transfer.garment_training import train_garment_fit_from_dataset
-    from ..garment_transfer.model_check import check_after_training
-    from ..garment_transfer.training import train_from_dataset
+    from ..garment_transfer import check_after_training, train_from_dataset, train_garment_fit_from_dataset
 
     options = {k: v for k, v in plan.items() if k not in ("kind", "hold_out")}
     train = train_garment_fit_from_dataset if plan.get("kind") == "garment" else train_from_dataset

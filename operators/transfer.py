@@ -11,7 +11,6 @@ from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
 
-
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -24,7 +23,7 @@ def model_frame(model):
     a Y-up dataset (the OBJ convention, also assumed when unstated) is taken to be imported with the
     importer's default axes; a Z-up one is used as it is.
     """
-    from ..garment_transfer.errors import ModelError
+    from ..garment_transfer import ModelError
 
     up = str((model.metadata.get("dataset") or {}).get("up_axis") or "Y").upper()
     if up == "Z":
@@ -38,7 +37,7 @@ def chosen_model(method, model_path, source, field_share=None):
     """The model file of the ``MODEL`` method (``model_files.ModelFile``, checked against the source body,
     a core Mesh) and the (3,3) rotation into its frame; (None, identity) for the other methods.
     ``field_share`` applies to a garment fit model only (the panel shows it for that kind alone)."""
-    from ..garment_transfer.errors import ModelError
+    from ..garment_transfer import ModelError
 
     if method != "MODEL":
         return None, np.eye(3)
@@ -117,9 +116,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     metrics : dict
         ``evaluate`` of the result against the garment on the target body.
     """
-    from ..garment_transfer.errors import MeshError
-    from ..garment_transfer.metrics import evaluate
-    from ..garment_transfer.registration import SHAPE_BOUNDS, transfer_to_any_body
+    from ..garment_transfer import SHAPE_BOUNDS, MeshError, evaluate, transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -139,7 +136,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
 
     body_model = bool(body_model_path)
     if body_model:
-        from ..garment_transfer.body_model import makehuman_shape_basis
+        from ..garment_transfer import makehuman_shape_basis
 
         basis = makehuman_shape_basis(source, bpy.path.abspath(body_model_path))
         deltas, bounds, key_names = basis.basis, basis.bounds, basis.names
@@ -249,7 +246,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         settings.last_model = outcome.model_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
-        from ..garment_transfer.transfer import crossings_left
+        from ..garment_transfer import crossings_left
 
         left = crossings_left(outcome.info)
         if left:

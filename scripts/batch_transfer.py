@@ -169,7 +169,7 @@ def output_problem(path, inputs):
 def core_batch():
     """The core's batch module (catalogue reader, result layout), from this script's own checkout or
     extension folder (on ``sys.path`` above): the same code as ``python -m garment_transfer batch``."""
-    from garment_transfer import batch
+    from garment_transfer.pipeline import batch
 
     return batch
 
@@ -241,7 +241,11 @@ def ensure_operators():
 
     if hasattr(bpy.types, "GARMENT_TRANSFER_OT_transfer"):
         return None
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    tools = Path(__file__).resolve().parents[1] / "tools"
+    if not (tools / "extension_loader.py").is_file():
+        raise InputError("the Garment Transfer extension is not enabled in this Blender: enable it in "
+                         "Preferences > Add-ons (or run this script from a checkout of the project)")
+    sys.path.insert(0, str(tools))
     from extension_loader import load_extension
 
     try:
@@ -264,7 +268,7 @@ def check_obj(path):
     """Read ``path`` with the core's OBJ reader: the checks of the command line (NaN, damaged lines, a
     cut-off file, ...), which Blender's importer does not make (it reads NaN as 0)."""
     from garment_transfer.errors import GarmentTransferError
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
 
     try:
         read_obj(path)

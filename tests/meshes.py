@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from garment_transfer.mesh import mesh_from_polygons
+from garment_transfer.geometry.mesh import mesh_from_polygons
 from lab.paths import SHARED_MAKEHUMAN, makehuman_folder
 
 MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN

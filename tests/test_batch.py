@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from garment_transfer import batch
-from garment_transfer.batch import CatalogueError, read_catalogue, run_batch
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj, write_obj
 from meshes import icosphere, require_makehuman
+
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj, write_obj
+from garment_transfer.pipeline import batch
+from garment_transfer.pipeline.batch import CatalogueError, read_catalogue, run_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON_ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -166,7 +166,7 @@ def test_unreadable_catalogues_are_refused(dataset):
 
 def test_serial_run_matches_the_core_writes_a_summary_and_a_rerun_does_no_work(dataset, tmp_path,
                                                                                 monkeypatch):
-    from garment_transfer.transfer import transfer_garment
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     cat = read_catalogue(dataset, source="round")
     out = tmp_path / "out"
@@ -194,8 +194,8 @@ def test_serial_run_matches_the_core_writes_a_summary_and_a_rerun_does_no_work(d
     def boom(*a, **k):
         raise AssertionError("a re-run must not transfer again")
 
-    monkeypatch.setattr("garment_transfer.transfer.prepare_garment", boom)
-    monkeypatch.setattr("garment_transfer.transfer.transfer_garment", boom)
+    monkeypatch.setattr("garment_transfer.pipeline.transfer.prepare_garment", boom)
+    monkeypatch.setattr("garment_transfer.pipeline.transfer.transfer_garment", boom)
     again = run_batch(cat, out, workers=1)
     assert again.ok and again.counts["skipped"] == 9 and again.counts["done"] == 0
     assert {p: p.stat().st_mtime_ns for p in before} == before
@@ -226,10 +226,11 @@ def test_a_changed_setting_or_input_redoes_only_what_it_touches(dataset, tmp_pat
 
 def test_a_garment_fit_model_file_with_its_placement_and_a_field_share(tmp_path):
     pytest.importorskip("torch")
-    from garment_transfer.garment_training import train_garment_fit_from_dataset
-    from garment_transfer.model_files import read_model_file
-    from garment_transfer.transfer import transfer_garment
     from test_dataset import make_tiny_dataset
+
+    from garment_transfer.learning.garment_training import train_garment_fit_from_dataset
+    from garment_transfer.learning.model_files import read_model_file
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     ds = make_tiny_dataset(tmp_path / "ds")
     model = tmp_path / "garment.npz"
@@ -242,7 +243,7 @@ def test_a_garment_fit_model_file_with_its_placement_and_a_field_share(tmp_path)
     assert s.ok and s.counts["done"] == 1
     record = json.loads((out / "top" / "pear.json").read_text())
     assert (record["model_kind"], record["field_share"], record["placement"]) == ("garment", 0.5, True)
-    from garment_transfer.placement import LIBRARY_SHARE
+    from garment_transfer.learning.placement import LIBRARY_SHARE
 
     assert record["nearest_garments"] == LIBRARY_SHARE          # the default training mixes them in
     assert "field_share" not in record["settings"]          # unset: not part of the result's key
@@ -458,11 +459,12 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
     # much as the solve. Every package module a transfer and its metrics load is hashed.
     import sys
 
-    from garment_transfer.batch import _NOT_RESULT_MODULES, result_modules
-    from garment_transfer.mesh import mesh_from_triangles
-    from garment_transfer.metrics import evaluate
-    from garment_transfer.transfer import transfer_garment
     from meshes import icosphere
+
+    from garment_transfer.geometry.mesh import mesh_from_triangles
+    from garment_transfer.pipeline.batch import NOT_RESULT_MODULES, result_modules
+    from garment_transfer.pipeline.metrics import evaluate
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     V, F = icosphere(2)
     source = mesh_from_triangles(V, F, name="source")
@@ -471,8 +473,11 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
     garment = mesh_from_triangles(GV, GF, name="garment")
     result = transfer_garment(source, target, garment)
     evaluate(garment, garment.with_vertices(result.V), target, intersections=True)
-    loaded = {name.split(".")[1] for name in sys.modules if name.startswith("garment_transfer.")}
+    loaded = {name[len("garment_transfer."):] for name in sys.modules if name.startswith("garment_transfer.")}
+    loaded = {m for m in loaded if not (ROOT / "garment_transfer" / m.replace(".", "/") / "__init__.py").exists()}
     hashed = set(result_modules())
-    assert {"clearance", "intersections", "transfer", "penetration"} <= loaded
-    assert loaded - _NOT_RESULT_MODULES <= hashed
-    assert not hashed & _NOT_RESULT_MODULES
+    not_result = {m for m in loaded if m.replace(".", "/") in NOT_RESULT_MODULES
+                  or m.split(".")[0] in NOT_RESULT_MODULES}
+    assert {"geometry.clearance", "geometry.intersections", "pipeline.transfer", "geometry.penetration"} <= hashed
+    assert loaded - not_result <= hashed
+    assert not hashed & not_result

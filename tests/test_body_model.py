@@ -8,12 +8,16 @@ import numpy as np
 import pytest
 from numpy.lib import format as npformat
 
-from garment_transfer import registration
-from garment_transfer.body_model import (HM08_BODY_VERTICES, TARGET_UNIT, makehuman_shape_basis,
-                                         read_makehuman_targets)
 from garment_transfer.errors import MeshError, TopologyMismatchError
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj
+from garment_transfer.fitting import registration, shape_basis
+from garment_transfer.fitting.body_model import (
+    HM08_BODY_VERTICES,
+    TARGET_UNIT,
+    makehuman_shape_basis,
+    read_makehuman_targets,
+)
+from garment_transfer.geometry.mesh import mesh_from_triangles, vertex_normals
+from garment_transfer.geometry.obj import read_obj
 from lab.registration import remesh
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -154,11 +158,11 @@ def sliders():
     bodies = {n: read_obj(ROOT / "data" / "demo" / "bodies" / f"{n}.obj", name=n) for n in names}
     source = bodies["banana"]
     V = source.V
-    shapes = registration.shape_basis_from_bodies(source, [bodies[n] for n in names[1:]])
+    shapes = shape_basis.shape_basis_from_bodies(source, [bodies[n] for n in names[1:]])
     rng = np.random.default_rng(1)
     height = np.ptp(V[:, 2])
     bumps = []
-    N = registration._vertex_normals(V, source.F)
+    N = vertex_normals(V, source.F)
     for _ in range(24):
         c = V[rng.integers(V.shape[0])]
         r = rng.uniform(0.05, 0.15) * height
@@ -203,7 +207,7 @@ def run(*args):
 def test_cli_register_with_a_body_model_and_its_refusal(tmp_path):
     import json
 
-    from garment_transfer.obj import write_obj
+    from garment_transfer.geometry.obj import write_obj
 
     source = column()
     V = source.V

@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
+from meshes import icosphere
 
 from garment_transfer.errors import MeshError
-from garment_transfer.mesh import mesh_from_polygons, mesh_from_triangles, mesh_report
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.transfer import transfer_garment
-from meshes import icosphere
+from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles, mesh_report
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.transfer import transfer_garment
 
 
 @pytest.fixture(scope="module")
@@ -117,7 +117,7 @@ def test_all_zero_area_garment_is_refused(bodies):
 def test_zero_area_is_named_before_distance_from_the_body(bodies, monkeypatch, threads):
     # With several cores the garment's area is checked on a thread while it is bound; a garment that is
     # both flat and far away is still refused for its area first, as on one core.
-    from garment_transfer import transfer
+    from garment_transfer.pipeline import transfer
 
     monkeypatch.setattr(transfer, "THREADS", threads)
     src, tgt = bodies

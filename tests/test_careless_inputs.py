@@ -9,17 +9,18 @@ import stat
 
 import numpy as np
 import pytest
-
-from lab.__main__ import main as lab_main
-from garment_transfer import cli
-from garment_transfer.errors import GarmentTransferError, MeshError, SettingError
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.metrics import evaluate
-from garment_transfer.obj import obj_text, read_obj, write_obj
-from garment_transfer.files import OutputError, check_output, write_atomic
-from garment_transfer.proximity import TriangleSurface, orientation
-from garment_transfer.transfer import transfer_garment
 from meshes import icosphere, require_makehuman
+
+from garment_transfer.cli import commands as cli
+from garment_transfer.cli import options
+from garment_transfer.errors import GarmentTransferError, MeshError, SettingError
+from garment_transfer.files import OutputError, check_output, write_atomic
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import obj_text, read_obj, write_obj
+from garment_transfer.geometry.proximity import TriangleSurface, orientation
+from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline.transfer import transfer_garment
+from lab.__main__ import main as lab_main
 
 
 def ellipsoid(radii, subdivisions=3):
@@ -176,7 +177,7 @@ def test_output_files_get_the_umask_permissions(tmp_path):
 
 
 def test_model_save_checks_its_output_like_every_writer(tmp_path):
-    from garment_transfer.model import save_npz_atomic
+    from garment_transfer.learning.model import save_npz_atomic
 
     garment = tmp_path / "garment.obj"
     garment.write_text("v 0 0 0\n")
@@ -386,13 +387,13 @@ def test_evaluate_with_a_body_of_another_topology(scene, tmp_path, capsys):
 
 
 def test_train_checks_its_output_before_training(tmp_path, capsys, monkeypatch):
-    import garment_transfer.training as training
+    import garment_transfer.learning.training as training
 
     def no_training(*a, **k):
         raise AssertionError("trained before the output was checked")
 
     monkeypatch.setattr(training, "load_dataset", no_training, raising=False)
-    monkeypatch.setattr("garment_transfer.dataset.load_dataset", no_training)
+    monkeypatch.setattr("garment_transfer.learning.dataset.load_dataset", no_training)
     for out, problem in ((tmp_path / "missing" / "m.npz", "does not exist"), (tmp_path, "is a folder")):
         code, _, err = run_cli(capsys, "train", "--dataset", tmp_path, "--source", "a", "--targets", "b",
                                "--out", out)
@@ -403,7 +404,7 @@ def test_train_checks_its_output_before_training(tmp_path, capsys, monkeypatch):
 
 
 def test_ctrl_c_is_one_line_exit_130_and_no_file(scene, tmp_path, capsys, monkeypatch):
-    import garment_transfer.transfer as transfer
+    import garment_transfer.pipeline.transfer as transfer
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
@@ -422,8 +423,8 @@ def test_json_output_is_valid_json(scene, tmp_path, capsys):
     code, out, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj", "--offset", "0", "--json"))
     assert code == 0, err
     json.loads(out, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
-    assert isinstance(cli._finite({"a": float("nan"), "b": [np.float64("inf"), 1.0]})["b"][1], float)
-    assert cli._finite({"a": float("nan"), "b": [np.float64("inf")]}) == {"a": None, "b": [None]}
+    assert isinstance(options.finite({"a": float("nan"), "b": [np.float64("inf"), 1.0]})["b"][1], float)
+    assert options.finite({"a": float("nan"), "b": [np.float64("inf")]}) == {"a": None, "b": [None]}
 
 
 def test_every_error_is_a_garment_transfer_error():
@@ -438,7 +439,7 @@ def _write(path, data: bytes):
 
 def test_one_body_mirrored_and_the_other_not_is_named():
     from garment_transfer.errors import TopologyMismatchError
-    from garment_transfer.mesh import mesh_from_polygons, require_same_topology
+    from garment_transfer.geometry.mesh import mesh_from_polygons, require_same_topology
 
     V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float)
     a = mesh_from_polygons(V, [[0, 1, 2, 3], [1, 4, 2]], name="a.obj")

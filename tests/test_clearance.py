@@ -5,17 +5,24 @@ import json
 
 import numpy as np
 import pytest
-
-from lab.paths import DEMO_DATA
-from garment_transfer.clearance import (crossings_again, largest_per_vertex, local_fit, near_pairs, near_pairs_again,
-                                        restore_source_shape, separate)
-from garment_transfer.intersections import crossings, mesh_edges, self_intersections
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.metrics import evaluate, mdc
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.transfer import prepare_garment, transfer_garment
 from meshes import icosphere, require_makehuman
+
+from garment_transfer.geometry.clearance import (
+    crossings_again,
+    largest_per_vertex,
+    local_fit,
+    near_pairs,
+    near_pairs_again,
+    restore_source_shape,
+    separate,
+)
+from garment_transfer.geometry.intersections import crossings, mesh_edges, self_intersections
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.metrics import evaluate, mdc
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
+from lab.paths import DEMO_DATA
 
 
 def sheet(n=4, size=2.4, z=0.97):
@@ -292,8 +299,8 @@ def test_a_tangle_the_source_has_may_slide_but_not_grow():
 def test_a_vertex_the_crossings_pass_leaves_inside_goes_back_where_the_penetration_fix_put_it(monkeypatch):
     # The crossings pass can fail where the garment is pressed through a fold of the body; whatever it then
     # leaves inside is put back where the penetration fix had it (outside), and the transfer says so.
-    import garment_transfer.transfer as transfer_module
-    from garment_transfer import clearance
+    import garment_transfer.pipeline.transfer as transfer_module
+    from garment_transfer.geometry import clearance
 
     V, F = icosphere(3)
     source = mesh_from_triangles(V, F, name="source")
@@ -324,11 +331,11 @@ def test_the_garment_comes_back_as_it_was_when_the_pass_only_makes_it_worse(monk
     # A garment pressed through the body can defeat the pass: whatever it then tries leaves more crossings than
     # it was given (seen on a MakeHuman suit on male_average: 563 crossings in, 5,927 out, the cloth moved up to
     # 48 cm). The garment is then returned as it came, and the info says so.
-    from garment_transfer import clearance
+    from garment_transfer.geometry import clearance
 
     BV, BF = icosphere(3)
     V, F = sheet(n=8)
-    real = clearance._clear_body
+    real = clearance.clear_body
     worse = []
 
     def wrecking(V, F, E, A, body, *args, **kwargs):
@@ -340,7 +347,7 @@ def test_the_garment_comes_back_as_it_was_when_the_pass_only_makes_it_worse(monk
         worse.append(info["crossings_after"] > info["crossings_before"])
         return W, info, state
 
-    monkeypatch.setattr(clearance, "_clear_body", wrecking)
+    monkeypatch.setattr(clearance, "clear_body", wrecking)
     before = crossings(V, F, BV, BF)
     out, info = separate(V, F, BV, BF, offset=0.01, source_V=V.copy() if with_source else None)
     assert worse and all(worse)
@@ -350,6 +357,6 @@ def test_the_garment_comes_back_as_it_was_when_the_pass_only_makes_it_worse(monk
     if with_source:
         assert info["self_intersections_after"] == self_intersections(V, F)[0] and info["restored_vertices"] == 0
     # Without the wreck the same garment is cleared.
-    monkeypatch.setattr(clearance, "_clear_body", real)
+    monkeypatch.setattr(clearance, "clear_body", real)
     out, info = separate(V, F, BV, BF, offset=0.01, source_V=V.copy() if with_source else None)
     assert info["crossings_after"] == 0 and not info["kept_input"]

@@ -4,10 +4,10 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from garment_transfer.obj import read_obj, write_obj
-from garment_transfer.mesh import mesh_from_triangles, require_same_topology
 from meshes import icosphere, require_makehuman
+
+from garment_transfer.geometry.mesh import mesh_from_triangles, require_same_topology
+from garment_transfer.geometry.obj import read_obj, write_obj
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -112,10 +112,10 @@ def as_written(V):
 def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     pytest.importorskip("torch")
     import numpy as np
-
-    from garment_transfer.model_files import read_model_file
-    from garment_transfer.transfer import transfer_garment
     from test_dataset import make_tiny_dataset
+
+    from garment_transfer.learning.model_files import read_model_file
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     ds = make_tiny_dataset(tmp_path / "ds")
     model = tmp_path / "garment.npz"
@@ -126,8 +126,8 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert summary["kind"] == "garment" and summary["field"]["epochs"] == 3
     assert summary["placement"]["epochs"] == 10 and "train:" in p.stderr
     # The default placement: several members, averaged, in the one file.
-    from garment_transfer.garment_training import PLACEMENT_MEMBERS
-    from garment_transfer.placement import PlacementEnsemble
+    from garment_transfer.learning.garment_training import PLACEMENT_MEMBERS
+    from garment_transfer.learning.placement import PlacementEnsemble
 
     assert PLACEMENT_MEMBERS > 1 and summary["placement"]["members"] == PLACEMENT_MEMBERS
     assert sorted(f.name for f in tmp_path.iterdir()) == ["ds", "garment.npz"]     # no temporary file left
@@ -144,7 +144,7 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert data["nearest_garments"] == summary["library"]["share"]
     loaded = read_model_file(model)
     # The networks mixed with the nearest garments' placement (the default share).
-    from garment_transfer.placement import LIBRARY_SHARE, MixedPlacement
+    from garment_transfer.learning.placement import LIBRARY_SHARE, MixedPlacement
 
     mixed = loaded.placement.model
     assert isinstance(mixed, MixedPlacement) and mixed.share == LIBRARY_SHARE == summary["library"]["share"]
@@ -182,12 +182,12 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
 def test_train_with_held_out_garments_checks_the_written_model_against_direct_transfer(tmp_path):
     pytest.importorskip("torch")
     import numpy as np
-
-    from garment_transfer.dataset import load_dataset
-    from garment_transfer.metrics import evaluate
-    from garment_transfer.model_files import read_model_file
-    from garment_transfer.transfer import transfer_garment
     from test_dataset import make_tiny_dataset
+
+    from garment_transfer.learning.dataset import load_dataset
+    from garment_transfer.learning.model_files import read_model_file
+    from garment_transfer.pipeline.metrics import evaluate
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     ds = make_tiny_dataset(tmp_path / "ds")
     model = tmp_path / "m.npz"
@@ -298,8 +298,9 @@ def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
 
 
 def test_train_without_torch_says_how_to_get_it_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    from garment_transfer.cli import main
     from test_dataset import make_tiny_dataset
+
+    from garment_transfer.cli import main
 
     ds = make_tiny_dataset(tmp_path / "ds")
     monkeypatch.setitem(sys.modules, "torch", None)
@@ -313,8 +314,8 @@ def test_train_without_torch_says_how_to_get_it_and_writes_nothing(tmp_path, mon
 def test_crossings_the_pass_leaves_are_reported_not_passed_over(tmp_path, monkeypatch, capsys):
     # A garment pressed through the body can defeat the crossings pass; the command still writes the result,
     # and says how many crossings are left, in its text and in its JSON.
-    from garment_transfer import clearance
     from garment_transfer.cli import main
+    from garment_transfer.geometry import clearance
 
     V, F = icosphere(3)
     write_obj(tmp_path / "src.obj", mesh_from_triangles(V, F))

@@ -3,14 +3,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from garment_transfer.dataset import build_training_fields, garment_field, load_dataset
-from garment_transfer.errors import DatasetError
-from garment_transfer.gradients import deformation_gradients
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import write_obj
 from meshes import MAKEHUMAN, icosphere
 
+from garment_transfer.errors import DatasetError
+from garment_transfer.geometry.gradients import deformation_gradients
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import write_obj
+from garment_transfer.learning.dataset import build_training_fields, garment_field, load_dataset
 
 SCALE = 1.2
 

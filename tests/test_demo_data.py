@@ -3,13 +3,12 @@ every garment outside the body it was draped on."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
-from garment_transfer.dataset import load_dataset
-from garment_transfer.mesh import require_same_topology
-from garment_transfer.proximity import TriangleSurface
+from garment_transfer.geometry.mesh import require_same_topology
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.learning.dataset import load_dataset
 from lab.paths import DEMO_DATA
 
 DEMO = DEMO_DATA

@@ -17,7 +17,7 @@ def test_a_field_share_method_is_the_half_field_method_at_another_share():
 
 
 def test_only_the_paper_as_written_solves_with_the_papers_edge_energy():
-    from garment_transfer.poisson import ENERGIES
+    from garment_transfer.geometry.poisson import ENERGIES
 
     assert METHODS["paper"].energy == "edges"
     assert {m.energy for k, m in METHODS.items() if k != "paper"} == {"gradients"}

@@ -5,17 +5,18 @@ import pytest
 
 pytest.importorskip("torch")
 
-from garment_transfer.dataset import build_training_fields, load_dataset  # noqa: E402
-from garment_transfer.errors import ModelError  # noqa: E402
-from garment_transfer.field_mapping import map_field, model_field  # noqa: E402
-from garment_transfer.metrics import mdc  # noqa: E402
-from garment_transfer.model import load_model  # noqa: E402
-from garment_transfer.obj import read_obj  # noqa: E402
-from garment_transfer.registration import register  # noqa: E402
-from garment_transfer.training import train_model  # noqa: E402
-from garment_transfer.transfer import transfer_garment  # noqa: E402
-from lab.paths import DEMO_DATA  # noqa: E402
 from meshes import random_rotation, require_makehuman  # noqa: E402
+
+from garment_transfer.errors import ModelError  # noqa: E402
+from garment_transfer.fitting.registration import register  # noqa: E402
+from garment_transfer.geometry.obj import read_obj  # noqa: E402
+from garment_transfer.learning.dataset import build_training_fields, load_dataset  # noqa: E402
+from garment_transfer.learning.model import load_model  # noqa: E402
+from garment_transfer.learning.training import train_model  # noqa: E402
+from garment_transfer.pipeline.field_mapping import map_field, model_field  # noqa: E402
+from garment_transfer.pipeline.metrics import mdc  # noqa: E402
+from garment_transfer.pipeline.transfer import transfer_garment  # noqa: E402
+from lab.paths import DEMO_DATA  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -68,7 +69,7 @@ def test_model_of_the_mannequins_serves_a_makehuman_garment(mannequin_model):
     # frame (Z up) would wreck the folds, many times direct transfer's design change.
     assert mdc(garment.V, r.V, garment.F) < 2.0 * mdc(garment.V, direct.V, garment.F)
     turned_wrong = np.einsum("ij,mjk->mik", np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), field)
-    from garment_transfer.transfer import prepare_garment
+    from garment_transfer.pipeline.transfer import prepare_garment
 
     prepared = prepare_garment(source, garment)
     wrong = transfer_garment(source, target, garment, prepared=prepared, method="model",
@@ -93,7 +94,7 @@ class _Fixed:
 
 
 def test_a_model_without_its_body_is_refused_on_another_body(mannequin_model, tmp_path):
-    from garment_transfer.model import SharedDeformationModel
+    from garment_transfer.learning.model import SharedDeformationModel
 
     arrays = {k: v for k, v in mannequin_model.arrays.items() if not k.startswith("source_")}
     old = SharedDeformationModel(arrays, mannequin_model.metadata, name="old.npz")

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
-
-from garment_transfer.obj import read_obj, write_obj
-from lab.garment_data import OFFSET_STEP, SOURCE_STEP, pack, read_packed
 from meshes import grid
+
+from garment_transfer.geometry.obj import read_obj, write_obj
+from lab.garment_data import OFFSET_STEP, SOURCE_STEP, pack, read_packed
 
 BODIES = ("banana", "pear", "slim")
 
@@ -61,10 +61,11 @@ def test_a_later_pack_keeps_the_garments_packed_before(tmp_path):
 def test_in_between_bodies_are_packed_with_their_garments_and_unpacked_into_a_dataset(tmp_path):
     import json
 
-    from garment_transfer.dataset import load_dataset
-    from garment_transfer.mesh import mesh_from_triangles
-    from lab.garment_data import unpack
     from meshes import icosphere
+
+    from garment_transfer.geometry.mesh import mesh_from_triangles
+    from garment_transfer.learning.dataset import load_dataset
+    from lab.garment_data import unpack
 
     # A demo folder: a source body, a training body, one garment on both.
     demo = tmp_path / "demo"

@@ -2,18 +2,23 @@ import json
 
 import numpy as np
 import pytest
-
-from garment_transfer.dataset import load_dataset
-from garment_transfer.embedding import body_scale
-from garment_transfer.errors import ModelError
-from garment_transfer.garment_model import (GARMENT_FEATURES, garment_features, label_weights,
-                                            load_garment_model, target_features)
-from garment_transfer.gradients import deformation_gradients
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.poisson import PoissonSolver
-from garment_transfer.transfer import anchor_weights, prepare_garment, transfer_garment
 from meshes import grid, icosphere
 from test_dataset import make_tiny_dataset
+
+from garment_transfer.errors import ModelError
+from garment_transfer.geometry.embedding import body_scale
+from garment_transfer.geometry.gradients import deformation_gradients
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.poisson import PoissonSolver
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.garment_model import (
+    GARMENT_FEATURES,
+    garment_features,
+    label_weights,
+    load_garment_model,
+    target_features,
+)
+from garment_transfer.pipeline.transfer import anchor_weights, prepare_garment, transfer_garment
 
 TARGETS = ["similar", "pear"]
 
@@ -46,7 +51,7 @@ def test_neighbourhood_mean_equals_every_pair_within_the_radius(share):
     # The blocked computation against the definition: every pair of centroids, its distance, the
     # weighted mean over those within the radius (the triangle itself included). Points on a body-like
     # cloud with clusters (dense hands, sparse torso) and blocks smaller than the cloud.
-    from garment_transfer.garment_model import _neighbourhood_mean
+    from garment_transfer.learning.garment_model import neighbourhood_mean
 
     rng = np.random.default_rng(3)
     P = np.concatenate([rng.normal(size=(600, 3)) * [0.2, 0.1, 0.8], 0.02 * rng.normal(size=(300, 3)) + [0.5, 0, 0.3]])
@@ -55,11 +60,11 @@ def test_neighbourhood_mean_equals_every_pair_within_the_radius(share):
     radius = share * np.ptp(P, axis=0).max()
     within = np.linalg.norm(P[:, None] - P[None], axis=2) <= radius
     expected = (within * weights) @ values / (within @ weights)[:, None]
-    np.testing.assert_allclose(_neighbourhood_mean(P, values, radius, weights, chunk=64), expected,
+    np.testing.assert_allclose(neighbourhood_mean(P, values, radius, weights, chunk=64), expected,
                                rtol=0, atol=1e-12)
     # Some rows only: theirs the same, the others NaN.
     rows = rng.uniform(size=P.shape[0]) < 0.3
-    some = _neighbourhood_mean(P, values, radius, weights, chunk=64, rows=rows)
+    some = neighbourhood_mean(P, values, radius, weights, chunk=64, rows=rows)
     np.testing.assert_allclose(some[rows], expected[rows], rtol=0, atol=1e-12)
     assert np.isnan(some[~rows]).all()
 
@@ -120,7 +125,7 @@ torch = pytest.importorskip("torch")
 
 @pytest.fixture(scope="module")
 def trained(tiny):
-    from garment_transfer.garment_training import train_garment_model, training_tables
+    from garment_transfer.learning.garment_training import train_garment_model, training_tables
 
     tables = training_tables(tiny, "src", TARGETS, ["band", "skirt"])
     model, info = train_garment_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1)
@@ -173,7 +178,7 @@ def test_field_share_goes_from_the_body_s_field_to_the_model_s(trained, tiny):
 
 
 def test_a_field_ensemble_is_the_mean_of_its_members_fields_at_the_same_share(trained, tiny):
-    from garment_transfer.garment_training import train_garment_model
+    from garment_transfer.learning.garment_training import train_garment_model
     from lab.experiment import FieldEnsemble
 
     model, _, tables = trained

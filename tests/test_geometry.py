@@ -1,12 +1,12 @@
 import numpy as np
-
-from garment_transfer.binding import bind, carry
-from garment_transfer.embedding import body_to_cloth, cloth_to_body, embed, unembed
-from garment_transfer.metrics import discrete_curvature, mdc, per_vertex_change, surface_distance
-from garment_transfer.obj import read_obj
-from garment_transfer.penetration import fix_penetration, penetration
-from garment_transfer.proximity import TriangleSurface, closest_on_triangles
 from meshes import grid, icosphere, require_makehuman
+
+from garment_transfer.geometry.binding import bind, carry
+from garment_transfer.geometry.embedding import body_to_cloth, cloth_to_body, embed, unembed
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.penetration import fix_penetration, penetration
+from garment_transfer.geometry.proximity import TriangleSurface, closest_on_triangles
+from garment_transfer.pipeline.metrics import discrete_curvature, mdc, per_vertex_change, surface_distance
 
 
 def brute_force_distance(P, V, F):
@@ -135,7 +135,7 @@ def test_carry_is_the_offset_in_the_frame_of_the_triangle_on_any_shape():
     # The carried point is, by definition, the surface point plus the offset in the triangle's frame
     # [e1 e2 n] with n = e1 x e2 / sqrt|e1 x e2|; on a shape that is not affine, for more points than
     # triangles and for fewer, and again with the binding's kept matrix.
-    from garment_transfer.gradients import triangle_frames
+    from garment_transfer.geometry.gradients import triangle_frames
 
     V, F = icosphere(2)
     rng = np.random.default_rng(5)
@@ -151,7 +151,7 @@ def test_carry_is_the_offset_in_the_frame_of_the_triangle_on_any_shape():
 
 
 def test_closest_on_threads_equals_one_piece(monkeypatch):
-    import garment_transfer.proximity as proximity
+    import garment_transfer.geometry.proximity as proximity
 
     V, F = icosphere(2)
     P = np.random.default_rng(5).normal(size=(1000, 3))
@@ -165,7 +165,7 @@ def test_closest_on_threads_equals_one_piece(monkeypatch):
 
 
 def test_edge_length_and_degenerate_equal_the_separate_functions():
-    from garment_transfer.mesh import degenerate_triangles, edge_length_and_degenerate, edge_lengths_mean
+    from garment_transfer.geometry.mesh import degenerate_triangles, edge_length_and_degenerate, edge_lengths_mean
 
     rng = np.random.default_rng(4)
     V = rng.normal(size=(300, 3))

@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-
-from garment_transfer.gradients import deformation_gradients, triangle_frames
-from garment_transfer.obj import read_obj
-from garment_transfer.metrics import discrete_curvature
-from garment_transfer.poisson import METRIC_CAP, PoissonSolver, edge_operator, triangle_metrics
 from meshes import grid, icosphere, random_rotation, require_makehuman
+
+from garment_transfer.geometry.gradients import deformation_gradients, triangle_frames
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.poisson import METRIC_CAP, PoissonSolver, edge_operator, triangle_metrics
+from garment_transfer.pipeline.metrics import discrete_curvature
 
 
 def test_identity_on_unchanged_mesh():
@@ -51,7 +51,7 @@ def test_kept_rest_frames_answer_as_fresh_ones(monkeypatch):
     # The rest shape's frames are kept between calls: the answers equal those computed afresh, a rest
     # shape moved in place (same array, new numbers) is not mistaken for the kept one, and what a
     # caller gets back it may change without changing the next answer.
-    import garment_transfer.gradients as gradients
+    import garment_transfer.geometry.gradients as gradients
 
     rng = np.random.default_rng(7)
     V, F = icosphere(2)
@@ -237,7 +237,7 @@ def test_multigrid_solve_equals_the_factor():
 def test_multigrid_on_threads_equals_one_thread(monkeypatch):
     # The coordinates are independent systems: solved at once on threads or one after the other, the
     # answer is the same to the last bit.
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     V, F, Y = _garment_pair()
     Q, _ = deformation_gradients(V, Y, F)
@@ -266,14 +266,14 @@ def test_multigrid_that_does_not_converge_falls_back_to_the_factor(caplog):
     anchors = Y + 0.02 * np.sin(3 * Y)
     solver = PoissonSolver(V, F, 1e-3, method="multigrid")
     solver.hierarchy.solve = lambda b, x0=None, **kw: x0          # never moves from the start
-    with caplog.at_level("WARNING", logger="garment_transfer.poisson"):
+    with caplog.at_level("WARNING", logger="garment_transfer.geometry.poisson"):
         out = solver.solve(Q, anchors)
     assert "did not converge" in caplog.text
     np.testing.assert_allclose(out, PoissonSolver(V, F, 1e-3).solve(Q, anchors), rtol=0, atol=1e-12)
 
 
 def test_solver_method_by_size_and_reuse():
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     assert poisson.choose_method(5_000, reused=False) == "factor"
     assert poisson.choose_method(poisson.MULTIGRID_MIN_VERTICES, reused=False) == "multigrid"
@@ -288,7 +288,7 @@ def test_nested_dissection_is_a_permutation_whose_factor_solves_exactly():
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     V, F, Y = _garment_pair()
     n = V.shape[0]
@@ -311,7 +311,7 @@ def test_nested_dissection_is_a_permutation_whose_factor_solves_exactly():
 
 
 def test_largest_eigenvalue_is_exact_with_as_many_steps_as_rows():
-    from garment_transfer.poisson import largest_eigenvalue
+    from garment_transfer.geometry.poisson import largest_eigenvalue
 
     rng = np.random.default_rng(3)
     M = rng.normal(size=(30, 30))
@@ -326,7 +326,7 @@ def test_largest_eigenvalue_is_exact_with_as_many_steps_as_rows():
 def test_largest_eigenvalue_of_a_garment_system_is_estimated_from_below():
     # Ten steps on a real system: below the largest eigenvalue (the smoother's interval reaches past
     # it by CHEBYSHEV_UPPER) and close to it; the same answer every time.
-    from garment_transfer import poisson
+    from garment_transfer.geometry import poisson
 
     V, F, _ = _garment_pair()
     K = PoissonSolver(V, F, 1e-3, method="multigrid").K

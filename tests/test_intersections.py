@@ -5,13 +5,20 @@ import itertools
 
 import numpy as np
 import pytest
-
-from garment_transfer.intersections import (
-    box_pairs, crossings, edge_triangle_pairs, mesh_edges, minimum_distance, segment_distances,
-    segment_meets_triangle_exact, segments_meet_triangles, self_intersections)
-from garment_transfer.proximity import closest_on_triangles
-
 from meshes import icosphere
+
+from garment_transfer.geometry.intersections import (
+    box_pairs,
+    crossings,
+    edge_triangle_pairs,
+    mesh_edges,
+    minimum_distance,
+    segment_distances,
+    segment_meets_triangle_exact,
+    segments_meet_triangles,
+    self_intersections,
+)
+from garment_transfer.geometry.proximity import closest_on_triangles
 
 TRI = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 TRI_F = np.array([[0, 1, 2]])

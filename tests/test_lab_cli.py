@@ -56,7 +56,7 @@ def test_the_garment_model_study_passes_the_placement_options_given():
     import inspect
     from argparse import Namespace
 
-    from garment_transfer.garment_training import train_placement_model
+    from garment_transfer.learning.garment_training import train_placement_model
     from lab.garment_model import placement_options
 
     unset = Namespace(placement_hidden=None, placement_lr=None, placement_schedule=None, placement_weight_decay=None,

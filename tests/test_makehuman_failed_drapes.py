@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-
-from garment_transfer.binding import bind, carry
-from garment_transfer.mesh import mesh_from_triangles
 from meshes import icosphere
+
+from garment_transfer.geometry.binding import bind, carry
+from garment_transfer.geometry.mesh import mesh_from_triangles
 
 
 def part(V, F, keep):

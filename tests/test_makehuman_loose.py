@@ -1,9 +1,9 @@
 """lab.makehuman_drape's looser cut of a garment (--loose): away from the body by the ease, the pinned band kept."""
 
 import numpy as np
+from meshes import icosphere
 
 from lab.makehuman_drape import LOOSE_FADE, loose_variant
-from meshes import icosphere
 
 
 def test_a_looser_cut_moves_away_from_the_body_but_at_its_pins():

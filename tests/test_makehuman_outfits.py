@@ -2,10 +2,10 @@
 as one garment of two pieces, each piece where the catalogue's own garment is carried."""
 
 import numpy as np
-
-from garment_transfer.mesh import connected_pieces
-from garment_transfer.obj import read_obj
 from meshes import require_makehuman
+
+from garment_transfer.geometry.mesh import connected_pieces
+from garment_transfer.geometry.obj import read_obj
 
 
 def test_an_outfit_is_its_two_pieces_carried_as_the_garments_are():

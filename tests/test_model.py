@@ -3,17 +3,17 @@ import os
 
 import numpy as np
 import pytest
-
-from garment_transfer.dataset import build_training_fields
-from garment_transfer.errors import Cancelled, ModelError
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.model import load_model
 from meshes import icosphere
 from test_dataset import make_tiny_dataset
 
+from garment_transfer.errors import Cancelled, ModelError
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.learning.dataset import build_training_fields
+from garment_transfer.learning.model import load_model
+
 torch = pytest.importorskip("torch")
 
-from garment_transfer.training import train_from_dataset, train_model  # noqa: E402
+from garment_transfer.learning.training import train_from_dataset, train_model  # noqa: E402
 
 TARGETS = ["similar", "pear"]
 
@@ -195,8 +195,8 @@ def test_cancel_writes_nothing(tiny, tmp_path):
 
 
 def test_model_for_another_source_body(saved, tiny):
-    from garment_transfer.model import SharedDeformationModel
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.learning.model import SharedDeformationModel
 
     # A model holds the body it was trained on: it serves other bodies through a registration
     # (tests/test_field_mapping.py), and knows which bodies are its own mesh.
@@ -266,7 +266,7 @@ def test_model_module_does_not_import_torch():
 
 @pytest.mark.parametrize("hidden", [(), (5,), (6, 4)])
 def test_hand_written_gradient_matches_autograd(hidden):
-    from garment_transfer.training import _Net
+    from garment_transfer.learning.training import DeformationNet
 
     gen = torch.Generator().manual_seed(0)
     S, D, K, L = 6, 27, 2, 3
@@ -275,7 +275,7 @@ def test_hand_written_gradient_matches_autograd(hidden):
     onehot = torch.eye(K)[torch.arange(S) % K]
     basis, _ = torch.linalg.qr(X.T)
     coords = X @ basis
-    net = _Net(basis, D, K, L, list(hidden), X.mean(0), gen)
+    net = DeformationNet(basis, D, K, L, list(hidden), X.mean(0), gen)
     n = float(mask.sum())
     loss = net.loss_and_grad(coords, onehot, X, mask, n)
 

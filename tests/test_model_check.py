@@ -1,8 +1,8 @@
 import pytest
+from test_dataset import make_tiny_dataset
 
 from garment_transfer.errors import Cancelled, DatasetError, SettingError
-from garment_transfer.model_check import check_lines, check_model, training_garments
-from test_dataset import make_tiny_dataset
+from garment_transfer.pipeline.model_check import check_lines, check_model, training_garments
 
 
 def test_training_garments_leave_the_held_out_ones_out_and_refuse_what_cannot_be(tmp_path):
@@ -22,7 +22,7 @@ def test_training_garments_leave_the_held_out_ones_out_and_refuse_what_cannot_be
 
 def test_the_check_reports_per_target_and_stops_when_cancelled(tmp_path):
     pytest.importorskip("torch")
-    from garment_transfer.training import train_from_dataset
+    from garment_transfer.learning.training import train_from_dataset
 
     ds = make_tiny_dataset(tmp_path / "ds")
     model = tmp_path / "m.npz"

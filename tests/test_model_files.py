@@ -4,15 +4,15 @@ import json
 
 import numpy as np
 import pytest
-
-from garment_transfer.dataset import load_dataset
-from garment_transfer.errors import ModelError
-from garment_transfer.garment_model import GarmentFitModel
-from garment_transfer.model_files import DEFAULT_FIELD_SHARE, read_model_file, save_garment_fit_bundle
-from garment_transfer.placement import BlendedPlacement, PlacementModel
-from garment_transfer.registration import transfer_to_any_body
-from garment_transfer.transfer import transfer_garment
 from test_dataset import make_tiny_dataset
+
+from garment_transfer.errors import ModelError
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.garment_model import GarmentFitModel
+from garment_transfer.learning.model_files import DEFAULT_FIELD_SHARE, read_model_file, save_garment_fit_bundle
+from garment_transfer.learning.placement import BlendedPlacement, PlacementModel
+from garment_transfer.pipeline.any_body import transfer_to_any_body
+from garment_transfer.pipeline.transfer import transfer_garment
 
 torch = pytest.importorskip("torch")
 
@@ -21,7 +21,7 @@ TARGETS = ["similar", "pear"]
 
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
-    from garment_transfer.garment_training import train_garment_fit_from_dataset
+    from garment_transfer.learning.garment_training import train_garment_fit_from_dataset
 
     folder = tmp_path_factory.mktemp("bundle")
     ds = make_tiny_dataset(folder / "ds")
@@ -35,7 +35,7 @@ def bundle(tmp_path_factory):
 @pytest.fixture(scope="module")
 def ensemble_bundle(bundle):
     """The same training with two placement members: a file of format version 2."""
-    from garment_transfer.garment_training import train_garment_fit_from_dataset
+    from garment_transfer.learning.garment_training import train_garment_fit_from_dataset
 
     ds, single, _ = bundle
     path = single.parent / "ensemble.npz"
@@ -169,7 +169,7 @@ def test_a_placement_alone_is_refused_and_a_garment_model_alone_is_read(bundle, 
 
 
 def test_the_shared_model_is_read_as_before_and_takes_no_field_share(bundle, tmp_path):
-    from garment_transfer.training import train_from_dataset
+    from garment_transfer.learning.training import train_from_dataset
 
     ds, _, _ = bundle
     shared = tmp_path / "shared.npz"
@@ -185,7 +185,7 @@ def test_the_shared_model_is_read_as_before_and_takes_no_field_share(bundle, tmp
 def test_one_transfer_computes_the_target_body_s_features_once(bundle, monkeypatch):
     from collections import OrderedDict
 
-    import garment_transfer.garment_model as gm
+    import garment_transfer.learning.garment_model as gm
 
     ds, path, _ = bundle
     ds = load_dataset(ds)
@@ -208,20 +208,20 @@ def test_one_transfer_computes_the_target_body_s_features_once(bundle, monkeypat
     n = len(calls)
     shares = tuple(model.model.metadata["neighbourhood_shares"])
     full, full_dev = real(src.V, tgt.V, src.F, shares)
-    X, dev = gm._target_features_cached(src.V, tgt.V, src.F, shares, computed)
+    X, dev = gm.target_features_cached(src.V, tgt.V, src.F, shares, computed)
     assert len(calls) == n
     np.testing.assert_allclose(X[computed], full[computed], rtol=0, atol=1e-12)
     assert np.isnan(X[~computed][:, 9:]).all() and np.array_equal(dev, full_dev)
     assert not X.flags.writeable and not dev.flags.writeable
-    X, _ = gm._target_features_cached(src.V, tgt.V, src.F, shares)    # every triangle: the rest computed
+    X, _ = gm.target_features_cached(src.V, tgt.V, src.F, shares)    # every triangle: the rest computed
     assert len(calls) == n + 1 and np.array_equal(calls[-1], ~computed)
     np.testing.assert_allclose(X, full, rtol=0, atol=1e-12)
-    gm._target_features_cached(src.V, 1.01 * tgt.V, src.F, shares)    # another body: computed
+    gm.target_features_cached(src.V, 1.01 * tgt.V, src.F, shares)    # another body: computed
     assert len(calls) == n + 2 and calls[-1].all()
 
 
 def test_a_placement_of_several_members_round_trips_through_one_file(bundle, ensemble_bundle):
-    from garment_transfer.placement import PlacementEnsemble
+    from garment_transfer.learning.placement import PlacementEnsemble
 
     ds, path, info = ensemble_bundle
     assert info["placement"]["members"] == 2 and info["placement"]["epochs"] == 10
@@ -305,8 +305,8 @@ def test_a_bad_count_of_placement_members_is_refused_naming_the_file(ensemble_bu
 
 
 def test_the_default_placement_is_residual_and_a_file_without_the_base_still_reads(bundle, tmp_path):
-    from garment_transfer.binding import bind
-    from garment_transfer.garment_training import PLACEMENT_RESIDUAL, train_garment_fit_from_dataset
+    from garment_transfer.geometry.binding import bind
+    from garment_transfer.learning.garment_training import PLACEMENT_RESIDUAL, train_garment_fit_from_dataset
 
     ds, path, _ = bundle
     field, placed, md = parts_by_hand(path)

@@ -4,17 +4,22 @@ import json
 
 import numpy as np
 import pytest
-
-from garment_transfer.binding import bind
-from garment_transfer.dataset import load_dataset
-from garment_transfer.errors import ModelError
-from garment_transfer.garment_model import _orthonormal_frames
-from garment_transfer.garment_training import nearest_garments, placement_tables, training_tables
-from garment_transfer.placement import (LIBRARY_FORMAT, BlendedPlacement, MixedPlacement, NearestGarments,
-                                        bound_counts)
-from garment_transfer.transfer import transfer_garment
 from meshes import icosphere
 from test_dataset import make_tiny_dataset
+
+from garment_transfer.errors import ModelError
+from garment_transfer.geometry.binding import bind
+from garment_transfer.geometry.gradients import orthonormal_frames
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.garment_training import nearest_garments, placement_tables, training_tables
+from garment_transfer.learning.placement import (
+    LIBRARY_FORMAT,
+    BlendedPlacement,
+    MixedPlacement,
+    NearestGarments,
+    bound_counts,
+)
+from garment_transfer.pipeline.transfer import transfer_garment
 
 TARGETS = ["similar", "pear"]
 TRAINING = ["band", "skirt"]
@@ -150,7 +155,7 @@ def test_a_constant_placement_is_predicted_wherever_a_training_garment_lies(tiny
         y = lib.unrotated_offsets(binding, src, body, band, label)
         np.testing.assert_allclose(y[bound], np.broadcast_to(c, y[bound].shape), rtol=0, atol=1e-9)
         C = lib.frame_offsets(binding, src, body, band, label)
-        np.testing.assert_allclose(C, np.einsum("mij,mj->mi", _orthonormal_frames(src.V, src.F), y), atol=1e-15)
+        np.testing.assert_allclose(C, np.einsum("mij,mj->mi", orthonormal_frames(src.V, src.F), y), atol=1e-15)
 
 
 torch = pytest.importorskip("torch")
@@ -158,7 +163,7 @@ torch = pytest.importorskip("torch")
 
 @pytest.fixture(scope="module")
 def network(tiny):
-    from garment_transfer.garment_training import train_placement_model
+    from garment_transfer.learning.garment_training import train_placement_model
 
     _, tables = tiny
     return train_placement_model(tables, TARGETS, hidden=(16,), epochs=10, batch=256, seed=1, threads=1)[0]
@@ -206,7 +211,7 @@ def test_the_mix_is_the_share_weighted_mean_of_the_networks_and_the_nearest_garm
 
 
 def test_the_shrink_gain_follows_its_formula():
-    from garment_transfer.placement import shrink_gain
+    from garment_transfer.learning.placement import shrink_gain
 
     y = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 0, 0], [0, 3.0, 4.0], [0, 0, 0]])
     diff = np.array([[0.0, 0, 0], [2.0, 0, 0], [0, 0, 0], [0, 0, 1.0], [1.0, 0, 0]])
@@ -219,8 +224,8 @@ def test_the_shrink_gain_follows_its_formula():
 
 
 def test_a_bundle_with_the_nearest_garments_round_trips_and_is_checked(tiny, tmp_path):
-    from garment_transfer.garment_training import train_garment_fit_from_dataset
-    from garment_transfer.model_files import read_model_file
+    from garment_transfer.learning.garment_training import train_garment_fit_from_dataset
+    from garment_transfer.learning.model_files import read_model_file
 
     folder, _ = tiny
     path = tmp_path / "garment.npz"
@@ -285,7 +290,7 @@ def test_a_bundle_with_the_nearest_garments_round_trips_and_is_checked(tiny, tmp
 def test_one_transfer_computes_the_garment_s_context_once(tiny, network, monkeypatch):
     from collections import OrderedDict
 
-    import garment_transfer.placement as pl
+    import garment_transfer.learning.placement as pl
 
     folder, tables = tiny
     ds = load_dataset(folder)
@@ -301,12 +306,12 @@ def test_one_transfer_computes_the_garment_s_context_once(tiny, network, monkeyp
     assert len(calls) == 1
     np.testing.assert_array_equal(transfer_garment(src, mid, garment, placement=mixed).V, first)
     assert len(calls) == 1
-    from garment_transfer.garment_model import garment_features
+    from garment_transfer.learning.garment_model import garment_features
 
     X = garment_features(src.V, src.F, garment.V, garment.F)[0]
     shares = tuple(tables["context_shares"])
-    ctx = pl._garment_context_cached(src.V, src.F, X, shares)
+    ctx = pl.garment_context_cached(src.V, src.F, X, shares)
     np.testing.assert_array_equal(ctx, real(src.V, src.F, X, shares))
     assert not ctx.flags.writeable and len(calls) == 1
-    pl._garment_context_cached(src.V, src.F, 1.01 * X, shares)          # another garment: computed
+    pl.garment_context_cached(src.V, src.F, 1.01 * X, shares)          # another garment: computed
     assert len(calls) == 2

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from garment_transfer.errors import GarmentTransferError, MeshError, TopologyMismatchError
-from garment_transfer.mesh import mesh_from_polygons, require_same_topology
-from garment_transfer.obj import obj_text, read_obj, write_obj
+from garment_transfer.geometry.mesh import mesh_from_polygons, require_same_topology
+from garment_transfer.geometry.obj import obj_text, read_obj, write_obj
 
 QUAD_OBJ = """# a quad and a pentagon with UVs and a group
 o piece
@@ -95,7 +95,7 @@ def test_write_is_atomic_on_failure(tmp_path):
 
 
 def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch):
-    import garment_transfer.obj as objmod
+    import garment_transfer.geometry.obj as objmod
 
     m = mesh_from_polygons(np.eye(3), [[0, 1, 2]])
     out = tmp_path / "out.obj"

@@ -30,7 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from garment_transfer.errors import GarmentTransferError
-from garment_transfer.obj import obj_text, read_obj
+from garment_transfer.geometry.obj import obj_text, read_obj
 
 
 def base_files():

@@ -8,15 +8,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from garment_transfer.intersections import crossings, self_intersections
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj
-from garment_transfer.outfit import (OutfitError, check_order, merge_meshes, obstacle_distance, oriented_outward,
-                                     rim_triangles, transfer_outfit, warp_out)
-from garment_transfer.proximity import TriangleSurface
 from meshes import icosphere
 
+from garment_transfer.geometry.intersections import crossings, self_intersections
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.outfit import (
+    OutfitError,
+    check_order,
+    merge_meshes,
+    obstacle_distance,
+    oriented_outward,
+    rim_triangles,
+    transfer_outfit,
+    warp_out,
+)
 from lab.paths import DEMO_DATA
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,16 +2,22 @@ import json
 
 import numpy as np
 import pytest
-
-from garment_transfer.binding import bind, carry
-from garment_transfer.dataset import load_dataset
-from garment_transfer.errors import ModelError
-from garment_transfer.garment_model import _orthonormal_frames, load_garment_model
-from garment_transfer.placement import (placement_displacements, smooth_on_body, triangle_laplacian,
-                                        true_offsets, unrotate)
-from garment_transfer.transfer import transfer_garment
 from meshes import icosphere
 from test_dataset import make_tiny_dataset
+
+from garment_transfer.errors import ModelError
+from garment_transfer.geometry.binding import bind, carry
+from garment_transfer.geometry.gradients import orthonormal_frames
+from garment_transfer.learning.dataset import load_dataset
+from garment_transfer.learning.garment_model import load_garment_model
+from garment_transfer.learning.placement import (
+    placement_displacements,
+    smooth_on_body,
+    triangle_laplacian,
+    true_offsets,
+    unrotate,
+)
+from garment_transfer.pipeline.transfer import transfer_garment
 
 TARGETS = ["similar", "pear"]
 
@@ -73,7 +79,7 @@ def test_zero_placement_leaves_the_transfer_unchanged(tiny):
 def test_constant_offset_in_every_frame_of_a_rigidly_moved_body(moved):
     src, tgt, g, R = moved
     binding = bind(g.V, src.V, src.F)
-    S = _orthonormal_frames(src.V, src.F)
+    S = orthonormal_frames(src.V, src.F)
     M = src.F.shape[0]
     # A lift along every triangle's normal: each anchor moves along its triangle's normal on the target.
     D = placement_displacements(binding, tgt.V, src.F, np.tile([0.0, 0.0, 0.02], (M, 1)))
@@ -91,7 +97,7 @@ def test_a_placement_that_is_one_vector_unrotated_moves_the_whole_transfer_by_it
     # shifts the rebuilt garment by exactly as much.
     src, tgt, g, R = moved
     v = np.array([0.02, 0.01, -0.015])
-    C = _orthonormal_frames(src.V, src.F) @ v
+    C = orthonormal_frames(src.V, src.F) @ v
     a = transfer_garment(src, tgt, g, fix_penetration=False)
     b = transfer_garment(src, tgt, g, fix_penetration=False, placement=C)
     np.testing.assert_allclose(b.V - a.V, np.tile(R @ v, (g.n_vertices, 1)), atol=1e-9)
@@ -123,7 +129,7 @@ torch = pytest.importorskip("torch")
 
 @pytest.fixture(scope="module")
 def trained(tiny):
-    from garment_transfer.garment_training import placement_tables, train_placement_model, training_tables
+    from garment_transfer.learning.garment_training import placement_tables, train_placement_model, training_tables
 
     tables = training_tables(tiny, "src", TARGETS, ["band", "skirt"])
     placement_tables(tiny, "src", TARGETS, ["band", "skirt"], tables)
@@ -144,7 +150,7 @@ def test_placement_model_round_trip_and_transfer(trained, tiny, tmp_path):
     model.save(path)
     with np.load(path, allow_pickle=False) as npz:
         assert all(npz[k].dtype != object for k in npz.files)
-    from garment_transfer.placement import load_placement_model
+    from garment_transfer.learning.placement import load_placement_model
 
     loaded = load_placement_model(path)
     ds = load_dataset(tiny)
@@ -162,7 +168,7 @@ def test_placement_model_round_trip_and_transfer(trained, tiny, tmp_path):
 
 
 def test_placement_model_files_of_another_version_or_kind_are_refused(trained, tmp_path):
-    from garment_transfer.placement import load_placement_model
+    from garment_transfer.learning.placement import load_placement_model
 
     model, _, _ = trained
     newer = tmp_path / "newer.npz"
@@ -180,7 +186,7 @@ def test_placement_model_files_of_another_version_or_kind_are_refused(trained, t
 
 
 def test_body_offset_features_of_a_shifted_and_an_inflated_sphere():
-    from garment_transfer.placement import body_offset_features
+    from garment_transfer.learning.placement import body_offset_features
 
     V, F = icosphere(2)
     X = body_offset_features(V, V + np.array([0.4, -0.2, 0.1]), F, shares=(0.3,))
@@ -189,7 +195,7 @@ def test_body_offset_features_of_a_shifted_and_an_inflated_sphere():
     # Grown by 10% about its centre: every triangle moved outward along its normal, not along the surface.
     X = body_offset_features(V, 1.1 * V, F, shares=())
     centroids = V[F].mean(axis=1)
-    from garment_transfer.embedding import body_scale
+    from garment_transfer.geometry.embedding import body_scale
 
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -199,8 +205,8 @@ def test_body_offset_features_of_a_shifted_and_an_inflated_sphere():
 
 
 def test_placement_model_with_the_body_offset(trained, tiny, tmp_path):
-    from garment_transfer.garment_training import train_placement_model
-    from garment_transfer.placement import BODY_OFFSET_SHARES, load_placement_model
+    from garment_transfer.learning.garment_training import train_placement_model
+    from garment_transfer.learning.placement import BODY_OFFSET_SHARES, load_placement_model
 
     _, _, tables = trained
     model, info = train_placement_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1,
@@ -220,7 +226,7 @@ def test_placement_model_with_the_body_offset(trained, tiny, tmp_path):
 
 
 def test_blended_placement_of_a_body_between_two_training_bodies(trained, tiny):
-    from garment_transfer.placement import BlendedPlacement
+    from garment_transfer.learning.placement import BlendedPlacement
 
     model, _, _ = trained
     blend = BlendedPlacement(model)
@@ -241,7 +247,7 @@ def test_blended_placement_of_a_body_between_two_training_bodies(trained, tiny):
 
 
 def test_an_ensemble_of_identical_members_is_the_single_model(trained, tiny):
-    from garment_transfer.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
+    from garment_transfer.learning.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
 
     model, _, _ = trained
     same = PlacementEnsemble([model, PlacementModel(model.arrays, model.metadata, "copy"), model])
@@ -262,8 +268,8 @@ def test_an_ensemble_of_identical_members_is_the_single_model(trained, tiny):
 
 
 def test_an_ensemble_predicts_the_mean_of_its_members_trained_with_successive_seeds(trained, tiny):
-    from garment_transfer.garment_training import train_placement_ensemble
-    from garment_transfer.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
+    from garment_transfer.learning.garment_training import train_placement_ensemble
+    from garment_transfer.learning.placement import BlendedPlacement, PlacementEnsemble, PlacementModel
 
     model, _, tables = trained
     ensemble, info = train_placement_ensemble(tables, TARGETS, 2, seed=1, hidden=(16,), epochs=30, batch=256,
@@ -304,7 +310,7 @@ def test_an_ensemble_predicts_the_mean_of_its_members_trained_with_successive_se
 
 
 def test_mean_offsets_weighs_garments_by_their_bound_points():
-    from garment_transfer.placement import mean_offsets
+    from garment_transfer.learning.placement import mean_offsets
 
     offset = np.zeros((2, 2, 3, 3))
     offset[0, :, :, 0] = 1.0          # garment 0: +1 along x on every triangle and target
@@ -323,9 +329,9 @@ def test_mean_offsets_weighs_garments_by_their_bound_points():
 
 
 def test_a_residual_placement_adds_the_training_garments_mean_offset(trained, tiny, tmp_path):
-    from garment_transfer.garment_training import train_placement_model
-    from garment_transfer.embedding import body_scale
-    from garment_transfer.placement import PlacementModel, load_placement_model, mean_offsets, smooth_on_body
+    from garment_transfer.geometry.embedding import body_scale
+    from garment_transfer.learning.garment_training import train_placement_model
+    from garment_transfer.learning.placement import PlacementModel, load_placement_model, mean_offsets, smooth_on_body
 
     model, _, tables = trained
     res, info = train_placement_model(tables, TARGETS, hidden=(16,), epochs=30, batch=256, seed=1, threads=1,
@@ -379,7 +385,7 @@ def test_a_residual_placement_adds_the_training_garments_mean_offset(trained, ti
 
 
 def test_placement_training_options(trained):
-    from garment_transfer.garment_training import train_placement_model
+    from garment_transfer.learning.garment_training import train_placement_model
 
     model, _, tables = trained
     kw = dict(hidden=(16,), epochs=30, batch=256, seed=1, threads=1)

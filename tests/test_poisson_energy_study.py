@@ -1,9 +1,9 @@
 """The lab's comparison of the Poisson solve's two energies (lab.poisson_energy) on a MakeHuman garment."""
 
 import numpy as np
+from meshes import require_makehuman
 
 from lab import poisson_energy
-from meshes import require_makehuman
 
 
 def test_both_energies_with_and_without_the_own_placement_on_a_suit(capsys):

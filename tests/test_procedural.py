@@ -6,9 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from garment_transfer.mesh import mesh_from_polygons, mesh_from_triangles, mesh_report, triangle_normals
-from lab.procedural.garments import (CLEARANCE, TEST_GARMENTS, TRAIN_GARMENTS, garment,
-                                                  push_out, _source_body)
+from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles, mesh_report, triangle_normals
+from lab.procedural.garments import CLEARANCE, TEST_GARMENTS, TRAIN_GARMENTS, _source_body, garment, push_out
 from lab.procedural.mannequin import PRESETS, Body, body_sdf, mannequin, measurements
 from lab.procedural.sdf import gradient
 

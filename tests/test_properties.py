@@ -3,15 +3,15 @@
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from garment_transfer.gradients import deformation_gradients
-from garment_transfer.mesh import mesh_from_polygons, mesh_from_triangles
-from garment_transfer.metrics import discrete_curvature, mdc
-from garment_transfer.penetration import penetration
-from garment_transfer.poisson import PoissonSolver
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.transfer import transfer_garment
 from meshes import icosphere, random_rotation
+
+from garment_transfer.geometry.gradients import deformation_gradients
+from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
+from garment_transfer.geometry.penetration import penetration
+from garment_transfer.geometry.poisson import PoissonSolver
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.metrics import discrete_curvature, mdc
+from garment_transfer.pipeline.transfer import transfer_garment
 
 # Derandomized: CI runs the same examples every time (a failure is reproducible, never flaky).
 SETTINGS = settings(max_examples=25, deadline=None, derandomize=True,

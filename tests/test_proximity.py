@@ -6,11 +6,11 @@ the triangle's plane where the projection falls inside it, otherwise the nearest
 
 import numpy as np
 import pytest
-
-import garment_transfer.penetration as penetration
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
 from meshes import MAKEHUMAN, grid, icosphere, random_rotation, require_makehuman
+
+import garment_transfer.geometry.penetration as penetration
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
 
 REL = 1e-12
 
@@ -280,7 +280,7 @@ def test_far_sides_by_groups_equal_the_winding_number_of_each_point():
 def test_large_queries_split_over_threads_give_the_one_piece_answer(monkeypatch):
     """Huge meshes: the per-point work runs in pieces on threads; the pieces give exactly the answer
     of one piece, and every array is one row per point (memory linear in the points)."""
-    import garment_transfer.proximity as proximity
+    import garment_transfer.geometry.proximity as proximity
 
     V, F = icosphere(3)
     P = np.random.default_rng(3).normal(size=(5000, 3)) * 1.3
@@ -362,7 +362,7 @@ def _near_pairs_cases():
 
 
 def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band():
-    from garment_transfer.proximity import near_boxes
+    from garment_transfer.geometry.proximity import near_boxes
 
     for P, V, F, within in _near_pairs_cases():
         faces, points = near_boxes(P, V, F, within)

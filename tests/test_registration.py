@@ -7,16 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from garment_transfer import registration
-from garment_transfer.errors import RegistrationError, TopologyMismatchError
-from garment_transfer.mesh import mesh_from_triangles, triangle_normals
-from garment_transfer.obj import read_obj, write_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.registration import Similarity, align, register, transfer_to_any_body
-from garment_transfer.transfer import transfer_garment
-from lab.registration import remesh
 from meshes import icosphere, require_makehuman
+
+from garment_transfer.errors import RegistrationError, TopologyMismatchError
+from garment_transfer.fitting import alignment, cache, nonrigid, registration, shape_basis
+from garment_transfer.fitting.alignment import Similarity, align
+from garment_transfer.fitting.registration import register
+from garment_transfer.geometry.mesh import mesh_from_triangles, triangle_normals
+from garment_transfer.geometry.obj import read_obj, write_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.any_body import transfer_to_any_body
+from garment_transfer.pipeline.transfer import transfer_garment
+from lab.registration import remesh
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -84,11 +86,11 @@ def test_alignment_is_never_a_mirror(source):
 
 
 def test_units_scale_snaps_only_near_a_unit_ratio():
-    assert registration.units_scale(9.3) == (pytest.approx(10.0), True)
-    assert registration.units_scale(1.07) == (pytest.approx(1.0), True)
-    assert registration.units_scale(0.0254 * 0.95) == (pytest.approx(0.0254), True)
-    assert registration.units_scale(1 / 25.4) == (pytest.approx(1 / 25.4), True)
-    value, snapped = registration.units_scale(6.0)
+    assert alignment.units_scale(9.3) == (pytest.approx(10.0), True)
+    assert alignment.units_scale(1.07) == (pytest.approx(1.0), True)
+    assert alignment.units_scale(0.0254 * 0.95) == (pytest.approx(0.0254), True)
+    assert alignment.units_scale(1 / 25.4) == (pytest.approx(1 / 25.4), True)
+    value, snapped = alignment.units_scale(6.0)
     assert not snapped and value == 6.0
 
 
@@ -124,11 +126,11 @@ def test_arap_step_with_one_weight_per_edge_equals_the_scalar_weight(source):
     # The per-edge regulariser (coarse targets, COARSE_FINE) with every edge at one weight is the
     # scalar step; the data terms pull a part of the body away so the step is not the identity.
     rng = np.random.default_rng(3)
-    fit = registration.ArapFit(source.V, source.F)
+    fit = nonrigid.ArapFit(source.V, source.F)
     X = source.V + 0.01 * rng.normal(size=source.V.shape)
     C = source.V + np.array([0.05, 0.0, 0.0]) * (source.V[:, 1:2] > 3.0)
     ws = np.ones(source.n_vertices)
-    Bt = registration.sp.csr_matrix((0, source.n_vertices))
+    Bt = nonrigid.sp.csr_matrix((0, source.n_vertices))
     none = np.zeros(0)
     a = fit.solve(X, 20.0, ws, C, Bt, none, np.zeros((0, 3)))
     b = fit.solve(X, np.full(fit.i.shape[0], 20.0), ws, C, Bt, none, np.zeros((0, 3)))
@@ -145,9 +147,9 @@ def test_arap_step_with_one_weight_per_edge_equals_the_scalar_weight(source):
 def test_edges_finer_than_a_coarse_target_are_the_hands_feet_and_face(source, pear_remeshed):
     # On a 5K-triangle re-mesh the target's facets are 1-1.8x the source's edges on the torso and
     # limbs, 2-15x on the hands, feet and face (MakeHuman: +-X lateral, Y up; decimetres).
-    fit = registration.ArapFit(source.V, source.F)
+    fit = nonrigid.ArapFit(source.V, source.F)
     surface = TriangleSurface(pear_remeshed.V, pear_remeshed.F)
-    fine = registration._finer_than_target(source.V, source.F, fit.i, fit.j, surface)
+    fine = nonrigid.finer_than_target(source.V, source.F, fit.i, fit.j, surface)
     mid = 0.5 * (source.V[fit.i] + source.V[fit.j])
     height = (mid[:, 1] - source.V[:, 1].min()) / np.ptp(source.V[:, 1])
     hands = np.abs(mid[:, 0]) > 3.9
@@ -158,7 +160,7 @@ def test_edges_finer_than_a_coarse_target_are_the_hands_feet_and_face(source, pe
     assert fine[legs].mean() < 0.1 and fine[torso].mean() < 0.35
     # Against the source itself nothing is finer than the target.
     own = TriangleSurface(source.V, source.F)
-    assert registration._finer_than_target(source.V, source.F, fit.i, fit.j, own).mean() < 0.02
+    assert nonrigid.finer_than_target(source.V, source.F, fit.i, fit.j, own).mean() < 0.02
 
 
 def test_global_fit_keeps_the_height_of_a_thinner_body(source):
@@ -167,8 +169,8 @@ def test_global_fit_keeps_the_height_of_a_thinner_body(source):
     # whole body towards the thinner one (its legs then sit too high).
     thin = source.V * np.array([0.85, 1.0, 0.85]) + np.array([0.3, -0.5, 0.2])
     surface = TriangleSurface(thin, source.F)
-    P = registration.surface_samples(thin, source.F, 8000, seed=0)[0]
-    Y = registration._global_fit(source.V, source.F, surface, P)
+    P = alignment.surface_samples(thin, source.F, 8000, seed=0)[0]
+    Y = nonrigid.global_fit(source.V, source.F, surface, P)
     height = np.ptp(thin[:, 1])
     assert np.ptp(Y[:, 1]) == pytest.approx(height, rel=1e-3)
     assert abs(Y[:, 1].min() - thin[:, 1].min()) < 1e-3 * height
@@ -211,10 +213,10 @@ def test_part_similarity_recovers_a_scaled_turned_hand(source):
     Fp = Fp[(Fp >= 0).all(axis=1)]
     Y0 = source.V[idx]
     truth = Similarity(1.2, rotation(0.2, -0.1, 0.15), np.array([0.3, -0.2, 0.1])).apply(Y0)
-    P, tri, _ = registration.surface_samples(truth, Fp, 20000, seed=1)
+    P, tri, _ = alignment.surface_samples(truth, Fp, 20000, seed=1)
     Np = triangle_normals(truth, Fp)[0][tri]
     start = Similarity(1.1, rotation(0.15, -0.05, 0.1), np.array([0.25, -0.1, 0.0])).apply(Y0)
-    Y, scale = registration._part_similarity(Y0, Fp, np.ones(idx.size, bool), start, P, Np, iterations=50)
+    Y, scale = nonrigid.part_similarity(Y0, Fp, np.ones(idx.size, bool), start, P, Np, iterations=50)
     assert scale == pytest.approx(1.2, rel=1e-6)
     assert np.abs(Y - truth).max() < 1e-6 * np.ptp(Y0, axis=0).max()
 
@@ -281,9 +283,9 @@ def test_another_pose_is_refused_naming_the_figure(source, tmp_path):
 
 
 def test_cache_round_trip_and_off_switch(source, pear_remeshed, pear_registration, tmp_path, monkeypatch):
-    settings = {"schedule": [list(s) for s in registration.SCHEDULE]}
-    key = registration.cache_key(source, pear_remeshed, settings)
-    registration._cache_save(str(tmp_path), key, pear_registration)
+    settings = {"schedule": [list(s) for s in nonrigid.SCHEDULE]}
+    key = cache.cache_key(source, pear_remeshed, settings, registration.ALGORITHM_VERSION)
+    cache.save_cached(str(tmp_path), key, *pear_registration.cache_entry())
     hit = register(source, pear_remeshed, cache=str(tmp_path))
     assert hit.cached
     assert np.array_equal(hit.V, pear_registration.V)
@@ -292,19 +294,19 @@ def test_cache_round_trip_and_off_switch(source, pear_remeshed, pear_registratio
     # Another target (one vertex moved) misses the cache.
     V = pear_remeshed.V.copy()
     V[0, 0] += 1e-9
-    assert registration.cache_key(source, pear_remeshed.with_vertices(V), {}) != \
-        registration.cache_key(source, pear_remeshed, {})
+    assert cache.cache_key(source, pear_remeshed.with_vertices(V), {}, 1) != \
+        cache.cache_key(source, pear_remeshed, {}, 1)
     monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
-    assert registration.cache_folder() is None
+    assert cache.cache_folder() is None
     monkeypatch.setenv("GARMENT_TRANSFER_CACHE", str(tmp_path / "c"))
-    assert registration.cache_folder() == str(tmp_path / "c")
+    assert cache.cache_folder() == str(tmp_path / "c")
     monkeypatch.delenv("GARMENT_TRANSFER_CACHE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert registration.cache_folder() == str(tmp_path / "xdg" / "garment_transfer" / "registration")
+    assert cache.cache_folder() == str(tmp_path / "xdg" / "garment_transfer" / "registration")
 
 
 def test_cache_file_is_plain_npz(pear_registration, tmp_path):
-    registration._cache_save(str(tmp_path), "k", pear_registration)
+    cache.save_cached(str(tmp_path), "k", *pear_registration.cache_entry())
     with np.load(tmp_path / "k.npz", allow_pickle=False) as z:
         assert set(z.files) == {"V", "V_source_frame", "meta"}
         assert json.loads(str(z["meta"]))["quality"]["height"] > 0
@@ -380,7 +382,7 @@ def shuffled_and_moved(V, F, name, seed=3):
 @pytest.fixture(scope="module")
 def blend_case(mannequins):
     source = mannequins["banana"]
-    basis = registration.shape_basis_from_bodies(source, [mannequins[n] for n in ("pear", "heavy", "slim")])
+    basis = shape_basis.shape_basis_from_bodies(source, [mannequins[n] for n in ("pear", "heavy", "slim")])
     weights = np.array([0.3, 0.6, 0.2])
     V = source.V + np.tensordot(weights, basis, axes=1)
     return source, basis, weights, V, shuffled_and_moved(V, source.F, "blend")
@@ -390,7 +392,7 @@ def test_shape_fit_recovers_the_weights_of_an_exact_blend(blend_case):
     source, basis, weights, V, target = blend_case
     # The target in the source's frame (the alignment's job), its vertices in another order.
     back = (target.V - [1.0, 2.0, -3.0]) @ rotation(-np.pi / 2, 0.0, 0.3) / 10.0
-    w, X, info = registration.fit_shape(source.V, source.F, basis, back, target.F)
+    w, X, info = shape_basis.fit_shape(source.V, source.F, basis, back, target.F)
     assert info["used"] and info["explained"] > 0.999
     assert np.abs(w - weights).max() < 1e-4
     assert np.abs(X - V).max() < 1e-4 * np.ptp(V, axis=0).max()
@@ -450,14 +452,14 @@ def test_bad_bounds_and_a_basis_body_of_another_mesh_are_refused(mannequins, sou
     with pytest.raises(ValueError, match=r"one \(low, high\) per delta \(2\)"):
         register(banana, mannequins["pear"], shape_basis=basis, shape_bounds=np.zeros((3, 2)), cache=False)
     with pytest.raises(TopologyMismatchError, match="female_average: has 13380 vertices"):
-        registration.shape_basis_from_bodies(banana, [mannequins["pear"], source])
+        shape_basis.shape_basis_from_bodies(banana, [mannequins["pear"], source])
 
 
 def leave_one_out_basis(source, target_name):
     """Deltas of the other MakeHuman bodies from the source: never the target body itself."""
     folder = require_makehuman() / "bodies"
     others = [n for n in ("female_slim_banana", "female_pear", "male_average", "male_slim") if n != target_name]
-    return others, registration.shape_basis_from_bodies(source, [read_obj(folder / f"{n}.obj", name=n)
+    return others, shape_basis.shape_basis_from_bodies(source, [read_obj(folder / f"{n}.obj", name=n)
                                                                  for n in others])
 
 
@@ -484,9 +486,9 @@ def test_leave_one_out_prior_that_does_not_hold_the_target_is_not_used(source):
     target = mesh_from_triangles(U, G, name="female_slim_banana_5k")
     names, basis = leave_one_out_basis(source, "female_slim_banana")
     T = align(source, target)[0].apply(target.V)
-    w, X, info = registration.fit_shape(source.V, source.F, basis, T, target.F)
+    w, X, info = shape_basis.fit_shape(source.V, source.F, basis, T, target.F)
     assert info["fitted_weights"][names.index("male_slim")] > 0.2
-    assert info["explained"] < registration.SHAPE_MIN_EXPLAINED
+    assert info["explained"] < shape_basis.SHAPE_MIN_EXPLAINED
     assert not info["used"] and np.array_equal(w, np.zeros(3)) and np.array_equal(X, source.V)
 
 
@@ -533,8 +535,8 @@ def test_polar_rotations_are_the_svd_rotations():
     S[6] = np.diag([1.0, 1.0, 0.0])
     S[7] = -np.eye(3)
     S[8] = np.diag([1.0, 1.0, -1e-9])
-    R = registration._best_rotations(S)
-    expected = registration._svd_rotations(S.copy())
+    R = nonrigid.best_rotations(S)
+    expected = nonrigid.svd_rotations(S.copy())
     assert np.abs(R - expected).max() < 1e-12
     assert np.abs(np.linalg.det(R) - 1.0).max() < 1e-12
     assert (np.linalg.det(S[9:]) < 0).any() and (np.linalg.det(S[9:]) > 0).any()
@@ -546,17 +548,17 @@ def test_arap_solve_matches_a_direct_solve(source):
     import scipy.sparse.linalg as spla
 
     X0, F = source.V, np.asarray(source.F)
-    fit = registration.ArapFit(X0, F)
+    fit = nonrigid.ArapFit(X0, F)
     rng = np.random.default_rng(2)
     X = X0 + rng.normal(0.0, 1e-3, X0.shape)
     P = X0[rng.choice(X0.shape[0], 500, replace=False)] + rng.normal(0.0, 1e-3, (500, 3))
     Np = np.tile([0.0, 0.0, 1.0], (500, 1))
-    B, wt, _ = registration._pairs_from_target(X, F, P, Np, -2.0, np.inf)
+    B, wt, _ = nonrigid.pairs_from_target(X, F, P, Np, -2.0, np.inf)
     ws = rng.random(X0.shape[0])
     C = X0 + rng.normal(0.0, 1e-3, X0.shape)
     for alpha in (200.0, 1.0):
         got = fit.solve(X, alpha, ws, C, B, wt, P)
-        R = registration._svd_rotations(np.asarray(
+        R = nonrigid.svd_rotations(np.asarray(
             fit.both @ np.einsum("ka,kb->kab", fit.e0, X[fit.i] - X[fit.j]).reshape(-1, 9)).reshape(-1, 3, 3))
         eps = 1e-8 * (alpha * 8.0 + 1.0)
         A = 2 * alpha * fit.L + sp.diags(ws) + B.T @ sp.diags(wt) @ B + eps * sp.identity(fit.n)

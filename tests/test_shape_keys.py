@@ -7,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from meshes import icosphere
 
 from garment_transfer.errors import MeshError
-from garment_transfer.mesh import mesh_from_triangles
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.shape_keys import (body_at, fit_shape_keys, keep_outside, transfer_to_shapes)
-from garment_transfer.transfer import prepare_garment, transfer_garment
-from garment_transfer.weights import surface_weights
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.shape_keys import body_at, fit_shape_keys, keep_outside, transfer_to_shapes
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
+from garment_transfer.pipeline.weights import surface_weights
 from lab.paths import makehuman_folder
-from meshes import icosphere
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ("female_pear", "male_slim")
@@ -146,7 +146,7 @@ def test_cli_bad_shape_exits_1_and_writes_nothing(tmp_path, keyed):
     folder = keyed[5]
     V, F = icosphere(1)
     other = tmp_path / "sphere.obj"
-    from garment_transfer.obj import write_obj
+    from garment_transfer.geometry.obj import write_obj
     write_obj(other, mesh_from_triangles(V, F))
     out = tmp_path / "sizes"
     r = run("shapes", "--source-body", folder / "bodies" / "female_average.obj",

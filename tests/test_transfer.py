@@ -2,14 +2,14 @@ import json
 
 import numpy as np
 import pytest
+from meshes import icosphere, require_makehuman
 
 from garment_transfer.errors import Cancelled, MeshError, TopologyMismatchError
-from garment_transfer.metrics import evaluate
-from garment_transfer.obj import read_obj
-from garment_transfer.proximity import TriangleSurface
-from garment_transfer.transfer import prepare_garment, transfer_garment
-from meshes import icosphere, require_makehuman
-from garment_transfer.mesh import mesh_from_triangles
+from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 
 def spheres():
@@ -117,7 +117,7 @@ def test_result_moves_with_the_scene():
 
 
 def test_crossings_left_names_what_the_pass_could_not_clear():
-    from garment_transfer.transfer import crossings_left
+    from garment_transfer.pipeline.transfer import crossings_left
 
     assert crossings_left({}) is None                                  # the pass did not run
     assert crossings_left({"crossings_after": 0, "crossings_before": 12}) is None

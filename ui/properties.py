@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
-                       PointerProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 
 def is_mesh(_self, obj):
@@ -13,7 +20,7 @@ def is_mesh(_self, obj):
 
 def refresh_model_info(settings):
     """List the targets of the model file in ``settings`` (or say why it cannot be read)."""
-    from ..garment_transfer.errors import GarmentTransferError
+    from ..garment_transfer import GarmentTransferError
     from ..operators.models import load_model_cached
 
     settings.model_targets.clear()

@@ -12,10 +12,10 @@ Deterministic: the same arguments give the same files. Writes, in the common dat
 from __future__ import annotations
 
 import argparse
-import subprocess
 import importlib
 import importlib.util
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,11 +24,11 @@ ROOT = Path(__file__).resolve().parents[2]
 # Under a Blender binary (blender --python this file) the checkout is not installed: import it from here.
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "tools"))
 
 
-from garment_transfer.mesh import mesh_from_polygons  # noqa: E402
-from garment_transfer.obj import obj_text, write_text_atomic  # noqa: E402
+from garment_transfer.geometry.mesh import mesh_from_polygons  # noqa: E402
+from garment_transfer.geometry.obj import obj_text, write_text_atomic  # noqa: E402
 from lab.procedural.garments import TEST_GARMENTS, TRAIN_GARMENTS, garment  # noqa: E402
 from lab.procedural.mannequin import mannequin, measurements  # noqa: E402
 

@@ -30,7 +30,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from lab.blender.render_demo import (  # noqa: E402
-    frame_camera, material, new_mesh_object, render_to, set_material, setup_scene,
+    frame_camera,
+    material,
+    new_mesh_object,
+    render_to,
+    set_material,
+    setup_scene,
 )
 
 
@@ -44,9 +49,9 @@ def to_blender(V, scale=1.0, up="Z"):
 
 
 def render(spec, out, samples=16):
-    from garment_transfer.obj import read_obj
-
     import bpy
+
+    from garment_transfer.geometry.obj import read_obj
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = setup_scene(tuple(spec.get("size", (1200, 500))), samples, 100, True)

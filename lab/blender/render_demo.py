@@ -105,7 +105,7 @@ class Results:
 
     def __init__(self, folder: Path, first_target_only=False):
         from garment_transfer.errors import MeshError
-        from garment_transfer.obj import read_obj
+        from garment_transfer.geometry.obj import read_obj
 
         self._read_obj = read_obj
         self._mesh_error = MeshError
@@ -594,7 +594,7 @@ def render_fig3(res, g, t, out, samples, percent, denoise):
 
 def colour_bar(mat, vmax, x, z0, z1, width=0.05):
     """A vertical strip in the heat map's colours, labelled 0 at the bottom and vmax (mm) at the top."""
-    from garment_transfer.mesh import mesh_from_polygons
+    from garment_transfer.geometry.mesh import mesh_from_polygons
 
     n = 32
     zs = np.linspace(z0, z1, n + 1)

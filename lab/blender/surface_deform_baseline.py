@@ -94,8 +94,8 @@ def run(args, log):
     import bpy
     import numpy as np
 
-    from garment_transfer.mesh import require_same_topology
-    from garment_transfer.obj import read_obj, write_obj
+    from garment_transfer.geometry.mesh import require_same_topology
+    from garment_transfer.geometry.obj import read_obj, write_obj
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     source = read_obj(args.source_body)

@@ -389,7 +389,7 @@ def shell_garment(name, z_hem, sleeve=0.0, ease=0.02, neck=0.085, flare=0.0, h=0
 
 def _largest_piece(Q, V):
     """Keep the largest connected piece of quads and drop unused vertices."""
-    from garment_transfer.mesh import connected_pieces
+    from garment_transfer.geometry.mesh import connected_pieces
 
     F = np.concatenate([Q[:, [0, 1, 2]], Q[:, [0, 2, 3]]])
     _, label = connected_pieces(V.shape[0], F)

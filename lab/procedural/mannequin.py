@@ -269,7 +269,7 @@ def _neighbours(n, F):
     """(n,n) sparse averaging over each vertex's edge neighbours."""
     import scipy.sparse as sp
 
-    from garment_transfer.penetration import vertex_adjacency
+    from garment_transfer.geometry.penetration import vertex_adjacency
 
     A = vertex_adjacency(n, F)
     return sp.diags(1.0 / np.asarray(A.sum(axis=1)).ravel()) @ A

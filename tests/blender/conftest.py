@@ -1,6 +1,6 @@
 """Fixtures for the Blender layer, with the real bpy module.
 
-The add-on is registered once per session from this checkout (scripts/extension_loader.py, with the
+The add-on is registered once per session from this checkout (tools/extension_loader.py, with the
 installed core as its core: one garment_transfer in the process); every
 test starts from an empty factory scene. The MakeHuman fixtures are imported as Blender objects the
 way a user would (decimetres, Y up: scaled by 0.1 and turned Z up on import).
@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 MAKEHUMAN = makehuman_folder() or SHARED_MAKEHUMAN
 GARMENT = "female_sportsuit01"
 
+sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 

@@ -8,6 +8,7 @@ import sys
 import bpy
 import numpy as np
 import pytest
+
 from conftest import GARMENT, import_obj, scene_state
 
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+
 from conftest import GARMENT, ROOT
 
 
@@ -48,8 +49,8 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
 
     # Written in the input files' units and axes and the garment's vertex order: what the core makes
     # of the files themselves, up to float32 rounding (which flips a few penetration push-outs).
-    from garment_transfer.obj import read_obj
-    from garment_transfer.transfer import transfer_garment
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.pipeline.transfer import transfer_garment
 
     source_body = read_obj(makehuman / "bodies" / "female_average.obj")
     cloth = read_obj(garment)
@@ -65,7 +66,7 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
 def test_batch_reads_the_core_catalogue_and_matches_the_core_batch(makehuman, tmp_path):
     """--catalogue: the same TOML that python -m garment_transfer batch runs, the same result layout and
     (up to the float32 of Blender meshes) the same results; a missing body fails its pairs only."""
-    from garment_transfer.batch import read_catalogue, run_batch
+    from garment_transfer.pipeline.batch import read_catalogue, run_batch
 
     catalogue = tmp_path / "cat.toml"
     catalogue.write_text(

@@ -11,8 +11,9 @@ import sys
 import bpy
 import numpy as np
 import pytest
-from conftest import ROOT, world_vertices
 from test_bad_input import expect_report
+
+from conftest import ROOT, world_vertices
 
 sys.path.insert(0, str(ROOT / "tests"))
 from meshes import icosphere  # noqa: E402
@@ -49,8 +50,9 @@ def test_negative_scale_parent_keeps_the_garment_outside_the_body():
     bpy.context.view_layer.update()
     assert np.linalg.det(np.array(settings.garment.matrix_world)[:3, :3]) < 0
 
-    from garment_transfer_ext.garment_transfer.proximity import signed_volume
     from garment_transfer_ext.operators.convert import mesh_arrays_from_object
+
+    from garment_transfer.geometry.proximity import signed_volume
 
     V, fv, fs = mesh_arrays_from_object(settings.target_body, bpy.context.evaluated_depsgraph_get())
     assert signed_volume(V, fv.reshape(-1, 3)) > 0           # world-space faces point outward

@@ -8,6 +8,7 @@ import importlib
 import bpy
 import numpy as np
 import pytest
+
 from conftest import scene_state
 
 
@@ -29,7 +30,7 @@ def cloth_module(extension):
 
 
 def test_drape_moves_the_garment_keeps_vertices_and_stays_outside(extension, small_case):
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.proximity import TriangleSurface
 
     V, F, T, g = small_case
     assert 300 <= 2 * g.polygons.shape[0] <= 500

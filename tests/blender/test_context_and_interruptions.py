@@ -20,6 +20,7 @@ import batch_transfer
 import bpy
 import numpy as np
 import pytest
+
 from conftest import GARMENT, ROOT, world_vertices
 
 OPERATORS = ("transfer", "evaluate", "train", "drape")
@@ -344,16 +345,16 @@ def failing(function, on_call, exc):
 
 def test_failures_midway_leave_the_scene_as_it_was(dressed, tmp_path, extension, monkeypatch):
     ready_for_every_operator(dressed, tmp_path)
-    convert, metrics, cloth = (importlib.import_module(f"{extension.__name__}.{name}") for name in
-                               ("operators.convert", "garment_transfer.metrics", "operators.cloth"))
+    convert, core, cloth = (importlib.import_module(f"{extension.__name__}.{name}") for name in
+                            ("operators.convert", "garment_transfer", "operators.cloth"))
     with monkeypatch.context() as patch:
         # After the result object exists: it is removed again.
         patch.setattr(convert, "write_positions",
                       failing(convert.write_positions, 1, OSError("simulated failure")))
         refused("transfer", "Unexpected error (OSError: simulated failure)", "system console")
     with monkeypatch.context() as patch:
-        patch.setattr(metrics, "per_vertex_change",
-                      failing(metrics.per_vertex_change, 1, ValueError("simulated failure")))
+        patch.setattr(core, "per_vertex_change",
+                      failing(core.per_vertex_change, 1, ValueError("simulated failure")))
         refused("evaluate", "Unexpected error (ValueError: simulated failure)")
     with monkeypatch.context() as patch:
         # In the second cloth run, once the body has morphed (shape keys, animation): all removed.

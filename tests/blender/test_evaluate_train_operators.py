@@ -16,9 +16,10 @@ from types import SimpleNamespace
 import bpy
 import numpy as np
 import pytest
-from conftest import GARMENT, import_obj, scene_state, world_vertices
 from test_panel import RecordingLayout
 from test_transfer_operator import make_tiny_dataset
+
+from conftest import GARMENT, import_obj, scene_state, world_vertices
 
 TORCH_INSTALLED = importlib.util.find_spec("torch") is not None
 NO_TORCH = "torch is not installed in this Python (training needs it)"

@@ -16,6 +16,7 @@ import tomllib
 import zipfile
 
 import pytest
+
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "tools"))

@@ -8,11 +8,10 @@ import bpy
 import numpy as np
 import pytest
 
-from garment_transfer.mesh import mesh_from_polygons
-from garment_transfer.shape_keys import fit_shape_keys
-from lab.paths import makehuman_folder
-
 from conftest import GARMENT, import_obj, scene_state
+from garment_transfer.geometry.mesh import mesh_from_polygons
+from garment_transfer.pipeline.shape_keys import fit_shape_keys
+from lab.paths import makehuman_folder
 
 KEYS = {"pear": "female_pear", "slim": "female_slim_banana"}
 
@@ -143,7 +142,7 @@ def test_corrective_pair_key_makes_both_keys_at_one_exact(keyed):
 
 
 def evaluated_body_surface(body):
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.proximity import TriangleSurface
 
     V = evaluated_world(body)
     return TriangleSurface(V, mesh_of(body, V).F)

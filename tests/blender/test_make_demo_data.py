@@ -15,8 +15,8 @@ FRAMES = ["--source-frames", "4", "--morph-frames", "3", "--frames", "3"]
 
 
 def test_continuous_targets_share_the_source_drape_and_are_recorded(tmp_path):
-    from garment_transfer.obj import read_obj
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.geometry.proximity import TriangleSurface
     from lab.blender.make_demo_data import main
 
     runs = {}

@@ -23,8 +23,8 @@ def test_axes_round_trip_exactly():
 
 
 def test_drape_writes_a_simulated_garment_in_the_fixtures_layout(tmp_path, makehuman):
-    from garment_transfer.obj import read_obj
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.geometry.proximity import TriangleSurface
     from lab.makehuman_drape import main
 
     folder = makehuman
@@ -70,7 +70,7 @@ def test_every_piece_of_a_garment_is_pinned(makehuman):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
     from lab.makehuman_drape import to_blender, waist_pins
 
     body = read_obj(makehuman / "bodies" / "female_average.obj")
@@ -85,8 +85,8 @@ def test_every_piece_of_a_garment_is_pinned(makehuman):
 
 
 def test_continuous_drape_with_its_settings_recorded(tmp_path, makehuman):
-    from garment_transfer.obj import read_obj
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.geometry.proximity import TriangleSurface
     from lab.makehuman_drape import main
 
     out = tmp_path / "sim"
@@ -122,8 +122,8 @@ def test_a_folder_draped_with_other_settings_is_refused(tmp_path, capsys, makehu
 
 
 def test_looser_cuts_are_draped_and_listed_as_variants(tmp_path, makehuman):
-    from garment_transfer.obj import read_obj
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.geometry.proximity import TriangleSurface
     from lab.makehuman_drape import main, to_blender, waist_pins
 
     out = tmp_path / "sim"

@@ -18,9 +18,9 @@ SHORT = ["--targets", "female_pear", "--continuous", "--source-frames", "5", "--
 
 
 def test_a_catalogue_garment_draped_on_the_makehuman_bodies(tmp_path, makehuman):
-    from garment_transfer.dataset import load_dataset
-    from garment_transfer.obj import read_obj
-    from garment_transfer.proximity import TriangleSurface
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.geometry.proximity import TriangleSurface
+    from garment_transfer.learning.dataset import load_dataset
     from lab import makehuman_drape, makehuman_procedural
     from lab.procedural.garments import garment
 
@@ -106,8 +106,8 @@ def test_a_claim_left_by_a_stopped_run_is_taken_over(tmp_path, makehuman):
 
 
 def test_an_outfit_is_draped_as_one_garment_pinned_at_the_waist(tmp_path, makehuman):
-    from garment_transfer.mesh import connected_pieces
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.mesh import connected_pieces
+    from garment_transfer.geometry.obj import read_obj
     from lab.makehuman_drape import SLID_SHARE, to_blender, waist_pins
     from lab.makehuman_procedural import MANNEQUIN, OUTFITS, fit_outfit, main
     from lab.paths import DEMO_DATA

@@ -11,12 +11,12 @@ from types import SimpleNamespace
 import bpy
 import numpy as np
 import pytest
-from conftest import scene_state, world_vertices
 from test_panel import RecordingLayout
 
-from garment_transfer.intersections import crossings, self_intersections
-from garment_transfer.obj import read_obj
-from garment_transfer.outfit import OutfitError, transfer_outfit
+from conftest import scene_state, world_vertices
+from garment_transfer.geometry.intersections import crossings, self_intersections
+from garment_transfer.geometry.obj import read_obj
+from garment_transfer.pipeline.outfit import OutfitError, transfer_outfit
 from lab.paths import DEMO_DATA
 
 INNER, OUTER = "tshirt", "shift_dress"
@@ -113,7 +113,7 @@ def test_layer_offsets_reach_the_core(outfit, extension):
     outfit.settings.outfit_layers[1].auto_offset = False
     outfit.settings.outfit_layers[1].offset = 0.012
     assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
-    from garment_transfer.intersections import minimum_distance
+    from garment_transfer.geometry.intersections import minimum_distance
 
     source, target, g_in, g_out = core_meshes(extension, (o["banana"], o["pear"], o[INNER], o[OUTER]))
     inner = world_vertices(bpy.data.objects[f"{INNER}_on_pear"])

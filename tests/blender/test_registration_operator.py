@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
+
 from conftest import import_obj, world_vertices
 
 
@@ -123,7 +124,7 @@ def test_a_body_model_archive_is_the_registration_basis(dressed, tmp_path, monke
     # A body model of two sliders made from the MakeHuman files (decimetres, Y up, as MakeHuman's own
     # targets are): the pear's shape as a hips slider, and a distractor. The target is the pear
     # re-meshed; the fit takes the hips slider at about 1 and leaves the other.
-    from garment_transfer.obj import read_obj
+    from garment_transfer.geometry.obj import read_obj
 
     monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
     average = read_obj(dressed.makehuman / "bodies" / "female_average.obj").V

@@ -12,9 +12,9 @@ import zlib
 import numpy as np
 import pytest
 
+from garment_transfer.geometry.mesh import mesh_from_polygons
+from garment_transfer.geometry.obj import write_obj
 from lab.bench import tube_dress
-from garment_transfer.mesh import mesh_from_polygons
-from garment_transfer.obj import write_obj
 
 # The lab runs its Blender scripts in the project's own Blender (5.0) only: tools/run.sh runs these there.
 pytestmark = pytest.mark.lab

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 import pytest
+
 from conftest import GARMENT, import_obj, scene_state, world_vertices
 
 

@@ -12,85 +12,43 @@ is refused at once.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
 import time
 
-from .errors import GarmentTransferError
-from .files import json_default
+from ..errors import GarmentTransferError
+from ..files import atomic_path, check_output
+from ..fitting.body_model import makehuman_shape_basis
+from ..fitting.registration import register
+from ..fitting.shape_basis import shape_basis_from_bodies
+from ..geometry.obj import obj_text, read_obj, write_obj
+from ..learning.garment_training import (
+    FIELD_EPOCHS,
+    PLACEMENT_EPOCHS,
+    PLACEMENT_MEMBERS,
+    train_garment_fit_from_dataset,
+)
+from ..learning.model_files import DEFAULT_FIELD_SHARE, read_model_file
+from ..learning.placement import LIBRARY_SHARE
+from ..learning.training import train_from_dataset
+from ..pipeline.any_body import transfer_to_any_body
+from ..pipeline.metrics import evaluate
+from ..pipeline.model_check import check_after_training, check_lines, training_garments
+from ..pipeline.outfit import transfer_outfit
+from ..pipeline.shape_keys import shapes_to_files
+from ..pipeline.transfer import crossings_left
+from .batch import add_batch_arguments, batch_main
+from .options import emit, number_option, share_option, stderr_progress
 
 log = logging.getLogger("garment_transfer")
 
 
-def _emit(args, result: dict, lines):
-    if getattr(args, "json", False):
-        print(json.dumps(_finite(result), indent=2, default=json_default, allow_nan=False))
-    else:
-        for line in lines:
-            print(line)
-
-
-def _finite(x):
-    """NaN and infinities as null: JSON has no such numbers."""
-    import math
-
-    if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if hasattr(x, "dtype") and getattr(x, "shape", None) == () and x.dtype.kind == "f":
-        return _finite(float(x))
-    return x
-
-
-def number_option(kind, low, low_inclusive=True, what="a number"):
-    """An argparse type: a finite ``kind`` (int or float) above ``low``; argparse makes the error a
-    one-line usage error (exit 2) naming the option."""
-    import math
-
-    def parse(text):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
-        if kind is float and not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number")
-        if value < low or (value == low and not low_inclusive):
-            bound = f">= {low}" if low_inclusive else f"> {low}"
-            raise argparse.ArgumentTypeError(f"{text!r} must be {bound}")
-        return value
-
-    parse.__name__ = what
-    return parse
-
-
-def stderr_progress(label, every=0.05):
-    state = {"last": -1.0}
-
-    def progress(fraction, *info):
-        if fraction - state["last"] >= every or fraction >= 1.0:
-            state["last"] = fraction
-            extra = " ".join(f"{v:.5g}" if isinstance(v, float) else str(v) for v in info if v is not None)
-            print(f"{label}: {100 * fraction:5.1f}% {extra}", file=sys.stderr, flush=True)
-        return False
-
-    return progress
-
-
 def cmd_transfer(args):
-    from .files import check_output
-    from .obj import read_obj, write_obj
-
     if len(args.garment) > 1:
         return cmd_transfer_outfit(args)
     if len(args.out) != 1:
         raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
-    from .registration import transfer_to_any_body
-    from .transfer import crossings_left
 
     args.garment, args.out = args.garment[0], args.out[0]
     inputs = [args.source_body, args.target_body, args.garment, args.model]
@@ -130,7 +88,7 @@ def cmd_transfer(args):
     if left:
         out["warnings"] = [f"{args.out}: {left}"]
         lines.append(f"warning: {args.out}: {left}")
-    _emit(args, out, lines)
+    emit(args, out, lines)
 
 
 def _registration_line(source, target, reg):
@@ -148,15 +106,12 @@ def _shape_basis_for(args, source_body):
     if getattr(args, "body_model", None):
         if getattr(args, "shape_basis", None):
             raise GarmentTransferError("--body-model and --shape-basis are two shape bases: give one")
-        from .body_model import makehuman_shape_basis
 
         model = makehuman_shape_basis(source_body, args.body_model)
         return {"shape_basis": model.basis, "shape_bounds": model.bounds, "body_model": True,
                 "_names": model.names}
     if not getattr(args, "shape_basis", None):
         return {}
-    from .obj import read_obj
-    from .registration import shape_basis_from_bodies
 
     return {"shape_basis": shape_basis_from_bodies(source_body, [read_obj(path, name=path)
                                                                 for path in args.shape_basis])}
@@ -171,9 +126,6 @@ def _shape_weights_named(options, reg):
 
 
 def cmd_register(args):
-    from .obj import read_obj, write_obj
-    from .registration import register
-
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
     shape = _shape_basis_for(args, source_body)
@@ -188,17 +140,15 @@ def cmd_register(args):
     if args.body_model:
         out["body_model"] = args.body_model
         out["body_model_weights"] = _shape_weights_named(shape, reg)
-    _emit(args, out, [f"wrote {args.out}", _registration_line(args.source_body, args.target_body, reg)])
+    emit(args, out, [f"wrote {args.out}", _registration_line(args.source_body, args.target_body, reg)])
 
 
 def cmd_shapes(args):
-    from .shape_keys import shapes_to_files
-
     summary = shapes_to_files(args.source_body, args.target_body, args.garment, args.out,
                               offset=args.offset, margin=args.margin or 0.0,
                               fix_penetration=not args.no_fix, progress=stderr_progress("shapes")
                               if args.verbose else None)
-    _emit(args, summary, [f"wrote {s['out']}: {s['penetrating_vertices']} vertices inside {s['target']}"
+    emit(args, summary, [f"wrote {s['out']}: {s['penetrating_vertices']} vertices inside {s['target']}"
                           for s in summary["shapes"]]
           + [f"{len(summary['shapes'])} shapes, one preparation: {summary['seconds']['total']:.2f} s "
              f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"])
@@ -211,7 +161,6 @@ def _model_for(args):
     if not args.model:
         raise GarmentTransferError("--method model needs --model MODEL.npz (and, for the paper's shared model, "
                                    "--target LABEL)")
-    from .model_files import read_model_file
 
     return read_model_file(args.model, field_share=args.field_share, use_placement=not args.no_placement)
 
@@ -243,8 +192,6 @@ def write_all_or_nothing(paths, texts, inputs=()):
     and are renamed only once every one is written."""
     import contextlib
 
-    from .files import atomic_path
-
     with contextlib.ExitStack() as stack:
         temps = [stack.enter_context(atomic_path(p, inputs, "--out")) for p in paths]
         for tmp, text in zip(temps, texts):
@@ -253,9 +200,6 @@ def write_all_or_nothing(paths, texts, inputs=()):
 
 
 def cmd_transfer_outfit(args):
-    from .obj import obj_text, read_obj
-    from .outfit import transfer_outfit
-
     paths = outfit_out_paths(args.garment, args.out)
     if args.shape_basis or args.body_model:
         raise GarmentTransferError(f"{'--shape-basis' if args.shape_basis else '--body-model'} is for one garment: "
@@ -282,22 +226,19 @@ def cmd_transfer_outfit(args):
     out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds, **_model_summary(model),
            "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
                        "info": i} for f, p, g, i in zip(args.garment, paths, garments, result.info)]}
-    _emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
+    emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
           + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
           + ([f"model: {model.describe()}"] if model is not None else []))
 
 
 def cmd_evaluate(args):
-    from .metrics import evaluate
-    from .obj import read_obj
-
     source = read_obj(args.source)
     result = read_obj(args.result)
     target_body = read_obj(args.target_body)
     reference = read_obj(args.reference) if args.reference else None
     source_body = read_obj(args.source_body) if args.source_body else None
     out = evaluate(source, result, target_body, reference=reference, source_body=source_body)
-    _emit(args, out, [f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}" for k, v in out.items()])
+    emit(args, out, [f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}" for k, v in out.items()])
 
 
 def cmd_train(args):
@@ -306,20 +247,17 @@ def cmd_train(args):
     except ImportError as exc:
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
-    from .files import check_output
 
     check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
     if held:
-        from .model_check import training_garments
 
         garments = training_garments(args.dataset, args.source, targets, garments, held)
     if args.kind == "garment":
         summary, lines = _train_garment(args, targets, garments)
     else:
-        from .training import train_from_dataset
 
         summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
                                      epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
@@ -329,17 +267,14 @@ def cmd_train(args):
         lines = [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss {summary.get('final_loss')}, "
                  f"{summary.get('seconds', 0):.1f} s"]
     if held:
-        from .model_check import check_after_training, check_lines
 
         summary["check"] = check_after_training(args.dataset, args.source, targets, held, args.out,
                                                 progress=stderr_progress("check"))
         lines += check_lines(summary["check"])
-    _emit(args, summary, lines)
+    emit(args, summary, lines)
 
 
 def _train_garment(args, targets, garments):
-    from .garment_training import FIELD_EPOCHS, train_garment_fit_from_dataset
-
     summary = train_garment_fit_from_dataset(
         args.dataset, args.source, targets, garments=garments, epochs=args.epochs or FIELD_EPOCHS,
         placement_epochs=args.placement_epochs, placement=not args.no_placement, seed=args.seed, out=args.out,
@@ -360,16 +295,10 @@ def _train_garment(args, targets, garments):
 
 
 def cmd_batch(args):
-    from .batch_cli import batch_main
-
     return batch_main(args)
 
 
 def build_parser():
-    from .garment_training import PLACEMENT_MEMBERS
-    from .model_files import DEFAULT_FIELD_SHARE
-    from .placement import LIBRARY_SHARE
-
     p = argparse.ArgumentParser(prog="python -m garment_transfer",
                                 description="Design-preserving garment transfer between body shapes.",
                                 epilog="The demo, benchmarks and studies live in the repository's lab: "
@@ -524,21 +453,11 @@ def build_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
-    from .batch_cli import add_batch_arguments
-
     add_batch_arguments(sub.add_parser(
         "batch", help="every garment of a catalogue on every target body, resumable, on this machine "
                       "or a Dask cluster"))
 
     return p
-
-
-def share_option(text):
-    """An argparse type: a number in [0, 1]."""
-    value = number_option(float, 0.0, what="a share")(text)
-    if value > 1.0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be <= 1")
-    return value
 
 
 def _check_train_options(parser, args):
@@ -556,11 +475,9 @@ def _check_train_options(parser, args):
         parser.error("--nearest-garments mixes the nearest garments' placement with the learned placement, which "
                      "--no-placement leaves out")
     if args.kind == "garment" and args.placement_epochs is None:
-        from .garment_training import PLACEMENT_EPOCHS
 
         args.placement_epochs = PLACEMENT_EPOCHS
     if args.kind == "garment" and args.placement_members is None:
-        from .garment_training import PLACEMENT_MEMBERS
 
         args.placement_members = PLACEMENT_MEMBERS
 

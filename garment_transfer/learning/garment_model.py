@@ -41,11 +41,11 @@ from collections import OrderedDict
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .embedding import body_scale, body_to_cloth, triangle_centroids
-from .errors import ModelError
-from .gradients import deformation_gradients
-from .mesh import Mesh, require_same_topology, triangle_normals
-from .model import save_npz_atomic
+from ..errors import ModelError
+from ..geometry.embedding import body_scale, body_to_cloth, triangle_centroids
+from ..geometry.gradients import deformation_gradients, orthonormal_frames
+from ..geometry.mesh import Mesh, faces_hash, require_same_topology, triangle_normals
+from .model import reads_version, save_npz_atomic, versions_text
 
 log = logging.getLogger(__name__)
 
@@ -57,20 +57,9 @@ GARMENT_FEATURES = ("covered", "distance", "normal_offset", "offset_t1", "offset
 #: Radii of the neighbourhoods the body's deformation is averaged over, as shares of the body scale
 #: (about 6 cm and 19 cm on a 1.7 m body).
 NEIGHBOURHOOD_SHARES = (0.035, 0.11)
-#: Triangles per block of ``_neighbourhood_mean`` (128: 1.4 s for the larger neighbourhood of a MakeHuman
+#: Triangles per block of ``neighbourhood_mean`` (128: 1.4 s for the larger neighbourhood of a MakeHuman
 #: body; 512: 1.9 s).
 NEIGHBOURHOOD_CHUNK = 128
-
-
-def _orthonormal_frames(V, F):
-    """(M,3,3) rows t1, t2, n of each triangle: t1 along its first edge, n its unit normal."""
-    V = np.asarray(V, dtype=np.float64)
-    e1 = V[F[:, 1]] - V[F[:, 0]]
-    e2 = V[F[:, 2]] - V[F[:, 0]]
-    n = np.cross(e1, e2)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    t1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    return np.stack([t1, np.cross(n, t1), n], axis=1)
 
 
 def garment_features(body_V, body_F, garment_V, garment_F, cover_distance=None):
@@ -103,12 +92,12 @@ def garment_features(body_V, body_F, garment_V, garment_F, cover_distance=None):
     index, covered = body_to_cloth(body_V, body_F, garment_V, garment_F, cover_distance)
     cb = triangle_centroids(body_V, body_F)
     cg = triangle_centroids(garment_V, garment_F)[index]
-    R = _orthonormal_frames(body_V, body_F)
+    R = orthonormal_frames(body_V, body_F)
     off = cg - cb
     dist = np.linalg.norm(off, axis=1)
     local = np.einsum("mij,mj->mi", R, off)
     direction = local / np.maximum(dist, 1e-300)[:, None]
-    gn = _orthonormal_frames(garment_V, garment_F)[index, 2]
+    gn = orthonormal_frames(garment_V, garment_F)[index, 2]
     facing = np.einsum("mij,mj->mi", R, gn)
     X = np.zeros((body_F.shape[0], len(GARMENT_FEATURES)))
     X[:, 0] = 1.0
@@ -121,7 +110,7 @@ def garment_features(body_V, body_F, garment_V, garment_F, cover_distance=None):
     return X, covered
 
 
-def _neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_CHUNK, rows=None):
+def neighbourhood_mean(centroids, values, radius, weights, chunk=NEIGHBOURHOOD_CHUNK, rows=None):
     """Area-weighted mean of per-triangle values over the triangles within ``radius`` of each one.
 
     Parameters
@@ -209,7 +198,7 @@ def target_features(source_V, target_V, F, shares=NEIGHBOURHOOD_SHARES, rows=Non
 def with_neighbourhood_means(values, centroids, area, scale, shares, rows=None):
     """``values`` (M,k) per body triangle, then their area-weighted means over the neighbourhoods of each
     radius ``share * scale``: (M, k * (1 + len(shares))) float64 (the means NaN outside ``rows``, if given)."""
-    parts = [values] + [_neighbourhood_mean(centroids, values, s * scale, area + 1e-300, rows=rows) for s in shares]
+    parts = [values] + [neighbourhood_mean(centroids, values, s * scale, area + 1e-300, rows=rows) for s in shares]
     return np.concatenate(parts, axis=1)
 
 
@@ -224,7 +213,7 @@ _TARGET_CACHE_SIZE = 8
 _TARGET_CACHE_LOCK = threading.Lock()
 
 
-def _target_features_cached(source_V, target_V, F, shares, rows=None):
+def target_features_cached(source_V, target_V, F, shares, rows=None):
     """``target_features``, kept for the last few bodies and computed only on triangles not computed before:
     ``rows (M,) bool`` (default all) must be read from the result, whose other rows may be NaN. The arrays
     returned are read-only."""
@@ -319,7 +308,7 @@ _LABEL_CACHE_SIZE = 8
 _LABEL_CACHE_LOCK = threading.Lock()
 
 
-def _label_weights_cached(target_V, label_bodies):
+def label_weights_cached(target_V, label_bodies):
     """``label_weights``, kept for the last few bodies and label sets (read-only)."""
     arrays = [np.ascontiguousarray(target_V, dtype=np.float64), np.ascontiguousarray(label_bodies)]
     return recall_by_content(_LABEL_CACHE, _LABEL_CACHE_LOCK, _LABEL_CACHE_SIZE, arrays, (),
@@ -416,7 +405,6 @@ class GarmentFitModel:
 
     def check_source_body(self, mesh):
         """Raise ModelError unless ``mesh`` has the topology of the body the model was trained on."""
-        from .mesh import faces_hash
 
         src = self.metadata["source"]
         have = (mesh.n_vertices, mesh.n_faces, mesh.n_triangles, faces_hash(mesh))
@@ -432,7 +420,7 @@ class GarmentFitModel:
             w = np.zeros(len(self.targets))
             w[self.targets.index(target)] = 1.0
             return w
-        return _label_weights_cached(target_body.V, self.arrays["label_bodies"])
+        return label_weights_cached(target_body.V, self.arrays["label_bodies"])
 
     def inputs(self, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None, rows=None,
                covered_only=False):
@@ -453,7 +441,7 @@ class GarmentFitModel:
         require_same_topology(source_body, target_body)
         G, covered = garment_features(source_body.V, source_body.F, garment.V, garment.F,
                                       self.metadata.get("cover_distance"))
-        T, dev = _target_features_cached(source_body.V, target_body.V, source_body.F,
+        T, dev = target_features_cached(source_body.V, target_body.V, source_body.F,
                                          tuple(self.metadata["neighbourhood_shares"]),
                                          covered if covered_only else rows)
         if not self.metadata.get("garment_inputs", True):
@@ -552,7 +540,6 @@ def read_model_npz(path, format_name, version, what):
         raise ModelError(path, f"metadata is not valid JSON ({exc})") from None
     if not isinstance(metadata, dict) or metadata.get("format") != format_name:
         raise ModelError(path, f"is not {what} (metadata 'format' is not {format_name!r})")
-    from .model import reads_version, versions_text
 
     if not reads_version(metadata.get("format_version"), version):
         raise ModelError(path, f"has format version {metadata.get('format_version')}; this version reads "

@@ -29,8 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import Cancelled, DatasetError, MeshError, TopologyMismatchError
-from .mesh import Mesh, require_same_topology
+from ..errors import Cancelled, DatasetError, MeshError, TopologyMismatchError
+from ..geometry.embedding import body_to_cloth, embed
+from ..geometry.gradients import deformation_gradients
+from ..geometry.mesh import Mesh, require_same_topology
+from ..geometry.obj import read_obj
 
 log = logging.getLogger(__name__)
 
@@ -145,8 +148,6 @@ class Dataset:
 
 
 def _read(path) -> Mesh:
-    from .obj import read_obj
-
     try:
         return read_obj(path)
     except MeshError as exc:
@@ -233,8 +234,6 @@ def garment_field(body_V, body_F, garment_V, garment_F, target_V, cover_distance
         False where the garment is far from the body triangle, or its nearest garment triangle is
         degenerate (its gradient is undefined).
     """
-    from .embedding import body_to_cloth, embed
-    from .gradients import deformation_gradients
 
     C, degenerate = deformation_gradients(garment_V, target_V, garment_F)
     index, covered = body_to_cloth(body_V, body_F, garment_V, garment_F, cover_distance)
@@ -314,7 +313,6 @@ def build_training_fields(dataset, source, targets, garments=None, cover_distanc
         Unknown body or garment, a garment missing on the source or a target, garment files of one
         garment with different topology, a target body of another topology than the source body.
     """
-    from .gradients import deformation_gradients
 
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(dataset)
     targets = list(targets)

@@ -6,12 +6,12 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .binding import bind, carry
-from .embedding import body_scale
-from .intersections import intersection_report
-from .mesh import Mesh, edge_lengths_mean, require_same_topology, triangle_normals
-from .penetration import penetration, vertex_adjacency
-from .proximity import TriangleSurface
+from ..geometry.binding import bind, carry
+from ..geometry.embedding import body_scale
+from ..geometry.intersections import intersection_report
+from ..geometry.mesh import Mesh, edge_lengths_mean, require_same_topology, triangle_normals
+from ..geometry.penetration import penetration, vertex_adjacency
+from ..geometry.proximity import TriangleSurface
 
 
 def discrete_curvature(V, F):

@@ -17,6 +17,12 @@ import time
 
 import numpy as np
 
+from ..errors import Cancelled, GarmentTransferError, SettingError
+from ..learning.dataset import load_dataset
+from ..learning.model_files import read_model_file
+from .metrics import evaluate
+from .transfer import prepare_garment, transfer_garment
+
 #: The figures kept per garment, target and method (``metrics.evaluate``'s keys).
 FIGURES = ("vertex_error_mean", "mdc", "penetrating_vertices")
 METHODS = ("model", "direct")
@@ -34,8 +40,6 @@ def training_garments(dataset, source, targets, garments, held):
     SettingError
         A held-out garment also among ``garments``; every garment held out.
     """
-    from .dataset import load_dataset
-    from .errors import SettingError
 
     ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
     held = list(held)
@@ -86,11 +90,6 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
     ModelError
         Naming the model file.
     """
-    from .dataset import load_dataset
-    from .errors import Cancelled
-    from .metrics import evaluate
-    from .model_files import read_model_file
-    from .transfer import prepare_garment, transfer_garment
 
     t0 = time.perf_counter()
     ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
@@ -144,7 +143,6 @@ def check_model(dataset, source, targets, garments, model_path, progress=None) -
 def check_after_training(dataset, source, targets, garments, model_path, progress=None) -> dict:
     """``check_model`` of a model file just written by training: a failure says that the file was written
     (only the check failed), and names what failed."""
-    from .errors import Cancelled, GarmentTransferError
 
     try:
         return check_model(dataset, source, targets, garments, model_path, progress)

@@ -38,7 +38,13 @@ import uuid
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-from .errors import DatasetError, GarmentTransferError
+from ..errors import DatasetError, GarmentTransferError
+from ..geometry.obj import obj_text, read_obj
+from ..learning.dataset import load_dataset
+from ..learning.model_files import read_model_file
+from ..version import __version__
+from .metrics import evaluate
+from .transfer import prepare_garment, transfer_garment
 
 log = logging.getLogger(__name__)
 
@@ -58,17 +64,24 @@ METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetra
 OUTCOMES = ("done", "skipped", "failed", "not run")
 PARTIAL_PREFIX = ".partial-"
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
-# The package's modules that cannot change a result's vertices or metrics (the command lines, this
-# module's bookkeeping, training); a change to any other module makes every earlier result stale, a
-# module added later included.
-_NOT_RESULT_MODULES = frozenset({"__init__", "__main__", "batch", "batch_cli", "cli", "files", "training",
-                                 "garment_training"})
+#: The package's modules (paths in it, without ``.py``; a folder for all of it) that cannot change a result's
+#: vertices or metrics: the command line, this module's bookkeeping, training, the packages' faces. A change
+#: to any other module makes every earlier result stale, a module added later included.
+NOT_RESULT_MODULES = frozenset({"__init__", "__main__", "version", "files", "cli", "pipeline/batch",
+                                "learning/training", "learning/garment_training"})
 
 
 def result_modules() -> list:
-    """The names of the package's modules whose code decides a result (hashed by ``code_version``)."""
-    here = Path(__file__).resolve().parent
-    return sorted(p.stem for p in here.glob("*.py") if p.stem not in _NOT_RESULT_MODULES)
+    """The package's modules whose code decides a result (hashed by ``code_version``), as dotted names in the
+    package (``geometry.mesh``)."""
+    root = Path(__file__).resolve().parents[1]
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root).with_suffix("").as_posix()
+        if path.name == "__init__.py" or rel in NOT_RESULT_MODULES or rel.split("/")[0] in NOT_RESULT_MODULES:
+            continue
+        out.append(rel.replace("/", "."))
+    return out
 
 
 class CatalogueError(DatasetError):
@@ -413,7 +426,6 @@ def catalogue_from_dataset(folder, *, source=None, targets=None, garments=None, 
     CatalogueError
         No source body given, an unknown body or garment, a garment not dressed on the source body.
     """
-    from .dataset import load_dataset
 
     try:
         ds = load_dataset(Path(os.fspath(folder)).absolute())
@@ -453,13 +465,11 @@ def code_version() -> str:
     """The package version and a hash of the modules that compute results."""
     global _CODE_VERSION
     if _CODE_VERSION is None:
-        from . import __version__
-
         h = hashlib.sha256()
-        here = Path(__file__).resolve().parent
+        root = Path(__file__).resolve().parents[1]
         for m in result_modules():
             h.update(m.encode())
-            h.update((here / f"{m}.py").read_bytes())
+            h.update(root.joinpath(*m.split(".")).with_suffix(".py").read_bytes())
         _CODE_VERSION = f"{__version__}+{h.hexdigest()[:12]}"
     return _CODE_VERSION
 
@@ -573,13 +583,10 @@ class _Inputs:
         return self._get(path, "digest", lambda: file_digest(path))
 
     def mesh(self, path, name):
-        from .obj import read_obj
-
         return self._get(path, ("mesh", name), lambda: read_obj(path, name=name))
 
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
-        from .model_files import read_model_file
 
         return self._get(path, ("model", field_share, use_placement),
                          lambda: read_model_file(path, field_share=field_share, use_placement=use_placement))
@@ -594,6 +601,11 @@ class _Inputs:
 
 
 _INPUTS = _Inputs()
+
+
+def clear_input_cache():
+    """Forget the meshes, digests and models this process has read (the next garment reads them again)."""
+    _INPUTS.cache.clear()
 
 
 def _error_text(exc) -> str:
@@ -668,10 +680,6 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
     if not todo:
         return _finish(records, t_start)
 
-    from .metrics import evaluate
-    from .obj import obj_text
-    from .transfer import prepare_garment, transfer_garment
-
     t0 = time.perf_counter()
     try:
         source_body = _INPUTS.mesh(job.source_file, job.source)
@@ -720,8 +728,6 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
 
 
 def _read_garment(path):
-    from .obj import read_obj
-
     return read_obj(path)
 
 
@@ -1078,7 +1084,6 @@ def run_batch(catalogue: Catalogue, out, *, workers=None, scheduler=None, dask=F
         if rec["outcome"] == "not run":
             _recover(rec, out, run_id)
     counts = {o: sum(r["outcome"] == o for r in records) for o in OUTCOMES}
-    from . import __version__
 
     info = {"run_id": run_id, "catalogue": catalogue.origin, "out": str(out), "executor": ex.kind,
             "workers": ex.workers, "scheduler": scheduler, "version": __version__,

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import Mesh
-from .proximity import TriangleSurface
+from ..errors import ModelError
+from ..fitting.registration import register
+from ..geometry.mesh import Mesh
+from ..geometry.proximity import TriangleSurface
 
 
 def map_field(Q, registration, from_body: Mesh, to_body: Mesh):
@@ -59,8 +61,6 @@ def model_field(model, target, source_body: Mesh, *, cache=True):
     -------
     Q : (M,3,3) float64
     """
-    from .errors import ModelError
-    from .registration import register
 
     if model.same_body(source_body):
         return model.body_field(target)

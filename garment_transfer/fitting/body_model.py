@@ -30,8 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import MeshError, TopologyMismatchError
-from .mesh import Mesh
+from ..errors import MeshError, TopologyMismatchError
+from ..geometry.mesh import Mesh
+from .alignment import units_scale
 
 #: Vertices of the hm08 base mesh's body (the rest of the mesh is helper geometry that OBJ exports omit).
 HM08_BODY_VERTICES = 13380
@@ -198,7 +199,6 @@ def slider_columns(names, deltas):
 
 def _units_and_up(source: Mesh):
     """Source units per decimetre and its up axis, from its extents (an upright person)."""
-    from .registration import units_scale
 
     used = np.unique(source.face_vertices) if source.face_vertices.size else np.arange(source.n_vertices)
     ext = np.ptp(np.asarray(source.V)[used], axis=0)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import MeshError, TopologyMismatchError
+from ..errors import MeshError, TopologyMismatchError
 
 # One place for geometric tolerances: a triangle whose doubled area is below
 # DEGENERATE_AREA * (mean edge length)^2 counts as degenerate.
@@ -322,3 +322,39 @@ def faces_hash(mesh: Mesh) -> str:
     h.update(np.ascontiguousarray(mesh.face_start, dtype=np.int64).tobytes())
     h.update(np.ascontiguousarray(mesh.face_vertices, dtype=np.int64).tobytes())
     return h.hexdigest()[:16]
+
+
+def same_mesh(a: Mesh, b: Mesh) -> bool:
+    """Whether two bodies are one mesh (vertex count and polygons) in two shapes."""
+    return (a.n_vertices == b.n_vertices and a.face_start.shape == b.face_start.shape
+            and a.face_vertices.shape == b.face_vertices.shape
+            and np.array_equal(a.face_start, b.face_start)
+            and np.array_equal(a.face_vertices, b.face_vertices))
+
+
+def corner_sums(F, values, n):
+    """Per vertex, the sum of its triangles' values: (m,) or (m,c) per triangle into (n,) or (n,c).
+
+    One ``bincount`` over the corners in corner-major order adds in the order of ``np.add.at`` over the
+    three corners in turn (the same sums to the last bit), several times faster.
+    """
+    idx = F.T.ravel()
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim == 1:
+        return np.bincount(idx, weights=np.tile(values, 3), minlength=n)
+    return np.stack([np.bincount(idx, weights=np.tile(values[:, c], 3), minlength=n)
+                     for c in range(values.shape[1])], axis=1)
+
+
+def vertex_normals(V, F):
+    """(n,3) unit area-weighted vertex normals (zero at a vertex of no area)."""
+    N, a = triangle_normals(V, F)
+    out = corner_sums(F, N * a[:, None], V.shape[0])
+    n = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, n, out=np.zeros_like(out), where=n > 0)
+
+
+def vertex_areas(V, F):
+    """(n,) a third of the area of the triangles around each vertex."""
+    _, a = triangle_normals(V, F)
+    return corner_sums(F, a / 3.0, V.shape[0])

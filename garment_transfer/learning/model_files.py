@@ -39,7 +39,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import ModelError
+from ..errors import ModelError
+from . import garment_model, placement
+from .model import FORMAT as SHARED_FORMAT
+from .model import FORMAT_VERSION as SHARED_VERSION
+from .model import SharedDeformationModel, need_format_version, read_model_arrays, save_npz_atomic
+from .placement import LIBRARY_SHARE, MixedPlacement
 
 BUNDLE_FORMAT = "garment_transfer.garment_fit_bundle"
 #: The version written with a single placement model (or none); ``ENSEMBLE_BUNDLE_VERSION`` with several.
@@ -154,14 +159,12 @@ def save_garment_fit_bundle(path, field_model, placement_model=None, dataset=Non
     inputs : iterable of paths
         Files the model file must not be (``files.check_output``).
     """
-    from .model import save_npz_atomic
 
     if placement_model is not None and not _same_source(field_model, placement_model):
         raise ModelError(os.fspath(path), "the field and placement models were trained on different source bodies")
     arrays = {f"field.{k}": np.asarray(v) for k, v in field_model.arrays.items()}
     members = getattr(placement_model, "members", None)
     if library is not None:
-        from .placement import LIBRARY_SHARE, MixedPlacement
 
         if placement_model is None:
             raise ModelError(os.fspath(path), "the nearest garments' placement goes with the placement networks; "
@@ -215,10 +218,6 @@ def read_model_file(path, field_share=None, use_placement=True) -> ModelFile:
         Naming the file: missing, unreadable, pickled objects, a format or version this code does not
         read, arrays that do not fit together, parts trained on different bodies, a placement alone.
     """
-    from . import garment_model, placement
-    from .model import FORMAT as SHARED_FORMAT
-    from .model import FORMAT_VERSION as SHARED_VERSION
-    from .model import SharedDeformationModel, need_format_version, read_model_arrays
 
     path = os.fspath(path)
     arrays, metadata = read_model_arrays(path)
@@ -329,8 +328,6 @@ def _placement_members(path, metadata, version):
 
 def _library(path, metadata, arrays):
     """The nearest garments' placement of a version 3 bundle, checked (a ModelError naming the file)."""
-    from . import placement
-    from .model import need_format_version
 
     md = metadata.get("library")
     if not isinstance(md, dict):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface
 
 
 def surface_weights(body_V, body_F, weights, points, surface=None):

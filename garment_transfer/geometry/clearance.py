@@ -45,8 +45,15 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .intersections import (box_pairs, crossings, edge_triangle_pairs, mesh_edges, segment_closest, segment_distances,
-                            segments_meet_triangles)
+from .intersections import (
+    box_pairs,
+    crossings,
+    edge_triangle_pairs,
+    mesh_edges,
+    segment_closest,
+    segment_distances,
+    segments_meet_triangles,
+)
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface, closest_on_triangles
 
@@ -549,7 +556,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     E = mesh_edges(F)
     body_E = mesh_edges(body.F)
     V_start = V.copy()
-    V, info, state = _clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
+    V, info, state = clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
     if source_V is None:
         moved = np.any(V != V_start, axis=1)
         info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
@@ -577,7 +584,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         # Each radius is tried with the cloth left where it is, then moved out as one piece.
         radius = (attempt // 2 + 1) * RESTORE_RADIUS * offset
         W = restore_source_shape(V_b, F, E, source_V, new_b, radius, body if attempt % 2 else None, offset)
-        W, again, state_w = _clear_body(W, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset,
+        W, again, state_w = clear_body(W, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset,
                                         known=(V_b, state_b))
         pairs_w, new_w = new_self_pairs(W, F, E, source_V, known=(V_b, pairs_b))
         new_w = tangles.left_out(pairs_w, new_w)
@@ -621,7 +628,7 @@ def _as_given(V_start, info, **counts):
     return V_start, info
 
 
-def _clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, max_rounds, keep_offset,
+def clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, max_rounds, keep_offset,
                 known=None):
     """``separate`` without the source: the rounds that clear the body and keep the clearance.
 

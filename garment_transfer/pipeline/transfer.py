@@ -27,14 +27,17 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from .binding import Binding, bind, carry
-from .embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
-from .errors import Cancelled, MeshError, ModelError, SettingError
-from .gradients import deformation_gradients
-from .mesh import Mesh, edge_length_and_degenerate, require_same_topology
-from . import clearance, penetration
-from .poisson import PoissonSolver, anchor_weight_for, choose_method
-from .proximity import THREADS, TriangleSurface
+
+from ..errors import Cancelled, MeshError, ModelError, SettingError
+from ..geometry import clearance, penetration
+from ..geometry.binding import Binding, bind, carry
+from ..geometry.embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
+from ..geometry.gradients import deformation_gradients
+from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topology
+from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
+from ..geometry.proximity import THREADS, TriangleSurface
+from ..learning.placement import anchor_offsets
+from .field_mapping import model_field
 
 METHODS = ("direct", "model", "surface")
 
@@ -304,7 +307,6 @@ def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None
         if target is None:
             raise ModelError(getattr(model, "name", "model"),
                              f"say which target to transfer to; the model knows {', '.join(model.targets)}")
-        from .field_mapping import model_field
 
         return model_field(model, target, source_body)
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -403,7 +405,6 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
     t = time.perf_counter()
     anchors = carry(prepared.binding, target_body.V, source_body.F)
     if placement is not None:
-        from .placement import anchor_offsets
 
         anchors = anchors + anchor_offsets(placement, prepared.binding, source_body, target_body, garment, target)
     seconds["bind"] = seconds.get("bind", 0.0) + time.perf_counter() - t

@@ -27,9 +27,9 @@ import re
 
 import numpy as np
 
-from .errors import MeshError
+from ..errors import MeshError
+from ..files import write_text_atomic
 from .mesh import Mesh, mesh_from_polygons
-from .files import write_text_atomic
 
 #: More than this share of the vertices used by no face means the faces stop early: a file cut off.
 #: (MakeHuman fixtures and demo files: none.)

@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import clearance, penetration
-from .embedding import body_scale
-from .errors import MeshError
-from .intersections import crossings, self_intersections
-from .mesh import Mesh, edge_lengths_mean
-from .proximity import TriangleSurface
+from ..errors import Cancelled, MeshError
+from ..geometry import clearance, penetration
+from ..geometry.embedding import body_scale
+from ..geometry.intersections import crossings, self_intersections
+from ..geometry.mesh import Mesh, edge_lengths_mean
+from ..geometry.proximity import TriangleSurface
 from .transfer import OFFSET_SHARE, transfer_garment
 
 #: A layer is in an impossible order when more than this share of its vertices near a lower layer
@@ -431,7 +431,6 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     results = []
     for k, g in enumerate(garments):
         if progress is not None and progress(0.1 + 0.6 * k / len(garments), f"transfer {g.name}"):
-            from .errors import Cancelled
             raise Cancelled(f"transfer of the outfit cancelled at {g.name}")
         results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
     seconds["transfer"] = time.perf_counter() - t

@@ -13,11 +13,43 @@ import time
 
 import numpy as np
 
+from ..errors import Cancelled, DatasetError
+from ..files import check_output
+from ..geometry.binding import bind
+from ..geometry.mesh import faces_hash
 from .dataset import build_training_fields, load_dataset
-from .errors import Cancelled, DatasetError
-from .garment_model import (FORMAT, FORMAT_VERSION, GARMENT_FEATURES, NEIGHBOURHOOD_SHARES, GarmentFitModel,
-                            garment_features, target_features)
-from .mesh import faces_hash
+from .garment_model import (
+    FORMAT,
+    FORMAT_VERSION,
+    GARMENT_FEATURES,
+    NEIGHBOURHOOD_SHARES,
+    GarmentFitModel,
+    garment_features,
+    target_features,
+)
+from .model_files import save_garment_fit_bundle
+from .placement import (
+    BASE_FORMAT_VERSION,
+    BODY_OFFSET_SHARES,
+    CONTEXT_COLUMNS,
+    CONTEXT_SHARES,
+    LIBRARY_FORMAT,
+    LIBRARY_FORMAT_VERSION,
+    LIBRARY_SHARE,
+    SIMILARITY_WIDTH,
+    SMOOTHING_SHARE,
+    NearestGarments,
+    PlacementEnsemble,
+    PlacementModel,
+    body_offset_features,
+    garment_context,
+    mean_offsets,
+    similarity_features,
+    true_offsets,
+)
+from .placement import FORMAT as PFORMAT
+from .placement import FORMAT_VERSION as PVERSION
+from .training import default_threads
 
 log = logging.getLogger(__name__)
 
@@ -171,8 +203,6 @@ def placement_tables(dataset, source, targets, garments, tables, length=None, co
     dict
         ``tables``, with those entries added.
     """
-    from .binding import bind
-    from .placement import CONTEXT_SHARES, garment_context, true_offsets
 
     ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
     body = tables["body"]
@@ -219,12 +249,6 @@ def train_placement_model(tables, targets, hidden=(64, 64), epochs=30, batch=819
         ``seconds``, ``samples``, ``epochs``, ``losses``.
     """
     import torch
-
-    from .placement import BASE_FORMAT_VERSION
-    from .placement import FORMAT as PFORMAT
-    from .placement import FORMAT_VERSION as PVERSION
-    from .placement import (BODY_OFFSET_SHARES, CONTEXT_COLUMNS, SMOOTHING_SHARE, PlacementModel,
-                            body_offset_features, mean_offsets)
 
     t0 = time.perf_counter()
     if threads:
@@ -298,8 +322,6 @@ def nearest_garments(tables, targets, garments=None, width=None, length_share=No
     -------
     placement.NearestGarments
     """
-    from .placement import (LIBRARY_FORMAT, LIBRARY_FORMAT_VERSION, SIMILARITY_WIDTH, SMOOTHING_SHARE,
-                            NearestGarments, similarity_features)
 
     GX, context = tables["garment_X"], tables["garment_context"]
     offset, bound = tables["offset"], tables["bound"]
@@ -359,7 +381,6 @@ def train_placement_ensemble(tables, targets, members=None, seed=0, progress=Non
         ``seconds`` (all members), ``samples``, ``epochs``, ``members``, ``losses`` (the members' mean per
         pass).
     """
-    from .placement import PlacementEnsemble
 
     n = PLACEMENT_MEMBERS if members is None else members
     if int(n) != n or n < 1:
@@ -515,10 +536,7 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     """
     import os
 
-    from .dataset import build_training_fields, load_dataset
-    from .training import default_threads
 
-    from .placement import LIBRARY_SHARE
 
     threads = default_threads() if threads is None else max(1, int(threads))
     library_share = LIBRARY_SHARE if library_share is None else float(library_share)
@@ -531,7 +549,6 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
         if int(n) != n or n < 1:
             raise ValueError(f"{what} must be a whole number >= 1, got {n}")
     if out is not None:
-        from .files import check_output
 
         check_output(out, (), "the model file")
     t0 = time.perf_counter()
@@ -564,7 +581,6 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
     for m in [field_model, *placed]:
         m.metadata["dataset"] = dataset_info
     if out is not None:
-        from .model_files import save_garment_fit_bundle
 
         save_garment_fit_bundle(out, field_model, placement_model, dataset=dataset_info, library=library,
                                 library_share=library_share)

@@ -39,7 +39,9 @@ import zipfile
 
 import numpy as np
 
-from .errors import ModelError
+from ..errors import ModelError
+from ..files import write_atomic
+from ..geometry.mesh import Mesh, check_polygons, faces_hash, triangulate
 
 log = logging.getLogger(__name__)
 
@@ -142,7 +144,6 @@ class SharedDeformationModel:
         if "source_V" not in self.arrays:
             return None
         if "source_body" not in self._cache:
-            from .mesh import Mesh, check_polygons, faces_hash, triangulate
 
             a = self.arrays
             V = a["source_V"].astype(np.float64)
@@ -193,7 +194,6 @@ class SharedDeformationModel:
 
     def same_body(self, mesh) -> bool:
         """Whether ``mesh`` has the topology of the body the model was trained on."""
-        from .mesh import faces_hash
 
         src = self.metadata["source"]
         return ((mesh.n_vertices, mesh.n_faces, mesh.n_triangles, faces_hash(mesh)) ==
@@ -204,7 +204,6 @@ class SharedDeformationModel:
         body it was trained on, or any body when the file holds that body (registered onto it)."""
         if self.source_body is not None:
             return
-        from .mesh import faces_hash
 
         src = self.metadata["source"]
         have = (mesh.n_vertices, mesh.n_faces, mesh.n_triangles, faces_hash(mesh))
@@ -346,7 +345,6 @@ def save_npz_atomic(path, arrays, metadata, inputs=()):
     OutputError
         If ``path`` must not or cannot be written (see ``files.write_atomic``).
     """
-    from .files import write_atomic
 
     for key, arr in arrays.items():
         if np.asarray(arr).dtype.kind not in "fiub":

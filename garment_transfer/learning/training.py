@@ -30,7 +30,12 @@ import time
 
 import numpy as np
 
-from .errors import Cancelled, DatasetError
+from ..errors import Cancelled, DatasetError, SettingError
+from ..files import check_output
+from ..geometry.mesh import faces_hash
+from ..version import __version__
+from .dataset import build_training_fields, load_dataset
+from .model import FORMAT, FORMAT_VERSION, SharedDeformationModel
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +89,7 @@ def _uniform(gen, shape, fan_in):
     return (torch.rand(shape, generator=gen, dtype=torch.float32) * 2.0 - 1.0) * bound
 
 
-class _Net:
+class DeformationNet:
     """The encoder-decoder, with its gradient written by hand into persistent buffers.
 
     Every parameter is a view into one flat vector, and every gradient a view into another, so that
@@ -355,9 +360,6 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     """
     import torch
 
-    from .model import FORMAT, FORMAT_VERSION, SharedDeformationModel
-    from .mesh import faces_hash
-
     if optimizer not in OPTIMIZERS:
         raise ValueError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
     if latent < 1 or epochs < 0:
@@ -399,7 +401,7 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         else:
             mask, n_mask = None, float(X.numel())
             out_bias = X.mean(0)
-        net = _Net(basis, D, K, latent, list(hidden), out_bias, gen, input_scale)
+        net = DeformationNet(basis, D, K, latent, list(hidden), out_bias, gen, input_scale)
 
         def objective():
             return net.loss_and_grad(coords, onehot, X, mask, n_mask)
@@ -470,7 +472,6 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         "units": fields.units, "up_axis": fields.up_axis,
         "training": settings, "losses": losses,
     }
-    from . import __version__
 
     metadata["created_with"] = f"garment_transfer {__version__}"
     model = SharedDeformationModel(arrays, metadata, name="trained model")
@@ -565,7 +566,6 @@ def _mean_field(fields):
 
 def check_training_settings(epochs, latent):
     """Raise SettingError unless epochs and latent are whole numbers >= 1."""
-    from .errors import SettingError
 
     for what, value in (("epochs", epochs), ("latent", latent)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -604,7 +604,6 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
         JSON-serialisable: ``train_model``'s info plus ``out``, ``source``, ``dataset``,
         ``read_seconds``.
     """
-    from .dataset import build_training_fields, load_dataset
 
     holdout = list(options.pop("holdout", None) or [])
     cover_distance = options.pop("cover_distance", None)
@@ -615,7 +614,6 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
     check_training_settings(epochs=epochs, latent=latent)
     if out is not None:
         # Before the long work: a missing or read-only folder must not cost a whole training.
-        from .files import check_output
 
         check_output(out, (), "the model file")
     t0 = time.perf_counter()

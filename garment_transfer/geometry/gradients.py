@@ -136,3 +136,14 @@ def _rest(X, F):
             while len(_RESTS) > _RESTS_KEPT:
                 _RESTS.popitem(last=False)
     return Xinv, degenerate
+
+
+def orthonormal_frames(V, F):
+    """(M,3,3) rows t1, t2, n of each triangle: t1 along its first edge, n its unit normal."""
+    V = np.asarray(V, dtype=np.float64)
+    e1 = V[F[:, 1]] - V[F[:, 0]]
+    e2 = V[F[:, 2]] - V[F[:, 0]]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    t1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+    return np.stack([t1, np.cross(n, t1), n], axis=1)

@@ -25,10 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .embedding import body_scale
-from .errors import Cancelled, MeshError
-from .mesh import Mesh
-from .proximity import TriangleSurface
+from ..errors import Cancelled, MeshError
+from ..files import write_json_atomic
+from ..geometry.embedding import body_scale
+from ..geometry.mesh import Mesh, require_same_topology
+from ..geometry.obj import read_obj, write_obj
+from ..geometry.proximity import TriangleSurface
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
 
@@ -336,10 +338,6 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
     """
     import os
     from pathlib import Path
-
-    from .files import write_json_atomic
-    from .mesh import require_same_topology
-    from .obj import read_obj, write_obj
 
     source = read_obj(source_body_path)
     garment = read_obj(garment_path)

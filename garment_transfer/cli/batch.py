@@ -11,8 +11,9 @@ import sys
 import time
 from pathlib import Path
 
-from .cli import number_option, share_option
-from .errors import GarmentTransferError
+from ..errors import GarmentTransferError
+from ..pipeline.batch import read_catalogue, run_batch
+from .options import number_option, share_option
 
 log = logging.getLogger("garment_transfer.batch")
 
@@ -134,8 +135,6 @@ def _sigterm(_signum, _frame):
 
 
 def batch_main(args):
-    from .batch import read_catalogue, run_batch
-
     catalogue = read_catalogue(args.catalogue, source=args.source, targets=_split(args.targets),
                                garments=_split(args.garments), settings=_settings(args))
     if args.workers is not None and args.workers < 1:

@@ -33,12 +33,20 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .binding import Binding, carry
-from .embedding import body_scale, triangle_centroids
-from .errors import ModelError
-from .garment_model import (GARMENT_FEATURES, GarmentFitModel, _label_weights_cached, _orthonormal_frames,
-                            read_model_npz, recall_by_content)
-from .mesh import Mesh, require_same_topology, triangle_normals
+from ..errors import ModelError
+from ..geometry.binding import Binding, carry
+from ..geometry.embedding import body_scale, triangle_centroids
+from ..geometry.gradients import orthonormal_frames
+from ..geometry.mesh import Mesh, require_same_topology, triangle_normals
+from .garment_model import (
+    GARMENT_FEATURES,
+    GarmentFitModel,
+    garment_features,
+    label_weights_cached,
+    read_model_npz,
+    recall_by_content,
+    with_neighbourhood_means,
+)
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +173,7 @@ _CONTEXT_CACHE_SIZE = 8
 _CONTEXT_CACHE_LOCK = threading.Lock()
 
 
-def _garment_context_cached(body_V, body_F, garment_X, shares):
+def garment_context_cached(body_V, body_F, garment_X, shares):
     """``garment_context``, kept for the last few garments; the array returned is read-only."""
     arrays = [np.asarray(body_V, dtype=np.float64), np.asarray(body_F, dtype=np.int64),
               np.asarray(garment_X, dtype=np.float64)[:, :CONTEXT_COLUMNS]]
@@ -195,7 +203,6 @@ def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
     -------
     (M, 3 * (1 + len(shares))) float64
     """
-    from .garment_model import with_neighbourhood_means
 
     S_V = np.asarray(source_V, dtype=np.float64)
     T_V = np.asarray(target_V, dtype=np.float64)
@@ -206,14 +213,14 @@ def body_offset_features(source_V, target_V, F, shares=BODY_OFFSET_SHARES):
     d = ct - cs
     d -= (area[:, None] * d).sum(axis=0) / max(area.sum(), 1e-300)
     scale = body_scale(S_V)
-    local = np.einsum("mij,mj->mi", _orthonormal_frames(S_V, F), d) / scale
+    local = np.einsum("mij,mj->mi", orthonormal_frames(S_V, F), d) / scale
     return with_neighbourhood_means(local, cs, area, scale, shares)
 
 
 def unrotate(source_V, target_V, F):
     """(M,3,3) per triangle ``S^T T``: a vector on the target body in the source body's orientation."""
-    S = _orthonormal_frames(source_V, F)
-    T = _orthonormal_frames(target_V, F)
+    S = orthonormal_frames(source_V, F)
+    T = orthonormal_frames(target_V, F)
     return np.einsum("mji,mjk->mik", S, T)
 
 
@@ -253,7 +260,7 @@ def true_offsets(binding: Binding, source_body: Mesh, target_body: Mesh, garment
     y /= np.maximum(w, 1.0)[:, None]
     length = SMOOTHING_SHARE * body_scale(source_body.V) if length is None else float(length)
     y = smooth_on_body(y, w, source_body.V, F, length)
-    S = _orthonormal_frames(source_body.V, F)
+    S = orthonormal_frames(source_body.V, F)
     return np.einsum("mij,mj->mi", S, y), y, w
 
 
@@ -280,7 +287,7 @@ def placement_displacements(binding: Binding, target_V, body_F, C):
     if not np.isfinite(C).all():
         raise ValueError("the placement has values that are not finite")
     tri = binding.triangle
-    T = _orthonormal_frames(target_V, body_F)[tri]
+    T = orthonormal_frames(target_V, body_F)[tri]
     return np.einsum("pji,pj->pi", T, C[tri])
 
 
@@ -356,7 +363,7 @@ class PlacementModel(GarmentFitModel):
         offset from the source body after the target's features)."""
         X, covered, dev = super().inputs(source_body, target_body, garment, target, rows, covered_only)
         n = len(GARMENT_FEATURES)
-        ctx = _garment_context_cached(source_body.V, source_body.F, X[:, :n],
+        ctx = garment_context_cached(source_body.V, source_body.F, X[:, :n],
                                       tuple(self.metadata.get("context_shares", [])))
         parts = [X[:, :n], ctx]
         offset = self.metadata.get("body_offset_shares")
@@ -391,7 +398,7 @@ class PlacementModel(GarmentFitModel):
         """
         self.check_source_body(source_body)
         y = self.unrotated_offsets(binding, source_body, target_body, garment, target)
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+        return np.einsum("mij,mj->mi", orthonormal_frames(source_body.V, source_body.F), y)
 
     def unrotated_offsets(self, binding: Binding, source_body: Mesh, target_body: Mesh, garment: Mesh, target=None):
         """The predicted placement in each triangle's unrotated frame (``y``; ``C = S y``), smoothed.
@@ -529,7 +536,7 @@ class BlendedPlacement:
             return model.frame_offsets(binding, source_body, target_body, garment, target)
         model.check_source_body(source_body)
         require_same_topology(source_body, target_body)
-        weights = _label_weights_cached(target_body.V, model.arrays["label_bodies"])
+        weights = label_weights_cached(target_body.V, model.arrays["label_bodies"])
         if weights.max() >= 1.0 - 1e-6:
             # A training body by its shape (the stored bodies are float32: within 1e-6 of one-hot): the
             # network's own prediction on it.
@@ -540,7 +547,7 @@ class BlendedPlacement:
             if wk > 1e-6:
                 body = source_body.with_vertices(np.asarray(model.arrays["label_bodies"][k], dtype=np.float64))
                 y += wk * model.unrotated_offsets(binding, source_body, body, garment, model.targets[k])
-        return np.einsum("mij,mj->mi", _orthonormal_frames(source_body.V, source_body.F), y)
+        return np.einsum("mij,mj->mi", orthonormal_frames(source_body.V, source_body.F), y)
 
 
 #: Format of the nearest garments' placement (``NearestGarments``), a part of a model bundle.
@@ -651,10 +658,9 @@ class NearestGarments:
 
     def similarity_features(self, source_body: Mesh, garment: Mesh):
         """The garment's ``similarity_features`` on every body triangle: (M,F) float64."""
-        from .garment_model import garment_features
 
         X = garment_features(source_body.V, source_body.F, garment.V, garment.F, self.metadata.get("cover_distance"))[0]
-        context = _garment_context_cached(source_body.V, source_body.F, X, tuple(self.metadata["context_shares"]))
+        context = garment_context_cached(source_body.V, source_body.F, X, tuple(self.metadata["context_shares"]))
         return similarity_features(X, context)
 
     def raw_offsets(self, bound, features, weights):

@@ -1,0 +1,37 @@
+"""Geometry: triangle meshes and what is computed on them, with no notion of bodies being fitted or
+models being learned. Meshes and OBJ files (``Mesh``, ``read_obj``, ``write_obj``), exact closest points and
+signed distance (``TriangleSurface``), deformation gradients, the embedding of a garment's per-triangle field on
+the body and back, garment vertices bound to the body (``bind``, ``carry``), the Poisson solve that rebuilds a
+mesh from gradients (``PoissonSolver``), the penetration fix, exact intersection counts, and the crossing pass
+(``clearance``). Everything here works on arrays; every other layer builds on it.
+"""
+
+from .binding import Binding, bind, carry, follow_nearest_vertex
+from .clearance import separate
+from .embedding import body_scale, body_to_cloth, cloth_to_body, embed, unembed
+from .gradients import deformation_gradients
+from .intersections import crossings, intersection_report, minimum_distance, self_intersections
+from .mesh import (
+                   Mesh,
+                   connected_pieces,
+                   faces_hash,
+                   mesh_from_polygons,
+                   mesh_from_triangles,
+                   require_same_topology,
+                   same_mesh,
+                   triangle_normals,
+                   triangulate,
+                   vertex_areas,
+                   vertex_normals,
+)
+from .obj import obj_text, read_obj, write_obj
+from .penetration import fix_penetration, vertex_adjacency
+from .poisson import PoissonSolver
+from .proximity import TriangleSurface, closest_on_triangles
+
+__all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
+           "connected_pieces", "triangle_normals", "vertex_normals", "vertex_areas", "faces_hash", "read_obj",
+           "write_obj", "obj_text", "TriangleSurface", "closest_on_triangles", "deformation_gradients", "body_scale",
+           "body_to_cloth", "cloth_to_body", "embed", "unembed", "Binding", "bind", "carry", "follow_nearest_vertex",
+           "PoissonSolver", "fix_penetration", "vertex_adjacency", "crossings", "self_intersections",
+           "minimum_distance", "intersection_report", "separate"]
