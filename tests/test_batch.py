@@ -194,8 +194,8 @@ def test_serial_run_matches_the_core_writes_a_summary_and_a_rerun_does_no_work(d
     def boom(*a, **k):
         raise AssertionError("a re-run must not transfer again")
 
-    monkeypatch.setattr("garment_transfer.pipeline.transfer.prepare_garment", boom)
-    monkeypatch.setattr("garment_transfer.pipeline.transfer.transfer_garment", boom)
+    monkeypatch.setattr("garment_transfer.pipeline.batch.prepare_garment", boom)
+    monkeypatch.setattr("garment_transfer.pipeline.batch.transfer_garment", boom)
     again = run_batch(cat, out, workers=1)
     assert again.ok and again.counts["skipped"] == 9 and again.counts["done"] == 0
     assert {p: p.stat().st_mtime_ns for p in before} == before

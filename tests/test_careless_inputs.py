@@ -404,12 +404,12 @@ def test_train_checks_its_output_before_training(tmp_path, capsys, monkeypatch):
 
 
 def test_ctrl_c_is_one_line_exit_130_and_no_file(scene, tmp_path, capsys, monkeypatch):
-    import garment_transfer.pipeline.transfer as transfer
+    import garment_transfer.pipeline.any_body as any_body
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(transfer, "transfer_garment", interrupted)
+    monkeypatch.setattr(any_body, "transfer_garment", interrupted)
     before = snapshot(tmp_path)
     code, _, err = run_cli(capsys, *transfer_args(scene, tmp_path / "r.obj"))
     assert code == 130

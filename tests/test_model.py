@@ -259,7 +259,7 @@ def test_model_module_does_not_import_torch():
     import subprocess
     import sys
 
-    code = ("import sys; import garment_transfer.model, garment_transfer.dataset; "
+    code = ("import sys; import garment_transfer.learning.model, garment_transfer.learning.dataset; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 

@@ -12,10 +12,12 @@ import time
 from pathlib import Path
 
 from ..errors import GarmentTransferError
+from ..pipeline import batch as core_batch
 from ..pipeline.batch import read_catalogue, run_batch
 from .options import number_option, share_option
 
-log = logging.getLogger("garment_transfer.batch")
+# The core batch's own log: this command sends it to the log file.
+log = logging.getLogger(core_batch.__name__)
 
 
 def add_batch_arguments(p):
