@@ -1,6 +1,6 @@
-"""The README's table of accepted inputs, walked row by row: each row names the tests that show what it
-says, and each of those tests exists. A row added to the README without a test, or a test renamed away
-from its row, fails here."""
+"""The table of accepted inputs (docs/input_checks.md, "What inputs are accepted"; the README points to it),
+walked row by row: each row names the tests that show what it says, and each of those tests exists. A row
+added to the table without a test, or a test renamed away from its row, fails here."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The document that holds the table.
+TABLE_DOC = ROOT / "docs" / "input_checks.md"
 
-#: README row (its first cell starts with this) -> the tests that show it ("file::function").
+#: Table row (its first cell starts with this) -> the tests that show it ("file::function").
 ROWS = {
     "quads, n-gons": ["test_obj.py::test_read_keeps_polygons_and_triangulates",
                       "test_obj.py::test_write_like_source_changes_only_vertex_lines"],
@@ -69,8 +71,8 @@ ROWS = {
 
 
 def readme_rows():
-    """First cells of the rows of the README's "What inputs are accepted" table."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    """First cells of the rows of the "What inputs are accepted" table in docs/input_checks.md."""
+    text = TABLE_DOC.read_text(encoding="utf-8")
     section = text.split("## What inputs are accepted", 1)[1].split("\n## ", 1)[0]
     rows = [ln for ln in section.splitlines() if ln.startswith("| ") and not ln.startswith("| ---")]
     return [r.split(" | ", 1)[0][2:].strip() for r in rows[1:]]
@@ -80,9 +82,9 @@ def test_every_readme_row_has_its_tests_and_every_listed_row_is_in_the_readme():
     rows = readme_rows()
     assert len(rows) >= 15
     unmatched = [r for r in rows if not any(r.startswith(k) for k in ROWS)]
-    assert not unmatched, f"README rows without tests: {unmatched}"
+    assert not unmatched, f"rows of {TABLE_DOC.name} without tests: {unmatched}"
     stale = [k for k in ROWS if not any(r.startswith(k) for r in rows)]
-    assert not stale, f"rows no longer in the README: {stale}"
+    assert not stale, f"rows no longer in {TABLE_DOC.name}: {stale}"
 
 
 def test_every_named_test_exists():
