@@ -15,7 +15,9 @@ below it):
 - ``cli``: the command line (``python -m garment_transfer``), not imported here.
 
 What this module exports (``__all__``) is the public API that a pipeline script, the Blender layer and the
-lab use::
+lab use. The errors and the file helpers are imported with the package; every other name is imported from its
+layer when it is first used, so that ``import garment_transfer`` (and enabling the Blender extension) stays
+instant until a transfer is asked for::
 
     import garment_transfer as gt
 
@@ -25,104 +27,46 @@ lab use::
     gt.write_obj("dress_on_pear.obj", garment, result.V, inputs=["dress.obj"])
 """
 
-from .errors import (
-                     Cancelled,
-                     DatasetError,
-                     GarmentTransferError,
-                     MeshError,
-                     ModelError,
-                     NamedError,
-                     RegistrationError,
-                     SettingError,
-                     TopologyMismatchError,
-)
+import importlib
+
+from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError,
+                     RegistrationError, SettingError, TopologyMismatchError)
 from .files import OutputError, atomic_path, check_output, check_output_folder, write_atomic, write_json_atomic
-from .fitting import SHAPE_BOUNDS, Registration, makehuman_shape_basis, register, shape_basis_from_bodies
-from .geometry import (
-                     Mesh,
-                     TriangleSurface,
-                     body_scale,
-                     crossings,
-                     fix_penetration,
-                     follow_nearest_vertex,
-                     intersection_report,
-                     mesh_from_polygons,
-                     mesh_from_triangles,
-                     obj_text,
-                     read_obj,
-                     require_same_topology,
-                     same_mesh,
-                     self_intersections,
-                     write_obj,
-)
-from .learning import (
-                     Dataset,
-                     GarmentFitModel,
-                     ModelFile,
-                     SharedDeformationModel,
-                     check_training_settings,
-                     load_dataset,
-                     read_model_file,
-                     train_from_dataset,
-                     train_garment_fit_from_dataset,
-)
-from .pipeline import (
-                     OFFSET_SHARE,
-                     OutfitError,
-                     OutfitResult,
-                     PreparedGarment,
-                     ShapeKeyFit,
-                     TransferResult,
-                     all_pairs,
-                     check_after_training,
-                     check_model,
-                     crossings_left,
-                     drape_error,
-                     evaluate,
-                     fit_shape_keys,
-                     fit_steps,
-                     mdc,
-                     per_vertex_change,
-                     prepare_garment,
-                     read_catalogue,
-                     run_batch,
-                     shapes_to_files,
-                     surface_weights,
-                     training_garments,
-                     transfer_garment,
-                     transfer_outfit,
-                     transfer_to_any_body,
-                     transfer_to_shapes,
-                     vertex_error,
-)
 from .version import __version__
+
+#: The public names of each layer, by subpackage (imported on first use).
+LAYERS = {
+    "geometry": ("Mesh", "read_obj", "write_obj", "obj_text", "mesh_from_polygons", "mesh_from_triangles",
+                 "require_same_topology", "same_mesh", "TriangleSurface", "body_scale", "fix_penetration",
+                 "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report"),
+    "fitting": ("register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS"),
+    "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
+                 "load_dataset", "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings"),
+    "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
+                 "OFFSET_SHARE", "crossings_left", "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys",
+                 "transfer_to_shapes", "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights",
+                 "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
+                 "check_model", "check_after_training", "read_catalogue", "run_batch"),
+}
+_LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 
 __all__ = [
     "__version__",
-    # errors
     "GarmentTransferError", "NamedError", "MeshError", "TopologyMismatchError", "ModelError", "DatasetError",
     "SettingError", "RegistrationError", "OutputError", "Cancelled",
-    # meshes and files
-    "Mesh", "read_obj", "write_obj", "obj_text", "mesh_from_polygons", "mesh_from_triangles",
-    "require_same_topology", "same_mesh", "check_output", "check_output_folder", "atomic_path", "write_atomic",
-    "write_json_atomic",
-    # transfer
-    "prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
-    "OFFSET_SHARE", "crossings_left",
-    # registration
-    "register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS",
-    # outfits, shape keys, weights
-    "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files",
-    "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights",
-    # quality
-    "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "crossings", "self_intersections",
-    "intersection_report",
-    # geometry the Blender layer needs
-    "TriangleSurface", "body_scale", "fix_penetration", "follow_nearest_vertex",
-    # models and datasets
-    "read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset", "load_dataset",
-    "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings", "training_garments",
-    "check_model", "check_after_training",
-    # catalogues
-    "read_catalogue", "run_batch",
+    "check_output", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
+    *_LAYER_OF,
 ]
+
+
+def __getattr__(name):
+    layer = _LAYER_OF.get(name)
+    if layer is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{layer}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -10,7 +10,7 @@ import time
 import bpy
 import numpy as np
 
-from ..garment_transfer import Cancelled, MeshError, TriangleSurface, fix_penetration, follow_nearest_vertex
+from ..garment_transfer import Cancelled, MeshError
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,8 @@ def drape_garment(garment_V, garment_polys, body_V, body_F, target_body_Vs=(), p
     list of (n,3) float64
         The garment settled on the source body, then on each target body (same vertex order).
     """
+    from ..garment_transfer import TriangleSurface, fix_penetration
+
     gV = _array(garment_V, "garment vertices")
     bV = _array(body_V, "body vertices")
     bF = np.asarray(body_F, dtype=np.int64)
@@ -142,12 +144,16 @@ def _triangles(polys):
 
 def _pins_following_body(G, pins, bV, tV):
     """Pinned garment vertices moved with the body under them (displacement of the nearest body vertex)."""
+    from ..garment_transfer import follow_nearest_vertex
+
     follow = G.copy()
     follow[pins] = follow_nearest_vertex(G[pins], bV, tV)
     return follow
 
 
 def _finish(V, tri, surface, body_index, report):
+    from ..garment_transfer import fix_penetration
+
     t = time.perf_counter()
     sd = surface.signed_distance(V)[0]
     fixed, info = fix_penetration(V, tri, surface, THICKNESS)

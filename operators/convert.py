@@ -18,7 +18,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..garment_transfer import Mesh, MeshError, mesh_from_polygons
+from ..garment_transfer import MeshError
 
 # Modifiers that only refine a surface that is already in place. In the base-mesh mode a result keeps
 # these (they act on the transferred positions); anything else, and every modifier in the evaluated
@@ -127,7 +127,7 @@ def reverse_polygons(face_vertices, face_start):
     return fv[start + turned]
 
 
-def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh") -> Mesh:
+def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh"):
     """A core Mesh (world space, named after the object) of a mesh object.
 
     Raises
@@ -135,6 +135,8 @@ def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh") -> Mesh:
     MeshError
         Naming the object: not a mesh, no vertices or faces, NaN/inf coordinates.
     """
+    from ..garment_transfer import mesh_from_polygons
+
     require_mesh_object(obj, role)
     V, fv, fs = mesh_arrays_from_object(obj, depsgraph, evaluated)
     if V.shape[0] == 0 or fs.shape[0] <= 1:

@@ -91,7 +91,7 @@ def test_train_the_garment_fit_model_with_its_placement(dressed, tmp_path, exten
     settings.train_kind = 'GARMENT'
     assert bpy.ops.garment_transfer.train() == {'FINISHED'}
     assert settings.method == 'MODEL' and settings.model_path.endswith("garment.npz")
-    read = extension.garment_transfer.model_files.read_model_file(tmp_path / "garment.npz")
+    read = extension.garment_transfer.read_model_file(tmp_path / "garment.npz")
     assert read.kind == "garment" and read.has_placement and read.targets == ["female_pear"]
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
@@ -113,11 +113,11 @@ def test_train_with_held_out_garments_checks_the_model_on_them(dressed, tmp_path
     check = json.loads(settings.train_check)
     assert (check["garments"], check["targets"]) == (["male_casualsuit04"], ["female_pear"])
     # The direct transfer it was compared with is the core's, measured against the garment's own drape.
-    data = core.dataset.load_dataset(ds)
+    data = core.load_dataset(ds)
     src, body = data.body("female_average"), data.body("female_pear")
     garment, ref = data.garment("male_casualsuit04", "female_average"), data.garment("male_casualsuit04", "female_pear")
-    V = core.transfer.transfer_garment(src, body, garment).V
-    e = core.metrics.evaluate(garment, garment.with_vertices(V), body, reference=ref, intersections=False)
+    V = core.transfer_garment(src, body, garment).V
+    e = core.evaluate(garment, garment.with_vertices(V), body, reference=ref, intersections=False)
     direct = check["targets_summary"]["female_pear"]["direct"]
     assert direct["vertex_error_mean"] == pytest.approx(e["vertex_error_mean"], rel=1e-9)
     lines = extension.ui.panels.check_summary_lines(settings.train_check)

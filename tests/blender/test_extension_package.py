@@ -139,7 +139,7 @@ def test_zip_holds_the_add_on_and_the_bundled_wheels_for_each_python(built_zip):
     assert len(wheels) == sum(1 for w in wheels for name, version in packages
                               if w.rsplit("/", 1)[-1].lower().startswith(f"{name.lower()}-{version}-"))
     for needed in ("__init__.py", "operators/transfer.py", "operators/convert.py", "ui/panels.py",
-                   "garment_transfer/transfer.py", "scripts/batch_transfer.py"):
+                   "garment_transfer/pipeline/transfer.py", "scripts/batch_transfer.py"):
         assert needed in names
     # What the zip holds, and nothing else: the extension's own code and the bundled wheels; no lab, no
     # demo data, no tests or tools.

@@ -242,11 +242,7 @@ def test_undo_takes_the_outfit_and_a_reordering_back(outfit):
 
 def test_outfit_with_a_model_file_says_which_model_it_used(outfit, extension, tmp_path):
     pytest.importorskip("torch", reason="training a model needs torch")
-    import importlib
-
-    core_name = extension.__name__ + ".garment_transfer"
-    training = importlib.import_module(core_name + ".training")
-    model_files = importlib.import_module(core_name + ".model_files")
+    training = model_files = extension.garment_transfer
     path = tmp_path / "shared.npz"
     training.train_from_dataset(DEMO_DATA, "banana", ["pear"], garments=["aline_skirt", "tank_top"], epochs=5,
                                 latent=2, out=path)

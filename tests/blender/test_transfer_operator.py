@@ -15,11 +15,8 @@ def transfer_result():
 
 
 def core(extension):
-    """The core as the loaded extension sees it (its own module objects)."""
-    import importlib
-
-    name = extension.__name__ + ".garment_transfer"
-    return {m: importlib.import_module(f"{name}.{m}") for m in ("transfer", "metrics", "obj", "mesh")}
+    """The core as the loaded extension sees it: its public API."""
+    return extension.garment_transfer
 
 
 def test_transfer_makes_a_new_object_next_to_the_garment(dressed, extension):
@@ -39,7 +36,7 @@ def test_transfer_makes_a_new_object_next_to_the_garment(dressed, extension):
     dg = bpy.context.evaluated_depsgraph_get()
     meshes = [convert.core_mesh_from_object(o, dg) for o in (dressed.source, dressed.target,
                                                              dressed.garment)]
-    expected = core(extension)["transfer"].transfer_garment(*meshes).V
+    expected = core(extension).transfer_garment(*meshes).V
     np.testing.assert_allclose(world_vertices(result), expected, atol=1e-5)
 
 
@@ -152,7 +149,7 @@ def test_shape_keys_and_modifiers_evaluated_or_base(dressed):
 
 def test_model_method_uses_the_loaded_model(dressed, tmp_path, extension):
     pytest.importorskip("torch", reason="training a model needs torch")
-    training = __import__(extension.__name__ + ".garment_transfer.training", fromlist=["x"])
+    training = extension.garment_transfer
     make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01",
                                                                      "male_casualsuit04"))
     training.train_from_dataset(tmp_path / "ds", "female_average", ["female_pear"], epochs=30,
@@ -172,11 +169,7 @@ def test_model_method_uses_the_loaded_model(dressed, tmp_path, extension):
 
 def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension):
     pytest.importorskip("torch", reason="training a model needs torch")
-    import importlib
-
-    core_name = extension.__name__ + ".garment_transfer"
-    training = importlib.import_module(core_name + ".garment_training")
-    model_files = importlib.import_module(core_name + ".model_files")
+    training = model_files = extension.garment_transfer
     make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01", "male_casualsuit04"))
     path = tmp_path / "garment.npz"
     training.train_garment_fit_from_dataset(tmp_path / "ds", "female_average", ["female_pear"], epochs=2,
@@ -197,7 +190,7 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
     meshes = [convert.core_mesh_from_object(o, dg) for o in (dressed.source, dressed.target, dressed.garment)]
     loaded = model_files.read_model_file(path)
     frame = extension.operators.transfer.model_frame(loaded)
-    expected = core(extension)["transfer"].transfer_garment(
+    expected = core(extension).transfer_garment(
         *[m.with_vertices(m.V @ frame.T) for m in meshes], method="model", model=loaded.model,
         placement=loaded.placement, target="female_pear").V @ frame
     np.testing.assert_allclose(world_vertices(result), expected, atol=1e-5)
@@ -241,9 +234,7 @@ def make_tiny_dataset(makehuman, folder, garments, bodies=("female_average", "fe
 
 def test_crossings_the_pass_leaves_are_reported_as_a_warning(dressed, extension, monkeypatch, capfd):
     # The result is made and kept, and the artist is told that the garment still crosses the body.
-    import importlib
-
-    clearance = importlib.import_module(extension.__name__ + ".garment_transfer.clearance")
+    from garment_transfer.geometry import clearance
     real = clearance.separate
 
     def defeated(V, *args, **kwargs):
