@@ -8,7 +8,10 @@ import pytest
 from meshes import icosphere, require_makehuman
 
 from garment_transfer.geometry.clearance import (
+    Obstacle,
+    SelfCheck,
     crossings_again,
+    garment_crossings,
     largest_per_vertex,
     local_fit,
     near_pairs,
@@ -16,10 +19,11 @@ from garment_transfer.geometry.clearance import (
     restore_source_shape,
     separate,
 )
-from garment_transfer.geometry.intersections import crossings, mesh_edges, self_intersections
+from garment_transfer.geometry.intersections import crossings, mesh_edges, minimum_distance, self_intersections
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.geometry.readings import as_readings, readings_of
 from garment_transfer.pipeline.metrics import evaluate, mdc
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 from lab.paths import DEMO_DATA
@@ -115,13 +119,14 @@ def test_demo_dress_crossing_the_heavy_body_keeps_its_design():
     prepared = prepare_garment(src, garment, energy="edges")
     without = transfer_garment(src, tgt, garment, resolve_crossings=False, prepared=prepared)
     result = transfer_garment(src, tgt, garment, prepared=prepared)
-    c0 = crossings(without.V, garment.F, tgt.V, tgt.F)
-    c1 = crossings(result.V, garment.F, tgt.V, tgt.F)
+    G, B = readings_of(garment), readings_of(tgt)
+    c0 = crossings(without.V, G, tgt.V, B)
+    c1 = crossings(result.V, G, tgt.V, B)
     assert c0["a_edge_pairs"] + c0["b_edge_pairs"] > 0
     assert c1["a_edge_pairs"] + c1["b_edge_pairs"] == 0
-    assert self_intersections(result.V, garment.F)[0] <= self_intersections(without.V, garment.F)[0]
+    assert self_intersections(result.V, G)[0] <= self_intersections(garment.V, G)[0]
     assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
-    assert result.info["near_after"] == 0
+    assert minimum_distance(result.V, G, tgt.V, B) > 0
 
 
 def two_sheets(z_low=1.10, z_high=1.13, n=7, size=0.6):
@@ -221,16 +226,16 @@ def test_source_shape_must_match():
         separate(V, F, BV, BF, offset=0.01, source_V=V[:-1])
 
 
-def test_crossings_and_near_pairs_found_again_where_moved_equal_a_full_check():
+def test_crossings_near_pairs_and_self_intersections_found_again_where_moved_equal_a_full_check():
     BV, BF = icosphere(3)
     GV, GF = icosphere(2, radius=1.01)
     rng = np.random.default_rng(3)
     moved = rng.random(GV.shape[0]) < 0.3
     V = GV.copy()
-    V[moved] += rng.normal(scale=0.03, size=(int(moved.sum()), 3))
-    body = TriangleSurface(BV, BF)
-    E, body_E = mesh_edges(GF), mesh_edges(BF)
-    again = crossings_again(V, GF, E, body, body_E, crossings(GV, GF, BV, BF), moved)
+    V[moved] += rng.normal(scale=0.06, size=(int(moved.sum()), 3))
+    V[np.flatnonzero(moved)[:2]] *= -1.2         # two vertices taken through the sphere: it crosses itself
+    G, obstacle = as_readings(GF), Obstacle(BV, BF)
+    again = crossings_again(V, G, obstacle, garment_crossings(GV, G, obstacle), moved)
     full = crossings(V, GF, BV, BF)
     assert full["a_edge_pairs"] > 0 and full["b_edge_pairs"] > 0
 
@@ -240,11 +245,15 @@ def test_crossings_and_near_pairs_found_again_where_moved_equal_a_full_check():
     assert key(again["a_pairs"], again["a_triangles"]) == key(full["a_pairs"], full["a_triangles"])
     assert key(again["b_pairs"], again["b_triangles"]) == key(full["b_pairs"], full["b_triangles"])
     near = 0.02
-    again = near_pairs_again(V, GF, E, body, body_E, near, near_pairs(GV, GF, E, body, body_E, near), moved)
-    full = near_pairs(V, GF, E, body, body_E, near)
+    again = near_pairs_again(V, G, obstacle, near, near_pairs(GV, G, obstacle, near), moved)
+    full = near_pairs(V, G, obstacle, near)
     assert all(full[k].shape[0] > 0 for k in full)
     for k in full:
         assert sorted(map(str, again[k].tolist())) == sorted(map(str, full[k].tolist()))
+    check = SelfCheck(GV, G)
+    kept = check.again(V, check.all(GV), moved)
+    assert kept.shape[0] == self_intersections(V, GF)[0] > 0
+    np.testing.assert_array_equal(kept, SelfCheck(V, G).all(V))
 
 
 def test_makehuman_suit_pressed_on_the_pear_keeps_its_design_and_gains_no_self_intersection():
@@ -257,14 +266,15 @@ def test_makehuman_suit_pressed_on_the_pear_keeps_its_design_and_gains_no_self_i
     garment = read_obj(root / "garments" / "male_casualsuit04" / "female_average.obj")
     without = transfer_garment(src, tgt, garment, resolve_crossings=False)
     result = transfer_garment(src, tgt, garment)
-    c0 = crossings(without.V, garment.F, tgt.V, tgt.F)
-    c1 = crossings(result.V, garment.F, tgt.V, tgt.F)
+    G, B = readings_of(garment), readings_of(tgt)
+    c0 = crossings(without.V, G, tgt.V, B)
+    c1 = crossings(result.V, G, tgt.V, B)
     assert c0["a_edge_pairs"] + c0["b_edge_pairs"] > 0
     assert c1["a_edge_pairs"] == c1["b_edge_pairs"] == 0
-    source_self = self_intersections(garment.V, garment.F)[0]
-    assert self_intersections(without.V, garment.F)[0] > source_self
-    assert self_intersections(result.V, garment.F)[0] <= source_self
-    assert result.info["self_intersections_after"] == self_intersections(result.V, garment.F)[0]
+    source_self = self_intersections(garment.V, G)[0]
+    assert self_intersections(without.V, G)[0] > source_self
+    assert self_intersections(result.V, G)[0] <= source_self
+    assert result.info["self_intersections_after"] == self_intersections(result.V, G)[0]
     assert mdc(garment.V, result.V, garment.F) <= 1.1 * mdc(garment.V, without.V, garment.F)
 
 
@@ -338,14 +348,14 @@ def test_the_garment_comes_back_as_it_was_when_the_pass_only_makes_it_worse(monk
     real = clearance.clear_body
     worse = []
 
-    def wrecking(V, F, E, A, body, *args, **kwargs):
-        W, info, state = real(V, F, E, A, body, *args, **kwargs)
+    def wrecking(V, G, A, obstacle, *args, **kwargs):
+        W, info, state = real(V, G, A, obstacle, *args, **kwargs)
         W = W.copy()
         W[::3, 2] -= 0.6                       # every third vertex pushed down through the body
-        c = crossings(W, F, body.V, body.F)
+        c = garment_crossings(W, G, obstacle)
         info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
         worse.append(info["crossings_after"] > info["crossings_before"])
-        return W, info, state
+        return W, info, (c, state[1], SelfCheck(W, G).all(W))
 
     monkeypatch.setattr(clearance, "clear_body", wrecking)
     before = crossings(V, F, BV, BF)

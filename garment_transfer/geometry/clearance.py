@@ -1,10 +1,11 @@
-"""The final pass: no garment edge through the body, no body edge through the garment, checked exactly.
+"""The final pass: no garment edge through the body, no body edge through the garment, checked exactly,
+under every reading of the garment's and the body's polygons.
 
 The vertex push-out (``penetration.fix_penetration``) leaves a garment whose vertices are outside
 the body, but an edge can still cut through a body part narrower than the edge (a finger, the gap
 between the thighs) and a body vertex can still poke through a garment triangle (a breast or
 shoulder under a coarse garment). This pass finds every such crossing with the exact test of
-``intersections.crossings`` and turns each into a lower bound on the garment's outward move at one
+``intersections`` and turns each into a lower bound on the garment's outward move at one
 point (``Lifts``): a garment edge through a body triangle lifts its ends past the triangle's
 plane; a body edge through a garment triangle lifts the triangle's point over it, shared by the
 corners by their barycentric weights (the least lift of the corners that raises that point, so a
@@ -15,6 +16,11 @@ body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`
 lifted to ``CLEARANCE_PUSH`` times that, and crossings are cleared to the same distance, not to the
 whole offset (further lifts only cost the design). It ends when nothing is left or after
 ``max_rounds`` (the result says how many are left; it never hides one).
+
+Every check is made on every reading of the polygons (``readings.Readings``: both splits of each quad,
+every diagonal as an edge) of the garment and of the body, so that the result is clean whichever
+triangulation the user's tool makes of the file; a lift through a triangle of the other split moves
+the same garment vertices.
 
 Moving cloth can make it cross itself. Every round is checked against that: the self-intersections
 among the triangles it moved are counted before and after, and a round that adds some is halved on
@@ -32,8 +38,13 @@ parts of the source meet and which do not), blended into the rest over a ring; t
 cleared again where that moved, and a larger ring is tried if pairs are left. What is left is
 counted (``self_intersections_new``), never hidden.
 
-Between rounds only what moved is checked again (``crossings_again``, ``near_pairs_again``): the
-body does not move, so the pairs of unmoved garment parts stay as they were.
+What it costs: the body does not move, so its triangles, edges and vertices are binned once
+(``Obstacle``: grids of ``broad_phase.BoxGrid``) and every check asks about the garment's parts only;
+after the first full check only what a round moved is checked again (``crossings_again``,
+``near_pairs_again``, ``SelfCheck``: the garment's own parts binned with room to move, binned again
+only when something moved beyond it), and the self-intersections of the current shape are kept from
+round to round, not counted again. Each predicate is the filtered floating-point orient3d, with the
+exact fallback only where the filter cannot decide (``intersections.segments_meet_triangles``).
 """
 
 from __future__ import annotations
@@ -45,17 +56,14 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .intersections import (
-    box_pairs,
-    crossings,
-    edge_triangle_pairs,
-    mesh_edges,
-    segment_closest,
-    segment_distances,
-    segments_meet_triangles,
-)
+from .broad_phase import BoxGrid
+from .intersections import crossing_counts, segment_closest, segment_distances
+from .predicates import edge_triangle_pairs, segments_meet_triangles
+from .mesh import triangle_normals
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import TriangleSurface, closest_on_triangles
+from .readings import Readings, as_readings
+from .self_check import NO_PAIRS, SelfCheck, unique_pairs
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +86,78 @@ RESTORE_TRIES = 8
 #: A local affine fit whose smallest singular value is under this share of its largest would
 #: flatten the cloth: a similarity is fitted instead.
 FIT_CONDITION = 0.2
+
+
+class Obstacle:
+    """What the garment must clear (a body, or a body and the layers under a garment), as the pass asks
+    about it: every reading of its polygons, binned once (it does not move).
+
+    Parameters
+    ----------
+    V : (p,3) float
+    F : (q,3) int or Readings
+        Triangles, or every reading of the polygons (``readings.readings_of``).
+    surface : TriangleSurface, optional
+        Of ``V`` and the mesh's own triangles (``Readings.split``), when already built: closest points,
+        signed distance and normals.
+    cell : float, optional
+        The grids' cell side: best about the size of what will be asked about (the garment's edges); at
+        least the median size of the obstacle's own boxes.
+
+    Attributes
+    ----------
+    V : (p,3) float64
+    R : Readings
+    F, E : (t,3), (e,2) int64
+        Every reading's triangles and edges.
+    surface : TriangleSurface
+    face_normals : (t,3) float64
+        Unit normals of ``F``.
+    """
+
+    def __init__(self, V, F, surface=None, cell=None):
+        self.V = np.asarray(V, dtype=np.float64)
+        self.R = as_readings(F)
+        self.F, self.E = self.R.F, self.R.E
+        self.surface = surface if surface is not None else TriangleSurface(self.V, self.R.split)
+        P, Q = self.V[self.E[:, 0]], self.V[self.E[:, 1]]
+        lo, hi = np.minimum(P, Q), np.maximum(P, Q)
+        # Cells much smaller than the boxes asked about would each be listed many times.
+        self.cell = max(float(np.median((hi - lo).max(axis=1))), float(cell or 0.0))
+        self.edge_grid = BoxGrid(lo, hi, self.cell)
+        T = self.V[self.F]
+        self.triangle_grid = BoxGrid(T.min(axis=1), T.max(axis=1), self.cell)
+        self.face_normals = triangle_normals(self.V, self.F)[0]
+        self._vertex_grid = None
+
+    @property
+    def vertex_normals(self):
+        return self.surface.vertex_normals
+
+    @property
+    def vertex_grid(self):
+        """The vertices as points, binned (cells of the median edge length)."""
+        if self._vertex_grid is None:
+            used = np.unique(self.F)
+            self._vertex_grid = BoxGrid(self.V[used], self.V[used], cell=self.cell)
+            self._vertex_ids = used
+        return self._vertex_grid
+
+    def vertices_near(self, lo, hi):
+        """(k,2) (query box, obstacle vertex) pairs: the vertices in each box (lo, hi (q,3))."""
+        pairs = self.vertex_grid.query(lo, hi)
+        return np.stack([pairs[:, 0], self._vertex_ids[pairs[:, 1]]], axis=1)
+
+
+def as_obstacle(V, F, surface=None, cell=None) -> Obstacle:
+    """``Obstacle(V, F, surface, cell)``; F may already be one (then V, surface and cell are its own)."""
+    return F if isinstance(F, Obstacle) else Obstacle(V, F, surface, cell)
+
+
+def edge_length(V, G: Readings):
+    """The median length of the sides and diagonals of a garment's polygons (its grids' cell)."""
+    return float(np.median(np.linalg.norm(V[G.E[:, 0]] - V[G.E[:, 1]], axis=1))) if G.n_edges else 0.0
+
 
 class Lifts:
     """Lower bounds on the garment's displacement D, one per contact: ``sum_j w_j n . D[v_j] >= h``
@@ -131,55 +211,94 @@ class Lifts:
                 np.concatenate(self.normal), np.concatenate(self.need))
 
 
-def crossing_lifts(V, F, body: TriangleSurface, c, clear, lifts):
+# --------------------------------------------------------------------------- garment against the obstacle
+
+def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
+    """``intersections.crossings(V, G, obstacle.V, obstacle.R)``, the obstacle's grids asked about the
+    garment's edges and triangles (those with an ``active`` ((n,) bool) vertex, or all).
+
+    Returns
+    -------
+    dict
+        As ``crossings``: ``a_*`` the garment's edges through the obstacle's triangles (``a_triangles``
+        index ``obstacle.F``), ``b_*`` the obstacle's edges through the garment's triangles
+        (``b_triangles`` index ``G.F``).
+    """
+    e_act = np.arange(G.n_edges) if active is None else np.flatnonzero(active[G.E].any(axis=1))
+    t_act = np.arange(G.n_triangles) if active is None else np.flatnonzero(active[G.F].any(axis=1))
+    pa, ua = edge_triangle_pairs(V, G.E[e_act], obstacle.V, obstacle.F, triangle_grid=obstacle.triangle_grid)
+    pb, ub = edge_triangle_pairs(obstacle.V, obstacle.E, V, G.F[t_act], edge_grid=obstacle.edge_grid)
+    pa = np.stack([e_act[pa[:, 0]], pa[:, 1]], axis=1)
+    pb = np.stack([pb[:, 0], t_act[pb[:, 1]]], axis=1)
+    return crossing_counts(G.E, pa, obstacle.E, pb, ua + ub)
+
+
+def crossings_again(V, G: Readings, obstacle: Obstacle, c, moved):
+    """``garment_crossings`` after only the ``moved`` ((n,) bool) vertices moved: the pairs of unmoved
+    garment edges and triangles are kept from ``c``, the others checked again (exactly; the obstacle does
+    not move). Same keys as ``crossings`` that the pass uses."""
+    keep_a = ~moved[c["a_pairs"]].any(axis=1)
+    keep_b = ~moved[G.F[c["b_triangles"]]].any(axis=1)
+    new = garment_crossings(V, G, obstacle, moved)
+    out = {"a_pairs": np.concatenate([c["a_pairs"][keep_a], new["a_pairs"]]),
+           "a_triangles": np.concatenate([c["a_triangles"][keep_a], new["a_triangles"]]),
+           "b_pairs": np.concatenate([c["b_pairs"][keep_b], new["b_pairs"]]),
+           "b_triangles": np.concatenate([c["b_triangles"][keep_b], new["b_triangles"]])}
+    out["a_edge_pairs"] = int(out["a_triangles"].shape[0])
+    out["b_edge_pairs"] = int(out["b_triangles"].shape[0])
+    return out
+
+
+def crossing_lifts(V, G: Readings, obstacle: Obstacle, c, clear, lifts):
     """Bounds that take the garment out of every crossing, by ``clear``.
 
-    A garment edge through a body triangle: each end to ``clear`` outside the triangle's plane. A
-    body edge through a garment triangle: the triangle's point over each end of the edge (its
+    A garment edge through an obstacle triangle: its point in the triangle's plane to ``clear`` outside
+    it, the lift shared by the two ends by their weights. An obstacle edge through a garment triangle: the triangle's point over each end of the edge (its
     barycentric coordinates) to ``clear`` past that end along the skin's normal; the corners then
     share the lift by their weights, so a corner far from the body edge hardly moves.
 
     Parameters
     ----------
     V : (n,3) float64
-    F : (m,3) int64
-    body : TriangleSurface
+    G : Readings
+        The garment's.
+    obstacle : Obstacle
     c : dict
-        ``intersections.crossings(V, F, body.V, body.F)``.
+        ``garment_crossings(V, G, obstacle)``.
     clear : float
     lifts : Lifts
         Added to.
     """
     if c["a_pairs"].shape[0]:
-        n = body.face_normals[c["a_triangles"]]
-        a = body.V[body.F[c["a_triangles"], 0]]
-        for end in (0, 1):
-            vid = c["a_pairs"][:, end]
-            lifts.add(vid[:, None], np.ones((vid.shape[0], 1)), n,
-                      clear - np.einsum("ij,ij->i", V[vid] - a, n))
+        n = obstacle.face_normals[c["a_triangles"]]
+        a = obstacle.V[obstacle.F[c["a_triangles"], 0]]
+        P, Q = V[c["a_pairs"][:, 0]], V[c["a_pairs"][:, 1]]
+        # The edge's point in the triangle's plane rises over it, shared by the ends by their weights:
+        # lifting each end past the plane would move a long edge across a tilted triangle by far more.
+        den = np.einsum("ij,ij->i", Q - P, n)
+        flat = np.abs(den) <= 1e-12 * np.linalg.norm(Q - P, axis=1)
+        s = np.clip(np.divide(np.einsum("ij,ij->i", a - P, n), den, out=np.full(den.shape, 0.5), where=~flat), 0, 1)
+        X = P + s[:, None] * (Q - P)
+        lifts.add(c["a_pairs"], np.stack([1.0 - s, s], axis=1), n, clear - np.einsum("ij,ij->i", X - a, n))
     if c["b_pairs"].shape[0]:
-        n = body.vertex_normals[c["b_pairs"][:, 0]] + body.vertex_normals[c["b_pairs"][:, 1]]
+        n = obstacle.vertex_normals[c["b_pairs"][:, 0]] + obstacle.vertex_normals[c["b_pairs"][:, 1]]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        tri = F[c["b_triangles"]]
+        tri = G.F[c["b_triangles"]]
         for end in (0, 1):
-            q = body.V[c["b_pairs"][:, end]]
+            q = obstacle.V[c["b_pairs"][:, end]]
             p, bary = closest_on_triangles(q, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
             lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + clear)
 
 
-def near_pairs(V, F, E, body: TriangleSurface, body_E, near, active=None):
-    """Garment-body pairs closer than ``near``: garment vertex - body triangle, body vertex - garment
-    triangle, garment edge - body edge.
+def near_pairs(V, G: Readings, obstacle: Obstacle, near, active=None):
+    """Garment-obstacle pairs closer than ``near``: garment vertex - obstacle surface, obstacle vertex -
+    garment triangle, garment edge - obstacle edge (every reading's edges and triangles).
 
     Parameters
     ----------
     V : (n,3) float64
-    F : (m,3) int64
-    E : (e,2) int64
-        ``mesh_edges(F)``.
-    body : TriangleSurface
-    body_E : (f,2) int64
-        The body's edges.
+    G : Readings
+    obstacle : Obstacle
     near : float
     active : (n,) bool, optional
         Only garment vertices, triangles and edges with an active vertex are looked at.
@@ -187,46 +306,41 @@ def near_pairs(V, F, E, body: TriangleSurface, body_E, near, active=None):
     Returns
     -------
     dict
-        ``vertex`` (k,) garment vertices, ``triangle`` (k,2) (body vertex, garment triangle),
-        ``edge`` (k,2) (garment edge, body edge).
+        ``vertex`` (k,) garment vertices, ``triangle`` (k,2) (obstacle vertex, garment triangle),
+        ``edge`` (k,2) (garment edge, obstacle edge).
     """
     if active is None:
         active = np.ones(V.shape[0], bool)
-    out = {"vertex": np.zeros(0, np.int64), "triangle": np.zeros((0, 2), np.int64),
-           "edge": np.zeros((0, 2), np.int64)}
+    out = {"vertex": np.zeros(0, np.int64), "triangle": NO_PAIRS, "edge": NO_PAIRS}
     idx = np.flatnonzero(active)
     if idx.size == 0:
         return out
-    out["vertex"] = idx[body.signed_distance(V[idx])[0] < near]
-    t_act = np.flatnonzero(active[F].any(axis=1))
-    e_act = np.flatnonzero(active[E].any(axis=1))
-    T = V[F[t_act]]
-    lo, hi = T.min(axis=(0, 1)) - near, T.max(axis=(0, 1)) + near
-    bv = np.flatnonzero(np.all((body.V >= lo) & (body.V <= hi), axis=1))
-    if bv.size and t_act.size:
-        pairs = box_pairs(body.V[bv] - near, body.V[bv] + near, T.min(axis=1), T.max(axis=1))
-        i, j = bv[pairs[:, 0]], pairs[:, 1]
-        p, _ = closest_on_triangles(body.V[i], T[j, 0], T[j, 1], T[j, 2])
-        k = np.linalg.norm(p - body.V[i], axis=1) < near
+    out["vertex"] = idx[obstacle.surface.signed_distance(V[idx])[0] < near]
+    t_act = np.flatnonzero(active[G.F].any(axis=1))
+    e_act = np.flatnonzero(active[G.E].any(axis=1))
+    if t_act.size:
+        T = V[G.F[t_act]]
+        pairs = obstacle.vertices_near(T.min(axis=1) - near, T.max(axis=1) + near)
+        j, i = pairs[:, 0], pairs[:, 1]
+        p, _ = closest_on_triangles(obstacle.V[i], T[j, 0], T[j, 1], T[j, 2])
+        k = np.linalg.norm(p - obstacle.V[i], axis=1) < near
         out["triangle"] = np.stack([i[k], t_act[j[k]]], axis=1)
-    P0, P1 = V[E[e_act, 0]], V[E[e_act, 1]]
-    Q0, Q1 = body.V[body_E[:, 0]], body.V[body_E[:, 1]]
-    kb = np.flatnonzero(np.all((np.maximum(Q0, Q1) >= lo) & (np.minimum(Q0, Q1) <= hi), axis=1))
-    if kb.size and e_act.size:
-        pairs = box_pairs(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near,
-                          np.minimum(Q0[kb], Q1[kb]), np.maximum(Q0[kb], Q1[kb]))
-        i, j = e_act[pairs[:, 0]], kb[pairs[:, 1]]
-        k = segment_distances(V[E[i, 0]], V[E[i, 1]], Q0[j], Q1[j]) < near
+    if e_act.size:
+        P0, P1 = V[G.E[e_act, 0]], V[G.E[e_act, 1]]
+        pairs = obstacle.edge_grid.query(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near)
+        i, j = e_act[pairs[:, 0]], pairs[:, 1]
+        Q0, Q1 = obstacle.V[obstacle.E[j, 0]], obstacle.V[obstacle.E[j, 1]]
+        k = segment_distances(V[G.E[i, 0]], V[G.E[i, 1]], Q0, Q1) < near
         out["edge"] = np.stack([i[k], j[k]], axis=1)
     return out
 
 
-def near_pairs_again(V, F, E, body: TriangleSurface, body_E, near, pairs, moved):
+def near_pairs_again(V, G: Readings, obstacle: Obstacle, near, pairs, moved):
     """``near_pairs`` after only the ``moved`` ((n,) bool) vertices moved: the pairs of unmoved
     garment parts are kept, the others found again."""
-    out = near_pairs(V, F, E, body, body_E, near, moved)
-    keep = {"vertex": ~moved[pairs["vertex"]], "triangle": ~moved[F[pairs["triangle"][:, 1]]].any(axis=1),
-            "edge": ~moved[E[pairs["edge"][:, 0]]].any(axis=1)}
+    out = near_pairs(V, G, obstacle, near, moved)
+    keep = {"vertex": ~moved[pairs["vertex"]], "triangle": ~moved[G.F[pairs["triangle"][:, 1]]].any(axis=1),
+            "edge": ~moved[G.E[pairs["edge"][:, 0]]].any(axis=1)}
     return {k: np.concatenate([pairs[k][keep[k]], out[k]]) for k in out}
 
 
@@ -235,21 +349,17 @@ def near_count(pairs):
     return sum(int(v.shape[0]) for v in pairs.values())
 
 
-def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, pairs, lifts):
-    """Bounds that take garment parts closer to the body than ``near`` away (no crossing needed): a
+def near_lifts(V, G: Readings, obstacle: Obstacle, offset, near, pairs, lifts):
+    """Bounds that take garment parts closer to the obstacle than ``near`` away (no crossing needed): a
     garment vertex to ``offset`` (what the penetration fix gave it), the point of a garment triangle
-    nearest a body vertex and the point of a garment edge nearest a body edge to ``CLEARANCE_PUSH *
-    near``.
+    nearest an obstacle vertex and the point of a garment edge nearest an obstacle edge to
+    ``CLEARANCE_PUSH * near``.
 
     Parameters
     ----------
     V : (n,3) float64
-    F : (m,3) int64
-    E : (e,2) int64
-        ``mesh_edges(F)``.
-    body : TriangleSurface
-    body_E : (f,2) int64
-        The body's edges.
+    G : Readings
+    obstacle : Obstacle
     offset, near : float
     pairs : dict
         ``near_pairs(...)``.
@@ -258,24 +368,24 @@ def near_lifts(V, F, E, body: TriangleSurface, body_E, offset, near, pairs, lift
     """
     close = pairs["vertex"]
     if close.size:
-        sd, _, normal, _ = body.signed_distance(V[close])
+        sd, _, normal, _ = obstacle.surface.signed_distance(V[close])
         lifts.add(close[:, None], np.ones((close.size, 1)), normal, offset - sd)
     if pairs["triangle"].shape[0]:
-        q = body.V[pairs["triangle"][:, 0]]
-        tri = F[pairs["triangle"][:, 1]]
+        q = obstacle.V[pairs["triangle"][:, 0]]
+        tri = G.F[pairs["triangle"][:, 1]]
         p, bary = closest_on_triangles(q, V[tri[:, 0]], V[tri[:, 1]], V[tri[:, 2]])
-        n = body.vertex_normals[pairs["triangle"][:, 0]]
+        n = obstacle.vertex_normals[pairs["triangle"][:, 0]]
         lifts.add(tri, bary, n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
     if pairs["edge"].shape[0]:
         i, j = pairs["edge"][:, 0], pairs["edge"][:, 1]
-        P0, P1 = V[E[i, 0]], V[E[i, 1]]
-        Q0, Q1 = body.V[body_E[j, 0]], body.V[body_E[j, 1]]
+        P0, P1 = V[G.E[i, 0]], V[G.E[i, 1]]
+        Q0, Q1 = obstacle.V[obstacle.E[j, 0]], obstacle.V[obstacle.E[j, 1]]
         s, t = segment_closest(P0, P1, Q0, Q1)
         p = P0 + s[:, None] * (P1 - P0)
         q = Q0 + t[:, None] * (Q1 - Q0)
-        n = body.vertex_normals[body_E[j, 0]] + body.vertex_normals[body_E[j, 1]]
+        n = obstacle.vertex_normals[obstacle.E[j, 0]] + obstacle.vertex_normals[obstacle.E[j, 1]]
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        lifts.add(E[i], np.stack([1.0 - s, s], axis=1), n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
+        lifts.add(G.E[i], np.stack([1.0 - s, s], axis=1), n, np.einsum("ij,ij->i", q - p, n) + CLEARANCE_PUSH * near)
 
 
 def lift_displacement(A, lifts: Lifts, rings):
@@ -317,96 +427,46 @@ def largest_per_vertex(index, move):
     return index[first], move[first]
 
 
-def local_self_pairs(V, F, E, moved):
-    """Self-intersecting (edge, triangle) pairs of one mesh that involve a moved vertex.
+# --------------------------------------------------------------------------- the garment against itself
 
-    Parameters
-    ----------
-    V : (n,3) float64
-    F : (m,3) int64
-    E : (e,2) int64
-        ``mesh_edges(F)``.
-    moved : (n,) bool
-
-    Returns
-    -------
-    set of (int, int)
-        (edge index, triangle index).
-    """
-    e_mov = np.flatnonzero(moved[E].any(axis=1))
-    t_mov = np.flatnonzero(moved[F].any(axis=1))
-    out = set()
-    if e_mov.size:
-        p, _ = edge_triangle_pairs(V, E[e_mov], V, F, same_mesh=True)
-        out.update(zip(e_mov[p[:, 0]].tolist(), p[:, 1].tolist()))
-    if t_mov.size:
-        p, _ = edge_triangle_pairs(V, E, V, F[t_mov], same_mesh=True)
-        out.update(zip(p[:, 0].tolist(), t_mov[p[:, 1]].tolist()))
-    return out
-
-
-def new_self_pairs(V, F, E, source_V, known=None):
-    """The garment's self-intersections, and those of them that its source shape does not have.
-
-    Parameters
-    ----------
-    V : (n,3) float64
-    F : (m,3) int64
-    E : (e,2) int64
-        ``mesh_edges(F)``.
-    source_V : (n,3) float64
-        The same garment in its source shape.
-    known : tuple, optional
-        ``(V_known, pairs_known)``: the self-intersections of an earlier shape; only the edges and
-        triangles that moved since are checked again.
-
-    Returns
-    -------
-    pairs : (k,2) int64
-        (edge index, triangle index) pairs that meet in V (exact test).
-    new : (j,2) int64
-        Those that do not meet in source_V (exact test, pair by pair).
-    """
-    if known is None:
-        pairs, _ = edge_triangle_pairs(V, E, V, F, same_mesh=True)
-    else:
-        V_known, pairs_known = known
-        moved = np.any(V != V_known, axis=1)
-        kept = pairs_known[~(moved[E[pairs_known[:, 0]]].any(axis=1) | moved[F[pairs_known[:, 1]]].any(axis=1))]
-        again = np.array(sorted(local_self_pairs(V, F, E, moved)), np.int64).reshape(-1, 2)
-        pairs = np.concatenate([kept, again])
-        pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    e, t = E[pairs[:, 0]], F[pairs[:, 1]]
+def on_source(pairs, G: Readings, source_V):
+    """(k,) bool: the pairs (edge, triangle) that meet in the source shape too (exact)."""
+    e, t = G.E[pairs[:, 0]], G.F[pairs[:, 1]]
     S = source_V
-    meet, _ = segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])
-    return pairs, pairs[~meet]
+    return segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])[0]
 
 
 class _SourceTangles:
-    """Where the source garment crosses itself (measured only when first asked).
+    """Where the source garment crosses itself (measured when first asked, unless given).
 
     A pair of the result that does not meet on the source but touches a vertex of the source's own
     self-intersections is that crossing sliding by an edge; it is left (not undone) as long as the
     result has no more self-intersecting pairs than the source."""
 
-    def __init__(self, source_V, F, E):
-        self.S, self.F, self.E = source_V, F, E
+    def __init__(self, source_V, G: Readings, check: SelfCheck, own=None):
+        self.S, self.G, self.check = source_V, G, check
+        self.own = own
         self.tangled = None
+
+    def pairs(self):
+        """The source's own self-intersecting pairs (k,2)."""
+        if self.own is None:
+            self.own = SelfCheck(self.S, self.G).all(self.S)
+        return self.own
 
     def left_out(self, pairs, new):
         """``new`` ((k,2) pairs the source lacks) without those at the source's own tangles, while
         ``pairs`` (all the result's) are no more than the source's."""
         if new.shape[0] == 0:
             return new
+        own = self.pairs()
         if self.tangled is None:
-            own, _ = edge_triangle_pairs(self.S, self.E, self.S, self.F, same_mesh=True)
-            self.count = own.shape[0]
             self.tangled = np.zeros(self.S.shape[0], bool)
-            self.tangled[self.E[own[:, 0]]] = True
-            self.tangled[self.F[own[:, 1]]] = True
-        if pairs.shape[0] > self.count:
+            self.tangled[self.G.E[own[:, 0]]] = True
+            self.tangled[self.G.F[own[:, 1]]] = True
+        if pairs.shape[0] > own.shape[0]:
             return new
-        at = self.tangled[self.E[new[:, 0]]].any(axis=1) | self.tangled[self.F[new[:, 1]]].any(axis=1)
+        at = self.tangled[self.G.E[new[:, 0]]].any(axis=1) | self.tangled[self.G.F[new[:, 1]]].any(axis=1)
         return new[~at]
 
 
@@ -500,18 +560,20 @@ def restore_source_shape(V, F, E, source_V, pairs, radius, body=None, clear=0.0)
 
 
 def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
-             keep_offset=True, source_V=None):
+             keep_offset=True, source_V=None, source_pairs=None):
     """Remove every crossing between a garment and a body, keeping the folds.
 
     Parameters
     ----------
     V : (n,3) float
         Garment vertices (best after ``penetration.fix_penetration``: its vertices outside).
-    F : (m,3) int
-        Garment triangles.
+    F : (m,3) int or Readings
+        Garment triangles, or every reading of its polygons (``readings.readings_of``): then no crossing
+        is left under any triangulation of them.
     body_V : (p,3) float
-    body_F : (q,3) int
-        The body (or, for outfits, the body and the layers under this one, as one mesh).
+    body_F : (q,3) int, Readings or Obstacle
+        The body (or, for outfits, the body and the layers under this one, as one mesh); an
+        ``Obstacle`` made already is used as it is (``body_V`` and ``surface`` are then its own).
     offset : float
         The cloth's thickness: garment vertices near the body are lifted to it; crossings and the
         other close pairs are cleared to ``CLEARANCE_PUSH * CLEARANCE_SHARE`` of it (more in later
@@ -520,7 +582,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         Rings of garment vertices over which a push fades.
     max_rounds : int
     surface : TriangleSurface, optional
-        Of the body, when already built.
+        Of the body's own triangles, when already built.
     keep_offset : bool
         Also push out garment parts closer to the body than ``CLEARANCE_SHARE * offset`` (vertex
         to triangle both ways, edge to edge): the smallest distance kept.
@@ -529,6 +591,8 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         does not have (the transfer pressed close layers of cloth through each other) are undone
         too: the cloth around them takes its source shape (``restore_source_shape``), and the body
         is cleared again where that moved it, with a larger radius at each of ``RESTORE_TRIES``.
+    source_pairs : (k,2) int, optional
+        The source's own self-intersecting pairs (``SelfCheck(source_V, G).all(source_V)``), when known.
 
     Returns
     -------
@@ -538,41 +602,48 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         ``crossings_before``, ``crossings_after`` (edge-triangle pairs, both ways),
         ``near_before``, ``near_after`` (primitive pairs closer than ``CLEARANCE_SHARE * offset``),
         ``clearance`` (that distance),
-        ``rounds``, ``moved_vertices``, ``self_intersections_added`` (0 unless it could not avoid
+        ``rounds``, ``moved_vertices``, ``self_intersections_before``, ``self_intersections_after`` (pairs
+        of the garment), ``self_intersections_added`` (after minus before; 0 unless it could not avoid
         them), ``undone`` (pushes taken back because they made the cloth cross itself). With
-        ``source_V``: ``self_intersections_before``, ``self_intersections_after`` (edge-triangle
-        pairs), ``self_intersections_new`` (pairs left that the source does not have) and
-        ``restored_vertices``. ``kept_input``: True when nothing tried was better than the input (more
-        crossings, else more self-intersections, else more near pairs than it had): the input is returned.
+        ``source_V``: ``self_intersections_source`` (pairs of the source), ``self_intersections_new`` (pairs
+        left that the source does not have) and ``restored_vertices``. ``kept_input``: True when nothing
+        tried was better than the input (more crossings, else more self-intersections, else more near pairs
+        than it had): the input is returned.
     """
     V = np.array(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    body = surface if surface is not None else TriangleSurface(body_V, body_F)
+    G = as_readings(F)
+    obstacle = as_obstacle(body_V, body_F, surface, edge_length(V, G))
     if source_V is not None:
         source_V = np.asarray(source_V, dtype=np.float64)
         if source_V.shape != V.shape:
             raise ValueError(f"source_V must have the garment's shape {V.shape}, got {source_V.shape}")
-    A = vertex_adjacency(V.shape[0], F)
-    E = mesh_edges(F)
-    body_E = mesh_edges(body.F)
+    A = vertex_adjacency(V.shape[0], G.split)
+    check = SelfCheck(V, G)
     V_start = V.copy()
-    V, info, state = clear_body(V, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset)
+    start_pairs = check.all(V)
+    V, info, state = clear_body(V, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
+                                known=(None, (None, None, start_pairs)))
+    info["self_intersections_before"] = int(start_pairs.shape[0])
     if source_V is None:
-        moved = np.any(V != V_start, axis=1)
-        info["self_intersections_added"] = (len(local_self_pairs(V, F, E, moved))
-                                            - len(local_self_pairs(V_start, F, E, moved))) if moved.any() else 0
-        info["kept_input"] = False
+        pairs = state[2]
+        info.update(self_intersections_after=int(pairs.shape[0]),
+                    self_intersections_added=int(pairs.shape[0] - start_pairs.shape[0]), kept_input=False)
         if info["crossings_after"] > info["crossings_before"]:
             log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
                         info["crossings_after"], info["crossings_before"])
-            return _as_given(V_start, info)
+            return _as_given(V_start, info, self_intersections_after=int(start_pairs.shape[0]))
         return V, info
+    return _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
+                    source_V, source_pairs, info, state)
+
+
+def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
+             source_V, source_pairs, info, state):
+    """``separate``'s second half, with the source shape: the self-intersections the source lacks undone."""
     V_cleared = V
-    tangles = _SourceTangles(source_V, F, E)
-    pairs, new = new_self_pairs(V, F, E, source_V)
-    new = tangles.left_out(pairs, new)
-    # The input's count, from the result's where the body rounds moved nothing.
-    info["self_intersections_before"] = int(new_self_pairs(V_start, F, E, source_V, known=(V, pairs))[0].shape[0])
+    tangles = _SourceTangles(source_V, G, check, source_pairs)
+    pairs = state[2]
+    new = tangles.left_out(pairs, pairs[~on_source(pairs, G, source_V)])
     # Tries start from the latest shape that still has pairs to undo (``base``); the best result
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     near_given = info["near_after"]
@@ -583,11 +654,12 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         V_b, pairs_b, new_b, state_b = base[:4]
         # Each radius is tried with the cloth left where it is, then moved out as one piece.
         radius = (attempt // 2 + 1) * RESTORE_RADIUS * offset
-        W = restore_source_shape(V_b, F, E, source_V, new_b, radius, body if attempt % 2 else None, offset)
-        W, again, state_w = clear_body(W, F, E, A, body, body_E, offset, spread_rings, max_rounds, keep_offset,
-                                        known=(V_b, state_b))
-        pairs_w, new_w = new_self_pairs(W, F, E, source_V, known=(V_b, pairs_b))
-        new_w = tangles.left_out(pairs_w, new_w)
+        W = restore_source_shape(V_b, G.F, G.E, source_V, new_b, radius,
+                                 obstacle.surface if attempt % 2 else None, offset)
+        W, again, state_w = clear_body(W, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
+                                       known=(V_b, state_b))
+        pairs_w = state_w[2]
+        new_w = tangles.left_out(pairs_w, pairs_w[~on_source(pairs_w, G, source_V)])
         log.debug("restore %d: %d self-intersections the source lacks (%d before), %d crossings, %d near",
                   attempt + 1, new_w.shape[0], new_b.shape[0], again["crossings_after"], again["near_after"])
         tried = (W, pairs_w, new_w, state_w, again["crossings_after"], again["near_after"],
@@ -599,6 +671,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best
     info["rounds"] += rounds
     info["undone"] += undone
+    info["self_intersections_source"] = int(tangles.pairs().shape[0])
     if ((info["crossings_after"], pairs.shape[0], info["near_after"])
             > (info["crossings_before"], info["self_intersections_before"], info["near_before"])):
         # Nothing it tried is better than what it was given (a garment pressed through the body can leave
@@ -606,9 +679,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         log.warning("the crossings pass left %d crossings and %d self-intersections (%d and %d before): the "
                     "garment is kept as it was", info["crossings_after"], pairs.shape[0], info["crossings_before"],
                     info["self_intersections_before"])
-        pairs, new = new_self_pairs(V_start, F, E, source_V)
-        return _as_given(V_start, info, restored_vertices=0, self_intersections_after=int(pairs.shape[0]),
-                         self_intersections_new=int(tangles.left_out(pairs, new).shape[0]))
+        new = tangles.left_out(start_pairs, start_pairs[~on_source(start_pairs, G, source_V)])
+        return _as_given(V_start, info, restored_vertices=0, self_intersections_after=int(start_pairs.shape[0]),
+                         self_intersections_new=int(new.shape[0]))
     info["kept_input"] = False
     info["moved_vertices"] = int(np.any(V != V_start, axis=1).sum())
     info["restored_vertices"] = int(np.any(V != V_cleared, axis=1).sum())
@@ -622,59 +695,53 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
 
 def _as_given(V_start, info, **counts):
     """``separate``'s input returned as it came: its info says so, with the input's own counts (``counts``:
-    those of the source-shape checks)."""
+    those of the self-intersection checks)."""
     info.update(crossings_after=info["crossings_before"], near_after=info["near_before"], moved_vertices=0,
                 self_intersections_added=0, kept_input=True, **counts)
     return V_start, info
 
 
-def clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, max_rounds, keep_offset,
-                known=None):
+def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_rounds, keep_offset,
+               check: SelfCheck, known=None):
     """``separate`` without the source: the rounds that clear the body and keep the clearance.
 
-    ``known`` is ``(V_known, state)`` of an earlier call on this garment: only what moved since is
-    checked again. Returns V, info and the state (crossings and near pairs of the V returned)."""
+    ``known`` is ``(V_known, state)`` of an earlier call on this garment (``V_known`` None: the state is
+    V's own; a None in the state: not known): only what moved since is checked again. Returns V, info
+    and the state (crossings, near pairs and self-intersecting pairs of the V returned)."""
     moved = np.zeros(V.shape[0], bool)
     near = CLEARANCE_SHARE * offset if keep_offset else 0.0
-    if known is None:
-        c = crossings(V, F, body.V, body.F)
-        close = near_pairs(V, F, E, body, body_E, near) if keep_offset else None
-    else:
-        V_known, (c_known, close_known) = known
-        changed = np.any(V != V_known, axis=1)
-        c = crossings_again(V, F, E, body, body_E, c_known, changed)
-        close = near_pairs_again(V, F, E, body, body_E, near, close_known, changed) if keep_offset else None
+    c, close, pairs = _known_state(V, G, obstacle, near, keep_offset, check, known)
     info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
     lifts = Lifts()
     if keep_offset:
-        near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
+        near_lifts(V, G, obstacle, offset, near, close, lifts)
     n_near = near_count(close) if keep_offset else 0
     info["near_before"] = n_near
     info["clearance"] = near
     rounds = 0
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
-        crossing_lifts(V, F, body, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
+        crossing_lifts(V, G, obstacle, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
         D = lift_displacement(A, lifts, spread_rings)
         step = np.any(D != 0, axis=1)
         V_new = V.copy()
         V_new[step] += D[step]
         crossing = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
-        if rounds <= PROTECT_ROUNDS or not crossing:
-            # A crossing of the body comes first: after these rounds, it is removed even where
-            # the cloth then crosses itself (counted in self_intersections_added). The clearance
-            # alone never makes the cloth cross itself.
-            V_new, undone = _keep_self_intersections(V, V_new, F, E, step, A)
-            info["undone"] += undone
+        # A crossing of the body comes first: after these rounds, it is removed even where the cloth
+        # then crosses itself (counted in self_intersections_added). The clearance alone never makes
+        # the cloth cross itself.
+        guard = rounds <= PROTECT_ROUNDS or not crossing
+        V_new, undone, pairs = _keep_self_intersections(V, V_new, step, A, check, pairs, guard)
+        info["undone"] += undone
         changed = np.any(V_new != V, axis=1)
         moved |= changed
         V = V_new
-        c = crossings_again(V, F, E, body, body_E, c, changed)
+        c = crossings_again(V, G, obstacle, c, changed)
         lifts = Lifts()
         last_near = n_near
         if keep_offset:
-            close = near_pairs_again(V, F, E, body, body_E, near, close, changed)
-            near_lifts(V, F, E, body, body_E, offset, near, close, lifts)
+            close = near_pairs_again(V, G, obstacle, near, close, changed)
+            near_lifts(V, G, obstacle, offset, near, close, lifts)
             n_near = near_count(close)
         log.debug("round %d: %d crossings, %d near, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, int(step.sum()))
@@ -686,58 +753,67 @@ def clear_body(V, F, E, A, body: TriangleSurface, body_E, offset, spread_rings, 
     info["moved_vertices"] = int(moved.sum())
     if info["crossings_after"]:
         log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
-    return V, info, (c, close)
+    return V, info, (c, close, pairs)
 
 
-def crossings_again(V, F, E, body: TriangleSurface, body_E, c, moved):
-    """``crossings(V, F, body.V, body.F)`` after only the ``moved`` ((n,) bool) vertices moved: the
-    pairs of unmoved garment edges and triangles are kept from ``c``, the others checked again
-    (exactly; the body does not move). Same keys as ``crossings`` that the pass uses."""
-    keep_a = ~moved[c["a_pairs"]].any(axis=1)
-    keep_b = ~moved[F[c["b_triangles"]]].any(axis=1)
-    e_mov = np.flatnonzero(moved[E].any(axis=1))
-    t_mov = np.flatnonzero(moved[F].any(axis=1))
-    pa, _ = edge_triangle_pairs(V, E[e_mov], body.V, body.F)
-    pb, _ = edge_triangle_pairs(body.V, body_E, V, F[t_mov])
-    out = {"a_pairs": np.concatenate([c["a_pairs"][keep_a], E[e_mov[pa[:, 0]]].reshape(-1, 2)]),
-           "a_triangles": np.concatenate([c["a_triangles"][keep_a], pa[:, 1]]),
-           "b_pairs": np.concatenate([c["b_pairs"][keep_b], body_E[pb[:, 0]].reshape(-1, 2)]),
-           "b_triangles": np.concatenate([c["b_triangles"][keep_b], t_mov[pb[:, 1]]])}
-    out["a_edge_pairs"] = int(out["a_triangles"].shape[0])
-    out["b_edge_pairs"] = int(out["b_triangles"].shape[0])
-    return out
+def _known_state(V, G, obstacle, near, keep_offset, check, known):
+    """The crossings, near pairs and self-intersecting pairs of V: from ``known`` where it has them (see
+    ``clear_body``), checked again where V moved since, found in full where it has not."""
+    V_known, (c, close, pairs) = known if known is not None else (None, (None, None, None))
+    changed = None if V_known is None else np.any(V != V_known, axis=1)
+    if c is None:
+        c = garment_crossings(V, G, obstacle)
+    elif changed is not None:
+        c = crossings_again(V, G, obstacle, c, changed)
+    if not keep_offset:
+        close = None
+    elif close is None:
+        close = near_pairs(V, G, obstacle, near)
+    elif changed is not None:
+        close = near_pairs_again(V, G, obstacle, near, close, changed)
+    if pairs is None:
+        pairs = check.all(V)
+    elif changed is not None:
+        pairs = check.again(V, pairs, changed)
+    return c, close, pairs
 
 
-def _keep_self_intersections(V_old, V_new, F, E, step, A):
+def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, guard=True):
     """Take back moves that made the garment cross itself: halve them around the new
     self-intersections until none is new (at most a few times, then the old positions there).
 
     Parameters
     ----------
     V_old, V_new : (n,3) float64
-    F : (m,3) int64
-    E : (e,2) int64
     step : (n,) bool
         The vertices that moved.
     A : (n,n) sparse adjacency
+    check : SelfCheck
+    pairs : (k,2) int
+        The self-intersecting pairs of V_old.
+    guard : bool
+        False: the moves are kept as they are (only the pairs are counted again).
 
     Returns
     -------
     V : (n,3) float64
     undone : int
         Vertices whose move was reduced.
+    pairs : (j,2) int64
+        The self-intersecting pairs of V.
     """
-    before = local_self_pairs(V_old, F, E, step)
+    G = check.G
+    touched = check.touching(pairs, step)
+    kept, before = pairs[~touched], pairs[touched]
     undone = 0
+    after = check.local(V_new, step)
     for attempt in range(4):
-        after = local_self_pairs(V_new, F, E, step)
-        added = after - before
         # Pairs are named by edge and triangle; a move that trades one for another nearby does
         # not add a self-intersection, so the count decides.
-        if len(after) <= len(before):
-            return V_new, undone
-        edges = E[[a for a, _ in added]].ravel()
-        verts = np.unique(np.concatenate([edges, F[[b for _, b in added]].ravel()]))
+        if not guard or after.shape[0] <= before.shape[0]:
+            break
+        added = after[~_rows_in(after, before)]
+        verts = np.unique(np.concatenate([G.E[added[:, 0]].ravel(), G.F[added[:, 1]].ravel()]))
         region = np.zeros(V_new.shape[0], bool)
         region[verts] = True
         region |= (A @ region.astype(np.float64)) > 0
@@ -746,4 +822,14 @@ def _keep_self_intersections(V_old, V_new, F, E, step, A):
         keep = 0.5 if attempt < 3 else 0.0
         V_new = V_new.copy()
         V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
-    return V_new, undone
+        # Only the pairs of what was taken back can have changed.
+        after = unique_pairs(np.concatenate([after[~check.touching(after, region)], check.local(V_new, region)]))
+    return V_new, undone, unique_pairs(np.concatenate([kept, after]))
+
+
+def _rows_in(a, b):
+    """(k,) bool: which rows of the int pairs a (k,2) are rows of b (j,2)."""
+    if a.shape[0] == 0 or b.shape[0] == 0:
+        return np.zeros(a.shape[0], bool)
+    base = int(max(a[:, 1].max(), b[:, 1].max())) + 1
+    return np.isin(a[:, 0] * base + a[:, 1], b[:, 0] * base + b[:, 1])

@@ -36,6 +36,7 @@ from ..geometry.gradients import deformation_gradients
 from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topology
 from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
+from ..geometry.readings import Readings, readings_of
 from ..learning.placement import anchor_offsets
 from .field_mapping import model_field
 
@@ -126,12 +127,27 @@ class PreparedGarment:
     embed_matrix: object = None
     anchoring: str = "everywhere"
     _adjacency: object = field(default=None, repr=False)
+    _readings: object = field(default=None, repr=False)
+    _source_pairs: object = field(default=None, repr=False)
 
     def adjacency(self):
         """The garment's (n,n) vertex adjacency (csr), built on first use (only a fix needs it)."""
         if self._adjacency is None:
             self._adjacency = penetration.vertex_adjacency(self.garment.n_vertices, self.garment.F)
         return self._adjacency
+
+    def readings(self) -> Readings:
+        """Every reading of the garment's polygons (``readings.readings_of``), made on first use."""
+        if self._readings is None:
+            self._readings = readings_of(self.garment)
+        return self._readings
+
+    def source_pairs(self):
+        """(k,2) the garment's own self-intersecting pairs on the source body, under every reading (the
+        count a result is held to), found on first use."""
+        if self._source_pairs is None:
+            self._source_pairs = clearance.SelfCheck(self.garment.V, self.readings()).all(self.garment.V)
+        return self._source_pairs
 
 
 def _check_placement(source_body: Mesh, garment: Mesh, surface: TriangleSurface, binding: Binding):
@@ -445,8 +461,10 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         step(0.9, "crossings")
         t = time.perf_counter()
         V_fixed = V
-        V, sep_info = clearance.separate(V, garment.F, target_body.V, target_body.F, offset, surface=surface,
-                                         source_V=garment.V)
+        obstacle = clearance.Obstacle(target_body.V, readings_of(target_body), surface,
+                                      clearance.edge_length(V, prepared.readings()))
+        V, sep_info = clearance.separate(V, prepared.readings(), target_body.V, obstacle, offset, source_V=garment.V,
+                                         source_pairs=prepared.source_pairs())
         info.update(sep_info)
         if sep_info["moved_vertices"]:
             V, inside, info["crossings_pass_inside_undone"] = _undo_pushes_inside(V, V_fixed, surface)

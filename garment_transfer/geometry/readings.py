@@ -1,0 +1,280 @@
+"""Every way a tool may read a mesh's polygons as triangles: the union of all its triangulations.
+
+A quad is two triangles, but which two depends on who reads it: this package splits it along its shorter
+diagonal, Blender's Triangulate modifier and its renderers along one of their own choosing, a game engine or
+another exporter along the first. A non-planar quad is two different surfaces under the two splits, so a
+promise about the surface (no garment edge through the body, no body edge through the garment) is made for
+both. ``Readings`` holds, for a mesh of polygons, every triangle any triangulation of a polygon can have and
+every edge (the sides and every diagonal); a check run on all of them holds for every reading at once:
+
+- an intersection of a garment read one way with a body read one way is an edge of one meeting a triangle of
+  the other (``intersections``), and those edges and triangles are among the readings';
+- conversely, every (edge, triangle) pair of two meshes' readings is present together in some pair of
+  readings, so a pair found is a crossing a user can see.
+
+Within one mesh, a diagonal of a polygon and a triangle of the same polygon are never in one triangulation
+(they cross in the polygon), so such pairs are not self-intersections (``diagonal_of``). A quad has 4
+triangles and 2 diagonals; an n-gon of up to ``ALL_TRIANGLES_UP_TO`` corners every triangle of its corners
+(n(n-1)(n-2)/6: what ear clipping or Blender's beauty fill may choose); a larger one every fan (n(n-2)),
+which covers the fans other tools make, not every triangulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+
+#: Polygons with at most this many corners are read as every triangle of their corners; larger ones as
+#: every fan (the count of all triangles grows as n^3).
+ALL_TRIANGLES_UP_TO = 12
+
+
+def mesh_edges(F):
+    """Unique undirected edges of triangles.
+
+    Parameters
+    ----------
+    F : (m,3) int
+
+    Returns
+    -------
+    E : (e,2) int64
+        Sorted pairs, each edge once.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    if F.size == 0:
+        return np.zeros((0, 2), np.int64)
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    n = int(F.max()) + 1
+    key = np.unique(e[:, 0] * n + e[:, 1])
+    return np.stack([key // n, key % n], axis=1)
+
+
+@dataclass
+class Readings:
+    """The triangles and edges of every triangulation of a mesh's polygons.
+
+    Attributes
+    ----------
+    F : (t,3) int64
+        Every triangle of every reading (for a quad: both splits, 4 triangles), grouped by polygon.
+    face : (t,) int64
+        The polygon each comes from (non-decreasing).
+    E : (e,2) int64
+        Every edge: the polygons' sides and every diagonal, each once (sorted pairs).
+    diagonal_of : (e,) int64
+        For a diagonal, its polygon; -1 for a side of some polygon.
+    owner : (e,) int64
+        One polygon that holds each edge (a diagonal's own; the first of a side's): every edge lies in its
+        owner's bounding box, so boxes of polygons stand for those of their edges and triangles.
+    split : (m,3) int64
+        The mesh's own triangulation (``Mesh.F``): for closest points, normals and the vertex graph.
+    face_vertices : (k,) int64
+    face_start : (p+1,) int64
+        The polygons: polygon j is ``face_vertices[face_start[j]:face_start[j+1]]``.
+    """
+
+    F: np.ndarray
+    face: np.ndarray
+    E: np.ndarray
+    diagonal_of: np.ndarray
+    owner: np.ndarray
+    split: np.ndarray
+    face_vertices: np.ndarray
+    face_start: np.ndarray
+    _topology: dict = field(default=None, repr=False)
+
+    @property
+    def n_triangles(self) -> int:
+        return int(self.F.shape[0])
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.E.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.face_start.shape[0] - 1)
+
+    def same_polygon(self, edges, triangles):
+        """(k,) bool: the edge is a diagonal of the triangle's polygon (never in one reading with it).
+
+        Parameters
+        ----------
+        edges, triangles : (k,) int
+            Indices into ``E`` and ``F``.
+        """
+        d = self.diagonal_of[edges]
+        return (d >= 0) & (d == self.face[triangles])
+
+    def face_boxes(self, V):
+        """(p,3), (p,3): each polygon's bounding box in V (it holds every triangle and edge of its readings)."""
+        X = V[self.face_vertices]
+        start = self.face_start[:-1]
+        return np.minimum.reduceat(X, start, axis=0), np.maximum.reduceat(X, start, axis=0)
+
+    def topology(self) -> dict:
+        """What a self-intersection check needs of the polygons alone (made once, kept):
+
+        ``tri_start`` (p+1,) and ``edge_start`` (p+1,) with ``edge_order`` (e,): the triangles
+        ``tri_start[j]:tri_start[j+1]`` of ``F`` and the edges ``edge_order[edge_start[j]:edge_start[j+1]]``
+        owned by polygon j; ``touching`` (q,) int64: keys ``a * p + b`` of every ordered pair of polygons that
+        share a vertex (a polygon with itself included), sorted; ``near`` (r,2) int64: every (edge, triangle)
+        pair of polygons that share a vertex whose edge and triangle share none and are not a diagonal and a
+        triangle of one polygon (the pairs a check of polygons that share no vertex would miss), and
+        ``near_corners`` (r,5) int32: their edge's two vertices and triangle's three.
+        """
+        if self._topology is None:
+            self._topology = _self_topology(self)
+        return self._topology
+
+
+def _csr(groups, count):
+    """(count+1,) starts of the runs of a non-decreasing or arbitrary group label array, and the order."""
+    order = np.argsort(groups, kind="stable")
+    return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), order
+
+
+def _self_topology(R: Readings) -> dict:
+    p = R.n_faces
+    tri_start, _ = _csr(R.face, p)
+    edge_start, edge_order = _csr(R.owner, p)
+    sizes = np.diff(R.face_start)
+    poly_of_corner = np.repeat(np.arange(p), sizes)
+    # Polygons around each vertex, then every ordered pair of polygons at one vertex.
+    by_vertex = np.argsort(R.face_vertices, kind="stable")
+    verts = R.face_vertices[by_vertex]
+    polys = poly_of_corner[by_vertex]
+    vstart = np.searchsorted(verts, np.arange(int(verts.max()) + 2 if verts.size else 1))
+    count = np.diff(vstart)
+    a = np.repeat(polys, np.repeat(count, count))
+    rep = np.repeat(vstart[:-1], count * count)
+    local = np.arange(rep.size) - np.repeat(np.cumsum(count * count) - count * count, count * count)
+    b = polys[rep + local % np.repeat(count, count * count)]
+    touching = np.unique(a * p + b)
+    P, Q = touching // p, touching % p
+    edges, tris = _expand(P, Q, edge_start, edge_order, tri_start)
+    e, t = R.E[edges], R.F[tris]
+    keep = ~((e[:, :1] == t).any(axis=1) | (e[:, 1:] == t).any(axis=1)) & ~R.same_polygon(edges, tris)
+    # Each polygon pair once, each edge owned by one polygon: every (edge, triangle) pair comes once.
+    near = np.stack([edges[keep], tris[keep]], axis=1)
+    return {"tri_start": tri_start, "edge_start": edge_start, "edge_order": edge_order, "touching": touching,
+            "near": near, "near_corners": np.concatenate([e[keep], t[keep]], axis=1).astype(np.int32)}
+
+
+def _expand(P, Q, edge_start, edge_order, tri_start):
+    """Every (edge owned by P[i], triangle of Q[i]) for pairs of polygons (P, Q (k,) int): (edges, triangles)."""
+    ne = edge_start[P + 1] - edge_start[P]
+    nt = tri_start[Q + 1] - tri_start[Q]
+    n = ne * nt
+    pair = np.repeat(np.arange(P.shape[0]), n)
+    local = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    nt_p = nt[pair]
+    edges = edge_order[edge_start[P][pair] + local // nt_p]
+    tris = tri_start[Q][pair] + local % nt_p
+    return edges, tris
+
+
+def expand_polygon_pairs(R: Readings, P, Q):
+    """Every (edge owned by P[i], triangle of Q[i]) pair for pairs of polygons P, Q (k,) int.
+
+    Returns
+    -------
+    (j,2) int64
+        (index into ``R.E``, index into ``R.F``).
+    """
+    top = R.topology()
+    edges, tris = _expand(np.asarray(P, np.int64), np.asarray(Q, np.int64), top["edge_start"], top["edge_order"],
+                          top["tri_start"])
+    return np.stack([edges, tris], axis=1)
+
+
+def _polygon_triangles(fv, fs, sizes, faces):
+    """Every reading's triangles of the polygons ``faces`` (all of one size per call), with their owners."""
+    k = int(sizes[faces[0]])
+    corners = fv[fs[faces][:, None] + np.arange(k)]
+    if k <= ALL_TRIANGLES_UP_TO:
+        local = np.array(list(combinations(range(k), 3)), np.int64)
+    else:
+        local = np.array([(a, (a + i) % k, (a + i + 1) % k) for a in range(k) for i in range(1, k - 1)], np.int64)
+    tris = corners[:, local].reshape(-1, 3)
+    return tris, np.repeat(faces, local.shape[0])
+
+
+def _polygon_edges(fv, fs, sizes, faces):
+    """Every pair of corners of the polygons ``faces`` (one size per call), each marked side or diagonal."""
+    k = int(sizes[faces[0]])
+    corners = fv[fs[faces][:, None] + np.arange(k)]
+    pairs = np.array(list(combinations(range(k), 2)), np.int64)
+    side = ((pairs[:, 1] - pairs[:, 0]) == 1) | ((pairs[:, 0] == 0) & (pairs[:, 1] == k - 1))
+    e = np.sort(corners[:, pairs].reshape(-1, 2), axis=1)
+    return e, np.tile(side, faces.shape[0]), np.repeat(faces, pairs.shape[0])
+
+
+def polygon_readings(face_vertices, face_start, split) -> Readings:
+    """``Readings`` of polygons.
+
+    Parameters
+    ----------
+    face_vertices : (k,) int
+    face_start : (p+1,) int
+        Polygon j is ``face_vertices[face_start[j]:face_start[j+1]]``.
+    split : (m,3) int
+        Their triangulation (``Mesh.F``).
+
+    Returns
+    -------
+    Readings
+    """
+    fv = np.asarray(face_vertices, dtype=np.int64)
+    fs = np.asarray(face_start, dtype=np.int64)
+    sizes = np.diff(fs)
+    faces = np.arange(sizes.shape[0])
+    tris, owners, edges, sides, edge_owner = [], [], [], [], []
+    for k in np.unique(sizes):
+        group = faces[sizes == k]
+        t, o = _polygon_triangles(fv, fs, sizes, group)
+        e, s, eo = _polygon_edges(fv, fs, sizes, group)
+        tris.append(t)
+        owners.append(o)
+        edges.append(e)
+        sides.append(s)
+        edge_owner.append(eo)
+    F, face = np.concatenate(tris), np.concatenate(owners)
+    by_face = np.argsort(face, kind="stable")
+    F, face = F[by_face], face[by_face]
+    E, side, owner = np.concatenate(edges), np.concatenate(sides), np.concatenate(edge_owner)
+    n = int(fv.max()) + 1 if fv.size else 1
+    key = E[:, 0] * n + E[:, 1]
+    # A pair that is a side of any polygon is a side (owned by its first polygon); a diagonal keeps its one.
+    order = np.lexsort((owner, ~side, key))
+    key, side, owner = key[order], side[order], owner[order]
+    first = np.ones(key.shape[0], bool)
+    first[1:] = key[1:] != key[:-1]
+    key, side, owner = key[first], side[first], owner[first]
+    E = np.stack([key // n, key % n], axis=1)
+    return Readings(F.astype(np.int64), face.astype(np.int64), E, np.where(side, -1, owner).astype(np.int64),
+                    owner.astype(np.int64), np.asarray(split, dtype=np.int64), fv, fs)
+
+
+def triangle_readings(F) -> Readings:
+    """``Readings`` of a triangle mesh: its own triangles and edges (one reading)."""
+    F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
+    return polygon_readings(F.reshape(-1), np.arange(F.shape[0] + 1, dtype=np.int64) * 3, F)
+
+
+def readings_of(mesh) -> Readings:
+    """``Readings`` of a ``Mesh`` (its polygons; a mesh of triangles has one reading).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    """
+    return polygon_readings(mesh.face_vertices, mesh.face_start, mesh.F)
+
+
+def as_readings(F) -> Readings:
+    """``F`` itself when it is ``Readings``; a triangle array (m,3) as one reading."""
+    return F if isinstance(F, Readings) else triangle_readings(F)

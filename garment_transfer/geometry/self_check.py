@@ -1,0 +1,139 @@
+"""A mesh's own intersections under every reading of its polygons, found in full or again where it moved.
+
+A self-intersection is an (edge, triangle) pair of the mesh's readings (``readings.Readings``) that share no
+vertex, are not a diagonal and a triangle of one polygon (never in one reading), and meet (the exact test of
+``predicates``). Most boxes of a mesh's edges overlap the triangles around them, which share a vertex with
+them: a broad phase on edges and triangles spends nearly all its time on pairs that are left out. So the
+broad phase runs on polygons: pairs of polygons whose boxes overlap and that share no vertex give every
+(edge, triangle) pair between them (a polygon's box holds its edges and triangles); the pairs between
+polygons that share a vertex are listed once from the topology (``Readings.topology``'s ``near``) and only
+their boxes are tested. On the MakeHuman suits this is about ten times faster than edges against triangles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .broad_phase import BoxGrid
+from .predicates import segments_meet_triangles
+from .readings import Readings, expand_polygon_pairs
+
+NO_PAIRS = np.zeros((0, 2), np.int64)
+
+
+def unique_pairs(pairs):
+    """(k,2) int pairs, each once, sorted."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return np.unique(pairs, axis=0) if pairs.shape[0] else pairs
+
+
+class SelfCheck:
+    """The self-intersecting (edge, triangle) pairs of one mesh's readings, in full (``all``) or of what moved
+    (``local``).
+
+    The polygons' boxes stay binned as the mesh moves: before a check, the boxes of the polygons that moved
+    since the last one are moved in the bins (``BoxGrid.update``).
+
+    Parameters
+    ----------
+    V : (n,3) float
+        A shape of the mesh (for the bins' cell size).
+    R : Readings
+    """
+
+    def __init__(self, V, R: Readings):
+        self.R = R
+        self.top = R.topology()
+        lo, hi = R.face_boxes(np.asarray(V, dtype=np.float64))
+        self.cell = float(np.median((hi - lo).max(axis=1))) if lo.shape[0] else 0.0
+        self.V_binned = None
+
+    @property
+    def G(self) -> Readings:
+        return self.R
+
+    def _sync(self, V):
+        """The polygon bins made for V: from scratch the first time, else the boxes of what moved since."""
+        lo, hi = self.R.face_boxes(V)
+        if self.V_binned is None:
+            self.grid = BoxGrid(lo, hi, self.cell)
+        else:
+            moved = np.flatnonzero(np.any(V != self.V_binned, axis=1))
+            if moved.size:
+                faces = self._faces_of(moved)
+                self.grid.update(faces, lo[faces], hi[faces])
+        self.V_binned = V.copy()
+        return lo, hi
+
+    def _faces_of(self, vertices):
+        """The polygons with a corner among ``vertices`` (k,) int, each once."""
+        mark = np.zeros(self.V_binned.shape[0], bool)
+        mark[vertices] = True
+        corner = mark[self.R.face_vertices]
+        return np.unique(np.repeat(np.arange(self.R.n_faces), np.diff(self.R.face_start))[corner])
+
+    def all(self, V):
+        """Every self-intersecting pair of V: (k,2) (edge, triangle) indices into ``R.E``, ``R.F``, sorted."""
+        V = np.asarray(V, dtype=np.float64)
+        lo, hi = self._sync(V)
+        pairs = self.grid.query(lo, hi)
+        return self._test(V, self._apart(pairs), self._near_overlapping(V))
+
+    def local(self, V, moved):
+        """The self-intersecting pairs of V with a ``moved`` ((n,) bool) vertex in the edge or the triangle,
+        sorted."""
+        V = np.asarray(V, dtype=np.float64)
+        lo, hi = self._sync(V)
+        faces = self._faces_of(np.flatnonzero(moved))
+        if faces.size == 0:
+            return NO_PAIRS
+        pairs = self.grid.query(lo[faces], hi[faces])
+        pairs = self._apart(np.stack([faces[pairs[:, 0]], pairs[:, 1]], axis=1))
+        corners = self.top["near_corners"]
+        near = np.flatnonzero(moved[corners].any(axis=1))
+        found = self._test(V, np.concatenate([pairs, pairs[:, ::-1]]), self._near_overlapping(V, near))
+        return found[self.touching(found, moved)]
+
+    def _near_overlapping(self, V, which=None):
+        """The ``near`` pairs (all, or those listed in ``which``) whose edge's and triangle's boxes overlap,
+        tested axis by axis on what the last axis kept (most neighbours' pairs are apart)."""
+        corners = self.top["near_corners"]
+        keep = np.arange(corners.shape[0]) if which is None else which
+        for axis in range(3):
+            x = V[:, axis][corners[keep]]
+            edge_lo, edge_hi = np.minimum(x[:, 0], x[:, 1]), np.maximum(x[:, 0], x[:, 1])
+            tri_lo = np.minimum(np.minimum(x[:, 2], x[:, 3]), x[:, 4])
+            tri_hi = np.maximum(np.maximum(x[:, 2], x[:, 3]), x[:, 4])
+            keep = keep[(edge_lo <= tri_hi) & (tri_lo <= edge_hi)]
+        return self.top["near"][keep]
+
+    def _apart(self, pairs):
+        """The polygon pairs (k,2) that share no vertex (the others are in ``near``)."""
+        p = self.R.n_faces
+        key = pairs[:, 0] * p + pairs[:, 1]
+        touching = self.top["touching"]
+        at = np.minimum(np.searchsorted(touching, key), max(touching.size - 1, 0))
+        return pairs[touching[at] != key] if touching.size else pairs
+
+    def _test(self, V, polygon_pairs, near):
+        """The pairs that meet among every (edge, triangle) of the polygon pairs and the ``near`` pairs."""
+        R = self.R
+        cand = np.concatenate([expand_polygon_pairs(R, polygon_pairs[:, 0], polygon_pairs[:, 1]), near])
+        e, t = R.E[cand[:, 0]], R.F[cand[:, 1]]
+        P, Q = V[e[:, 0]], V[e[:, 1]]
+        A, B, C = V[t[:, 0]], V[t[:, 1]], V[t[:, 2]]
+        # Boxes first: most pairs of neighbouring polygons are apart.
+        lo_t, hi_t = np.minimum(np.minimum(A, B), C), np.maximum(np.maximum(A, B), C)
+        overlap = np.all((np.minimum(P, Q) <= hi_t) & (lo_t <= np.maximum(P, Q)), axis=1)
+        k = np.flatnonzero(overlap)
+        meet, _ = segments_meet_triangles(P[k], Q[k], A[k], B[k], C[k])
+        return unique_pairs(cand[k[meet]])
+
+    def touching(self, pairs, moved):
+        """(k,) bool: the pairs (k,2) with a ``moved`` vertex in the edge or the triangle."""
+        return moved[self.R.E[pairs[:, 0]]].any(axis=1) | moved[self.R.F[pairs[:, 1]]].any(axis=1)
+
+    def again(self, V, pairs, moved):
+        """The self-intersecting pairs of V, given ``pairs`` of an earlier shape from which only ``moved``
+        vertices moved."""
+        return unique_pairs(np.concatenate([pairs[~self.touching(pairs, moved)], self.local(V, moved)]))
