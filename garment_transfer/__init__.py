@@ -38,15 +38,18 @@ from .version import __version__
 LAYERS = {
     "geometry": ("Mesh", "read_obj", "write_obj", "obj_text", "mesh_from_polygons", "mesh_from_triangles",
                  "require_same_topology", "same_mesh", "TriangleSurface", "body_scale", "fix_penetration",
-                 "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report"),
-    "fitting": ("register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS"),
+                 "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report", "readings_of",
+                 "Readings"),
+    "fitting": ("register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS",
+                "pose_difference"),
     "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
                  "load_dataset", "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings"),
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
-                 "OFFSET_SHARE", "crossings_left", "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys",
-                 "transfer_to_shapes", "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights",
-                 "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
-                 "check_model", "check_after_training", "read_catalogue", "run_batch"),
+                 "OFFSET_SHARE", "POSE_LIMIT_DEGREES", "pose_check", "check_result", "result_warnings",
+                 "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
+                 "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
+                 "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
+                 "check_after_training", "read_catalogue", "run_batch"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 

@@ -114,9 +114,9 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     outcome : TransferResult
         From the core (positions, per-stage seconds, penetrating vertices).
     metrics : dict
-        ``evaluate`` of the result against the garment on the target body.
+        ``evaluate`` of the result as Blender has it (``result_metrics``) against the target body.
     """
-    from ..garment_transfer import SHAPE_BOUNDS, MeshError, evaluate, transfer_to_any_body
+    from ..garment_transfer import SHAPE_BOUNDS, MeshError, transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -158,16 +158,27 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     outcome.body_model = body_model
     outcome.model_text = model_text(model)
     outcome.V = outcome.V @ frame
-    metrics = evaluate(cloth, cloth.with_vertices(outcome.V), target)
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
                                        depsgraph, evaluated, scene=context.scene,
                                        view_layer=context.view_layer)
+    metrics = result_metrics(context, result, cloth, target)
     outcome.registered_body = None
     if registration is not None and keep_registered:
         outcome.registered_body = convert.new_result_object(
             source_body, registration.V @ frame, registered_name(source_body, target_body), depsgraph,
             evaluated, scene=context.scene, view_layer=context.view_layer)
     return result, outcome, metrics
+
+
+def result_metrics(context, result, garment, target):
+    """``evaluate`` of the new object as Blender has it (evaluated, in world space, its 32-bit coordinates),
+    against the target body as read (``garment``, ``target``: the core meshes read): the panel's and the
+    report's figures, crossings under every triangulation of the faces included."""
+    from ..garment_transfer import evaluate
+
+    context.view_layer.update()
+    written = convert.core_mesh_from_object(result, context.evaluated_depsgraph_get(), True, "result")
+    return evaluate(garment, garment.with_vertices(written.V), target)
 
 
 #: The panel's registration line names at most this many sliders (the largest weights first).
@@ -246,11 +257,10 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         settings.last_model = outcome.model_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
-        from ..garment_transfer import crossings_left
+        from ..garment_transfer import result_warnings
 
-        left = crossings_left(outcome.info)
-        if left:
-            self.report({'WARNING'}, f"{result.name}: {left}")
+        for warning in result_warnings(metrics, result.name):
+            self.report({'WARNING'}, warning)
         return {'FINISHED'}
 
 

@@ -57,3 +57,19 @@ def random_rotation(rng):
     if np.linalg.det(q) < 0:
         q[:, 0] *= -1
     return q
+
+
+def arms_down(V, angle=np.radians(40)):
+    """MakeHuman (Y up, X lateral) with the arms swung down about the shoulders, blended over the
+    shoulder so that the mesh stays in one piece."""
+    V = V.copy()
+    for side in (1, -1):
+        x = side * V[:, 0]
+        w = np.clip((x - 1.3) / 0.6, 0, 1) * (V[:, 1] > 0.0)
+        a = angle * w
+        dx, dy = x - 1.5, V[:, 1] - 4.9
+        nx = 1.5 + np.cos(a) * dx + np.sin(a) * dy
+        ny = 4.9 - np.sin(a) * dx + np.cos(a) * dy
+        V[:, 0] = np.where(w > 0, side * nx, V[:, 0])
+        V[:, 1] = np.where(w > 0, ny, V[:, 1])
+    return V

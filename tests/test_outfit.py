@@ -11,6 +11,7 @@ import pytest
 from meshes import icosphere
 
 from garment_transfer.geometry.intersections import crossings, self_intersections
+from garment_transfer.geometry.readings import readings_of
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
@@ -130,15 +131,16 @@ def test_demo_outfit_adds_no_self_intersection():
     # crosses anything (exact).
     src, tgt = read_obj(DEMO / "bodies" / "banana.obj"), read_obj(DEMO / "bodies" / "pear.obj")
     layers = [read_obj(DEMO / "garments" / g / "banana.obj", name=g) for g in ("tshirt", "shift_dress")]
-    assert crossing_pairs(layers[1].V, layers[1].F, layers[0].V, layers[0].F) > 1000
-    given = [self_intersections(g.V, g.F)[0] for g in layers]
-    assert given == [0, 3]
+    R = [readings_of(g) for g in layers]
+    assert crossing_pairs(layers[1].V, R[1], layers[0].V, R[0]) > 1000
+    given = [self_intersections(g.V, r)[0] for g, r in zip(layers, R)]
     r = transfer_outfit(src, tgt, layers)
+    # Under every triangulation of the layers' quads (and of the bodies').
     for where, body, Vs in (("source", src, r.source_V), ("target", tgt, r.V)):
         for k, (g, V) in enumerate(zip(layers, Vs)):
-            assert self_intersections(V, g.F)[0] <= given[k], (where, g.name)
-            assert crossing_pairs(V, g.F, body.V, body.F) == 0, (where, g.name)
-        assert crossing_pairs(Vs[1], layers[1].F, Vs[0], layers[0].F) == 0, where
+            assert self_intersections(V, R[k])[0] <= given[k], (where, g.name)
+            assert crossing_pairs(V, R[k], body.V, readings_of(body)) == 0, (where, g.name)
+        assert crossing_pairs(Vs[1], R[1], Vs[0], R[0]) == 0, where
     assert r.info[1]["target_separation"]["self_intersections_after"] <= given[1]
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from meshes import icosphere, require_makehuman
+from meshes import arms_down, icosphere, require_makehuman
 
 from garment_transfer.errors import RegistrationError, TopologyMismatchError
 from garment_transfer.fitting import alignment, cache, nonrigid, registration, shape_basis
@@ -256,22 +256,6 @@ def test_a_sphere_is_refused_naming_the_figure(source):
     V, F = icosphere(4, radius=8.0)
     with pytest.raises(RegistrationError, match="sphere.*aspect ratio"):
         register(source, mesh_from_triangles(V, F, name="sphere"), cache=False)
-
-
-def arms_down(V, angle=np.radians(40)):
-    """MakeHuman (Y up, X lateral) with the arms swung down about the shoulders, blended over the
-    shoulder so that the mesh stays in one piece."""
-    V = V.copy()
-    for side in (1, -1):
-        x = side * V[:, 0]
-        w = np.clip((x - 1.3) / 0.6, 0, 1) * (V[:, 1] > 0.0)
-        a = angle * w
-        dx, dy = x - 1.5, V[:, 1] - 4.9
-        nx = 1.5 + np.cos(a) * dx + np.sin(a) * dy
-        ny = 4.9 - np.sin(a) * dx + np.cos(a) * dy
-        V[:, 0] = np.where(w > 0, side * nx, V[:, 0])
-        V[:, 1] = np.where(w > 0, ny, V[:, 1])
-    return V
 
 
 def test_another_pose_is_refused_naming_the_figure(source, tmp_path):

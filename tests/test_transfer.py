@@ -2,13 +2,14 @@ import json
 
 import numpy as np
 import pytest
-from meshes import icosphere, require_makehuman
+from meshes import arms_down, icosphere, require_makehuman
 
 from garment_transfer.errors import Cancelled, MeshError, TopologyMismatchError
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.pipeline.metrics import evaluate
+from garment_transfer.pipeline import transfer
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 
@@ -116,11 +117,37 @@ def test_result_moves_with_the_scene():
     np.testing.assert_allclose(b.V, a.V @ R.T + t, atol=1e-9)
 
 
-def test_crossings_left_names_what_the_pass_could_not_clear():
-    from garment_transfer.pipeline.transfer import crossings_left
+def test_result_warnings_name_the_file_and_every_kind_of_failure():
+    from garment_transfer.pipeline.result_check import result_warnings
 
-    assert crossings_left({}) is None                                  # the pass did not run
-    assert crossings_left({"crossings_after": 0, "crossings_before": 12}) is None
-    text = crossings_left({"crossings_after": 7, "crossings_before": 9, "kept_input": False})
-    assert "7 garment-body crossings are left" in text and "penetration fix" not in text
-    assert "as the penetration fix left it" in crossings_left({"crossings_after": 9, "kept_input": True})
+    clean = {"garment_edges_through_body": 0, "body_edges_through_garment": 0, "inside_vertices": 0,
+             "self_intersections": 4, "self_intersections_source": 4, "self_intersections_new": 0,
+             "layer_crossings": 0}
+    assert result_warnings(clean, "out.obj") == []
+    bad = dict(clean, garment_edges_through_body=2, body_edges_through_garment=5, inside_vertices=1,
+               self_intersections=9, self_intersections_new=3, layer_crossings=7)
+    text = result_warnings(bad, "out.obj")
+    assert len(text) == 4 and all(t.startswith("out.obj: ") for t in text)
+    assert "2 garment edges pass through the body and 5 body edges" in text[0]
+    assert "1 garment vertices are inside" in text[1]
+    assert "3 edge-triangle pairs its source does not (9 in all, 4 on the source)" in text[2]
+    assert "7 edge-triangle pairs cross the layers under it" in text[3]
+
+
+def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
+    root = require_makehuman()
+    source = read_obj(root / "bodies" / "female_average.obj", name="female_average")
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    posed = source.with_vertices(arms_down(source.V, np.radians(35)), name="arms_down")
+    with pytest.raises(MeshError, match=r"arms_down: is in another pose than the source body female_average: its "
+                                        r"(left|right) (upper arm|forearm) points \d+ degrees away"):
+        transfer_garment(source, posed, garment, resolve_crossings=False)
+    # A shape of the same pose, and arms a little lower, are not; the angle is in the result's info.
+    pear = read_obj(root / "bodies" / "female_pear.obj")
+    near = source.with_vertices(arms_down(source.V, np.radians(10)), name="arms_10")
+    for body, most in ((pear, 3.0), (near, transfer.POSE_LIMIT_DEGREES)):
+        pose = transfer_garment(source, body, garment, resolve_crossings=False).info["pose_difference"]
+        assert 0.0 < pose["degrees"] < most
+    unchecked = transfer_garment(source, posed, garment, resolve_crossings=False, check_pose=False)
+    assert unchecked.V.shape == garment.V.shape and "pose_difference" not in unchecked.info
+

@@ -16,6 +16,10 @@ METRIC_LABELS = (
     ("drape_error_relative", "Drape error (relative)", "{:.3f}"),
     ("vertex_error_mean", "Vertex error (mean)", "{:.4g}"),
     ("vertex_error_max", "Vertex error (max)", "{:.4g}"),
+    ("garment_edges_through_body", "Garment edges through body", "{:d}"),
+    ("body_edges_through_garment", "Body edges through garment", "{:d}"),
+    ("self_intersections_new", "Self-intersections beyond source", "{:d}"),
+    ("min_body_distance", "Smallest distance to body", "{:.4g}"),
 )
 
 

@@ -23,6 +23,7 @@ from ..fitting.body_model import makehuman_shape_basis
 from ..fitting.registration import register
 from ..fitting.shape_basis import shape_basis_from_bodies
 from ..geometry.obj import obj_text, read_obj, write_obj
+from ..geometry.readings import readings_of
 from ..learning.garment_training import (
     FIELD_EPOCHS,
     PLACEMENT_EPOCHS,
@@ -37,9 +38,9 @@ from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
 from ..pipeline.shape_keys import shapes_to_files
-from ..pipeline.transfer import crossings_left
+from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
 from .batch import add_batch_arguments, batch_main
-from .options import emit, number_option, share_option, stderr_progress
+from .options import WarningLog, emit, number_option, share_option, stderr_progress
 
 log = logging.getLogger("garment_transfer")
 
@@ -70,25 +71,47 @@ def cmd_transfer(args):
     write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
                      f"{os.path.basename(args.target_body)} ({args.method})")
-    seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
+    write = time.perf_counter() - t
+    t = time.perf_counter()
+    check = written_check(args.out, garment, target_body, result.prepared)
+    seconds = dict(result.seconds, load=load, write=write, check=time.perf_counter() - t)
     out = {"out": args.out, "method": args.method, "target": args.target,
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
-           "seconds": seconds, "penetrating_vertices": result.penetrating_vertices,
-           "info": result.info, "registered": registration is not None, **_model_summary(model)}
+           "seconds": seconds, "penetrating_vertices": check["inside_vertices"], "check": check,
+           "warnings": result_warnings(check, args.out), "info": pass_log(result.info),
+           "registered": registration is not None, **_model_summary(model)}
     if _shape_weights_named(shape, registration):
         out["body_model_weights"] = _shape_weights_named(shape, registration)
     lines = [f"wrote {args.out}: {garment.n_vertices} vertices, {garment.n_faces} faces, "
-             f"{result.penetrating_vertices} inside the target body, "
+             f"{check['inside_vertices']} inside the target body, {check_line(check)}, "
              f"{result.seconds['total']:.3f} s (transfer)"]
     if model is not None:
         lines.append(f"model: {model.describe()}")
     if registration is not None:
         lines.append(_registration_line(args.source_body, args.target_body, registration))
-    left = crossings_left(result.info)
-    if left:
-        out["warnings"] = [f"{args.out}: {left}"]
-        lines.append(f"warning: {args.out}: {left}")
+    lines += [f"warning: {w}" for w in out["warnings"]]
     emit(args, out, lines)
+
+
+def written_check(path, garment, target_body, prepared=None):
+    """``check_result`` of the file as written at ``path`` (read back), against the target body given."""
+    written = read_obj(path)
+    return check_result(garment, written.V, target_body,
+                        source_pairs=None if prepared is None else prepared.source_pairs(),
+                        readings=None if prepared is None else prepared.readings())
+
+
+def check_line(check):
+    """The check's figures in a few words (every triangulation of the faces, the file as written)."""
+    through = check["garment_edges_through_body"] + check["body_edges_through_garment"]
+    return (f"{through} edges through the body or it, self-intersections {check['self_intersections']} "
+            f"(source {check['self_intersections_source']}), smallest distance {check['min_body_distance']:.3g} "
+            "(as written, any triangulation)")
+
+
+def pass_log(info):
+    """A transfer's info without the figures of the result in memory (the check gives those of the file)."""
+    return {k: v for k, v in info.items() if k not in PASS_RESULT_KEYS}
 
 
 def _registration_line(source, target, reg):
@@ -148,10 +171,11 @@ def cmd_shapes(args):
                               offset=args.offset, margin=args.margin or 0.0,
                               fix_penetration=not args.no_fix, progress=stderr_progress("shapes")
                               if args.verbose else None)
-    emit(args, summary, [f"wrote {s['out']}: {s['penetrating_vertices']} vertices inside {s['target']}"
-                          for s in summary["shapes"]]
+    emit(args, summary, [f"wrote {s['out']}: {s['penetrating_vertices']} vertices inside {s['target']}, "
+                          f"{check_line(s['check'])}" for s in summary["shapes"]]
           + [f"{len(summary['shapes'])} shapes, one preparation: {summary['seconds']['total']:.2f} s "
-             f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"])
+             f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"]
+          + [f"warning: {w}" for w in summary["warnings"]])
 
 
 def _model_for(args):
@@ -222,13 +246,24 @@ def cmd_transfer_outfit(args):
                                    f"{len(garments)}) on {on}")
              for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
     write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model])
-    seconds = dict(result.seconds, load=load, write=time.perf_counter() - t)
+    write = time.perf_counter() - t
+    t = time.perf_counter()
+    checks, below = [], []
+    for g, p in zip(garments, paths):
+        V = read_obj(p).V
+        checks.append(check_result(g, V, target_body, layers_below=below))
+        below.append((V, readings_of(g)))
+    seconds = dict(result.seconds, load=load, write=write, check=time.perf_counter() - t)
+    warnings = [w for c, p in zip(checks, paths) for w in result_warnings(c, p)]
     out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds, **_model_summary(model),
+           "warnings": warnings,
            "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
-                       "info": i} for f, p, g, i in zip(args.garment, paths, garments, result.info)]}
-    emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}" for k, p in enumerate(paths)]
+                       "penetrating_vertices": c["inside_vertices"], "check": c, "info": pass_log(i)}
+                      for f, p, g, i, c in zip(args.garment, paths, garments, result.info, checks)]}
+    emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}, {check_line(c)}"
+                     for k, (p, c) in enumerate(zip(paths, checks))]
           + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
-          + ([f"model: {model.describe()}"] if model is not None else []))
+          + ([f"model: {model.describe()}"] if model is not None else []) + [f"warning: {w}" for w in warnings])
 
 
 def cmd_evaluate(args):
@@ -497,7 +532,12 @@ def main(argv=None):
             _check_train_options(parser, args)
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
-        code = args.func(args)
+        args.warning_log = WarningLog()
+        logging.getLogger().addHandler(args.warning_log)
+        try:
+            code = args.func(args)
+        finally:
+            logging.getLogger().removeHandler(args.warning_log)
     except KeyboardInterrupt:
         # Every writer renames a complete temporary file at the end: nothing is half-written.
         print("interrupted (Ctrl+C); no partial file written", file=sys.stderr)

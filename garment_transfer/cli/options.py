@@ -5,14 +5,32 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 
 from ..files import json_default
 
 
+class WarningLog(logging.Handler):
+    """The warnings the core logs during one command (they go to stderr too): ``emit`` adds them to the JSON's
+    ``warnings``, so that the JSON says every warning the run printed."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+
 def emit(args, result: dict, lines):
-    """Print ``result`` as one JSON object with ``--json``, else the ``lines``."""
+    """Print ``result`` as one JSON object with ``--json``, else the ``lines``. The warnings logged during the
+    command (``args.warning_log``, a ``WarningLog``) join ``result["warnings"]`` first."""
+    log = getattr(args, "warning_log", None)
+    if log is not None and log.messages:
+        said = list(result.get("warnings", []))
+        result["warnings"] = said + [m for m in log.messages if m not in said]
     if getattr(args, "json", False):
         print(json.dumps(finite(result), indent=2, default=json_default, allow_nan=False))
     else:

@@ -3,7 +3,8 @@ models being learned. Meshes and OBJ files (``Mesh``, ``read_obj``, ``write_obj`
 signed distance (``TriangleSurface``), deformation gradients, the embedding of a garment's per-triangle field on
 the body and back, garment vertices bound to the body (``bind``, ``carry``), the Poisson solve that rebuilds a
 mesh from gradients (``PoissonSolver``), the penetration fix, exact intersection counts, and the crossing pass
-(``clearance``). Everything here works on arrays; every other layer builds on it.
+(``clearance``), all under every reading of a mesh's polygons (``readings``: both splits of a quad). Everything
+here works on arrays; every other layer builds on it.
 """
 
 from .binding import Binding, bind, carry, follow_nearest_vertex
@@ -28,10 +29,12 @@ from .obj import obj_text, read_obj, write_obj
 from .penetration import fix_penetration, vertex_adjacency
 from .poisson import PoissonSolver
 from .proximity import TriangleSurface, closest_on_triangles
+from .readings import Readings, readings_of
+from .self_check import SelfCheck
 
 __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
            "connected_pieces", "triangle_normals", "vertex_normals", "vertex_areas", "faces_hash", "read_obj",
            "write_obj", "obj_text", "TriangleSurface", "closest_on_triangles", "deformation_gradients", "body_scale",
            "body_to_cloth", "cloth_to_body", "embed", "unembed", "Binding", "bind", "carry", "follow_nearest_vertex",
            "PoissonSolver", "fix_penetration", "vertex_adjacency", "crossings", "self_intersections",
-           "minimum_distance", "intersection_report", "separate"]
+           "minimum_distance", "intersection_report", "separate", "Readings", "readings_of", "SelfCheck"]

@@ -56,14 +56,12 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .broad_phase import BoxGrid
-from .intersections import crossing_counts, segment_closest, segment_distances
-from .predicates import edge_triangle_pairs, segments_meet_triangles
-from .mesh import triangle_normals
+from .intersections import segment_closest, segment_distances
+from .obstacle import Obstacle, as_obstacle, edge_length, garment_crossings
 from .penetration import spread_displacement, vertex_adjacency
-from .proximity import TriangleSurface, closest_on_triangles
+from .proximity import closest_on_triangles
 from .readings import Readings, as_readings
-from .self_check import NO_PAIRS, SelfCheck, unique_pairs
+from .self_check import NO_PAIRS, SelfCheck, beyond_source, unique_pairs
 
 log = logging.getLogger(__name__)
 
@@ -86,77 +84,6 @@ RESTORE_TRIES = 8
 #: A local affine fit whose smallest singular value is under this share of its largest would
 #: flatten the cloth: a similarity is fitted instead.
 FIT_CONDITION = 0.2
-
-
-class Obstacle:
-    """What the garment must clear (a body, or a body and the layers under a garment), as the pass asks
-    about it: every reading of its polygons, binned once (it does not move).
-
-    Parameters
-    ----------
-    V : (p,3) float
-    F : (q,3) int or Readings
-        Triangles, or every reading of the polygons (``readings.readings_of``).
-    surface : TriangleSurface, optional
-        Of ``V`` and the mesh's own triangles (``Readings.split``), when already built: closest points,
-        signed distance and normals.
-    cell : float, optional
-        The grids' cell side: best about the size of what will be asked about (the garment's edges); at
-        least the median size of the obstacle's own boxes.
-
-    Attributes
-    ----------
-    V : (p,3) float64
-    R : Readings
-    F, E : (t,3), (e,2) int64
-        Every reading's triangles and edges.
-    surface : TriangleSurface
-    face_normals : (t,3) float64
-        Unit normals of ``F``.
-    """
-
-    def __init__(self, V, F, surface=None, cell=None):
-        self.V = np.asarray(V, dtype=np.float64)
-        self.R = as_readings(F)
-        self.F, self.E = self.R.F, self.R.E
-        self.surface = surface if surface is not None else TriangleSurface(self.V, self.R.split)
-        P, Q = self.V[self.E[:, 0]], self.V[self.E[:, 1]]
-        lo, hi = np.minimum(P, Q), np.maximum(P, Q)
-        # Cells much smaller than the boxes asked about would each be listed many times.
-        self.cell = max(float(np.median((hi - lo).max(axis=1))), float(cell or 0.0))
-        self.edge_grid = BoxGrid(lo, hi, self.cell)
-        T = self.V[self.F]
-        self.triangle_grid = BoxGrid(T.min(axis=1), T.max(axis=1), self.cell)
-        self.face_normals = triangle_normals(self.V, self.F)[0]
-        self._vertex_grid = None
-
-    @property
-    def vertex_normals(self):
-        return self.surface.vertex_normals
-
-    @property
-    def vertex_grid(self):
-        """The vertices as points, binned (cells of the median edge length)."""
-        if self._vertex_grid is None:
-            used = np.unique(self.F)
-            self._vertex_grid = BoxGrid(self.V[used], self.V[used], cell=self.cell)
-            self._vertex_ids = used
-        return self._vertex_grid
-
-    def vertices_near(self, lo, hi):
-        """(k,2) (query box, obstacle vertex) pairs: the vertices in each box (lo, hi (q,3))."""
-        pairs = self.vertex_grid.query(lo, hi)
-        return np.stack([pairs[:, 0], self._vertex_ids[pairs[:, 1]]], axis=1)
-
-
-def as_obstacle(V, F, surface=None, cell=None) -> Obstacle:
-    """``Obstacle(V, F, surface, cell)``; F may already be one (then V, surface and cell are its own)."""
-    return F if isinstance(F, Obstacle) else Obstacle(V, F, surface, cell)
-
-
-def edge_length(V, G: Readings):
-    """The median length of the sides and diagonals of a garment's polygons (its grids' cell)."""
-    return float(np.median(np.linalg.norm(V[G.E[:, 0]] - V[G.E[:, 1]], axis=1))) if G.n_edges else 0.0
 
 
 class Lifts:
@@ -213,26 +140,6 @@ class Lifts:
 
 # --------------------------------------------------------------------------- garment against the obstacle
 
-def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
-    """``intersections.crossings(V, G, obstacle.V, obstacle.R)``, the obstacle's grids asked about the
-    garment's edges and triangles (those with an ``active`` ((n,) bool) vertex, or all).
-
-    Returns
-    -------
-    dict
-        As ``crossings``: ``a_*`` the garment's edges through the obstacle's triangles (``a_triangles``
-        index ``obstacle.F``), ``b_*`` the obstacle's edges through the garment's triangles
-        (``b_triangles`` index ``G.F``).
-    """
-    e_act = np.arange(G.n_edges) if active is None else np.flatnonzero(active[G.E].any(axis=1))
-    t_act = np.arange(G.n_triangles) if active is None else np.flatnonzero(active[G.F].any(axis=1))
-    pa, ua = edge_triangle_pairs(V, G.E[e_act], obstacle.V, obstacle.F, triangle_grid=obstacle.triangle_grid)
-    pb, ub = edge_triangle_pairs(obstacle.V, obstacle.E, V, G.F[t_act], edge_grid=obstacle.edge_grid)
-    pa = np.stack([e_act[pa[:, 0]], pa[:, 1]], axis=1)
-    pb = np.stack([pb[:, 0], t_act[pb[:, 1]]], axis=1)
-    return crossing_counts(G.E, pa, obstacle.E, pb, ua + ub)
-
-
 def crossings_again(V, G: Readings, obstacle: Obstacle, c, moved):
     """``garment_crossings`` after only the ``moved`` ((n,) bool) vertices moved: the pairs of unmoved
     garment edges and triangles are kept from ``c``, the others checked again (exactly; the obstacle does
@@ -253,9 +160,10 @@ def crossing_lifts(V, G: Readings, obstacle: Obstacle, c, clear, lifts):
     """Bounds that take the garment out of every crossing, by ``clear``.
 
     A garment edge through an obstacle triangle: its point in the triangle's plane to ``clear`` outside
-    it, the lift shared by the two ends by their weights. An obstacle edge through a garment triangle: the triangle's point over each end of the edge (its
-    barycentric coordinates) to ``clear`` past that end along the skin's normal; the corners then
-    share the lift by their weights, so a corner far from the body edge hardly moves.
+    it, the lift shared by the two ends by their weights. An obstacle edge through a garment triangle:
+    the triangle's point over each end of the edge (its barycentric coordinates) to ``clear`` past that
+    end along the skin's normal; the corners then share the lift by their weights, so a corner far from
+    the body edge hardly moves.
 
     Parameters
     ----------
@@ -327,7 +235,7 @@ def near_pairs(V, G: Readings, obstacle: Obstacle, near, active=None):
         out["triangle"] = np.stack([i[k], t_act[j[k]]], axis=1)
     if e_act.size:
         P0, P1 = V[G.E[e_act, 0]], V[G.E[e_act, 1]]
-        pairs = obstacle.edge_grid.query(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near)
+        pairs = obstacle.edges_near(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near)
         i, j = e_act[pairs[:, 0]], pairs[:, 1]
         Q0, Q1 = obstacle.V[obstacle.E[j, 0]], obstacle.V[obstacle.E[j, 1]]
         k = segment_distances(V[G.E[i, 0]], V[G.E[i, 1]], Q0, Q1) < near
@@ -429,24 +337,12 @@ def largest_per_vertex(index, move):
 
 # --------------------------------------------------------------------------- the garment against itself
 
-def on_source(pairs, G: Readings, source_V):
-    """(k,) bool: the pairs (edge, triangle) that meet in the source shape too (exact)."""
-    e, t = G.E[pairs[:, 0]], G.F[pairs[:, 1]]
-    S = source_V
-    return segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])[0]
-
-
 class _SourceTangles:
-    """Where the source garment crosses itself (measured when first asked, unless given).
+    """The source garment's own self-intersecting pairs (found when first asked, unless given), and what of a
+    result's pairs counts against it (``self_check.beyond_source``)."""
 
-    A pair of the result that does not meet on the source but touches a vertex of the source's own
-    self-intersections is that crossing sliding by an edge; it is left (not undone) as long as the
-    result has no more self-intersecting pairs than the source."""
-
-    def __init__(self, source_V, G: Readings, check: SelfCheck, own=None):
-        self.S, self.G, self.check = source_V, G, check
-        self.own = own
-        self.tangled = None
+    def __init__(self, source_V, G: Readings, own=None):
+        self.S, self.G, self.own = source_V, G, own
 
     def pairs(self):
         """The source's own self-intersecting pairs (k,2)."""
@@ -454,20 +350,9 @@ class _SourceTangles:
             self.own = SelfCheck(self.S, self.G).all(self.S)
         return self.own
 
-    def left_out(self, pairs, new):
-        """``new`` ((k,2) pairs the source lacks) without those at the source's own tangles, while
-        ``pairs`` (all the result's) are no more than the source's."""
-        if new.shape[0] == 0:
-            return new
-        own = self.pairs()
-        if self.tangled is None:
-            self.tangled = np.zeros(self.S.shape[0], bool)
-            self.tangled[self.G.E[own[:, 0]]] = True
-            self.tangled[self.G.F[own[:, 1]]] = True
-        if pairs.shape[0] > own.shape[0]:
-            return new
-        at = self.tangled[self.G.E[new[:, 0]]].any(axis=1) | self.tangled[self.G.F[new[:, 1]]].any(axis=1)
-        return new[~at]
+    def beyond(self, pairs):
+        """The pairs (k,2) of a result that count against the source."""
+        return beyond_source(pairs, self.G, self.S, self.pairs())
 
 
 def local_fit(X, Y, weight):
@@ -641,9 +526,9 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
              source_V, source_pairs, info, state):
     """``separate``'s second half, with the source shape: the self-intersections the source lacks undone."""
     V_cleared = V
-    tangles = _SourceTangles(source_V, G, check, source_pairs)
+    tangles = _SourceTangles(source_V, G, source_pairs)
     pairs = state[2]
-    new = tangles.left_out(pairs, pairs[~on_source(pairs, G, source_V)])
+    new = tangles.beyond(pairs)
     # Tries start from the latest shape that still has pairs to undo (``base``); the best result
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     near_given = info["near_after"]
@@ -659,7 +544,7 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
         W, again, state_w = clear_body(W, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                                        known=(V_b, state_b))
         pairs_w = state_w[2]
-        new_w = tangles.left_out(pairs_w, pairs_w[~on_source(pairs_w, G, source_V)])
+        new_w = tangles.beyond(pairs_w)
         log.debug("restore %d: %d self-intersections the source lacks (%d before), %d crossings, %d near",
                   attempt + 1, new_w.shape[0], new_b.shape[0], again["crossings_after"], again["near_after"])
         tried = (W, pairs_w, new_w, state_w, again["crossings_after"], again["near_after"],
@@ -679,7 +564,7 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
         log.warning("the crossings pass left %d crossings and %d self-intersections (%d and %d before): the "
                     "garment is kept as it was", info["crossings_after"], pairs.shape[0], info["crossings_before"],
                     info["self_intersections_before"])
-        new = tangles.left_out(start_pairs, start_pairs[~on_source(start_pairs, G, source_V)])
+        new = tangles.beyond(start_pairs)
         return _as_given(V_start, info, restored_vertices=0, self_intersections_after=int(start_pairs.shape[0]),
                          self_intersections_new=int(new.shape[0]))
     info["kept_input"] = False

@@ -84,6 +84,7 @@ class Readings:
     split: np.ndarray
     face_vertices: np.ndarray
     face_start: np.ndarray
+    _members: dict = field(default=None, repr=False)
     _topology: dict = field(default=None, repr=False)
 
     @property
@@ -115,32 +116,57 @@ class Readings:
         start = self.face_start[:-1]
         return np.minimum.reduceat(X, start, axis=0), np.maximum.reduceat(X, start, axis=0)
 
-    def topology(self) -> dict:
-        """What a self-intersection check needs of the polygons alone (made once, kept):
+    def members(self) -> dict:
+        """Which triangles and edges each polygon has (made once, kept): ``tri_start`` (p+1,) (the triangles
+        ``tri_start[j]:tri_start[j+1]`` of ``F`` are polygon j's), ``edge_start`` (p+1,) and ``edge_order`` (e,)
+        (the edges ``edge_order[edge_start[j]:edge_start[j+1]]`` are those polygon j owns)."""
+        if self._members is None:
+            p = self.n_faces
+            tri_start, _ = _csr(self.face, p)
+            edge_start, edge_order = _csr(self.owner, p)
+            self._members = {"tri_start": tri_start, "edge_start": edge_start, "edge_order": edge_order}
+        return self._members
 
-        ``tri_start`` (p+1,) and ``edge_start`` (p+1,) with ``edge_order`` (e,): the triangles
-        ``tri_start[j]:tri_start[j+1]`` of ``F`` and the edges ``edge_order[edge_start[j]:edge_start[j+1]]``
-        owned by polygon j; ``touching`` (q,) int64: keys ``a * p + b`` of every ordered pair of polygons that
-        share a vertex (a polygon with itself included), sorted; ``near`` (r,2) int64: every (edge, triangle)
-        pair of polygons that share a vertex whose edge and triangle share none and are not a diagonal and a
-        triangle of one polygon (the pairs a check of polygons that share no vertex would miss), and
-        ``near_corners`` (r,5) int32: their edge's two vertices and triangle's three.
+    def triangles_of(self, P):
+        """Every triangle of the polygons P (k,) int: (which (m,) index into P, triangle (m,) index into F)."""
+        m = self.members()
+        return _runs(m["tri_start"], None, np.asarray(P, dtype=np.int64))
+
+    def edges_of(self, P):
+        """Every edge the polygons P (k,) int own: (which (m,) index into P, edge (m,) index into E)."""
+        m = self.members()
+        return _runs(m["edge_start"], m["edge_order"], np.asarray(P, dtype=np.int64))
+
+    def topology(self) -> dict:
+        """What a self-intersection check needs of the polygons alone (made once, kept): ``members`` and
+        ``touching`` (q,) int64: keys ``a * p + b`` of every ordered pair of polygons that share a vertex (a
+        polygon with itself included), sorted; ``near`` (r,2) int64: every (edge, triangle) pair of polygons
+        that share a vertex whose edge and triangle share none and are not a diagonal and a triangle of one
+        polygon (the pairs a check of polygons that share no vertex would miss), and ``near_corners`` (r,5)
+        int32: their edge's two vertices and triangle's three.
         """
         if self._topology is None:
-            self._topology = _self_topology(self)
+            self._topology = dict(self.members(), **_self_topology(self))
         return self._topology
 
 
 def _csr(groups, count):
-    """(count+1,) starts of the runs of a non-decreasing or arbitrary group label array, and the order."""
+    """(count+1,) starts of the runs of each label in ``groups`` (k,) int, and the order that sorts them."""
     order = np.argsort(groups, kind="stable")
     return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), order
 
 
+def _runs(start, order, P):
+    """The members of each group in P (k,) int, given the groups' ``start`` (and ``order``, None when the
+    members are in order already): (which (m,) index into P, member (m,))."""
+    n = start[P + 1] - start[P]
+    which = np.repeat(np.arange(P.shape[0]), n)
+    member = np.repeat(start[P], n) + np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    return which, (member if order is None else order[member])
+
+
 def _self_topology(R: Readings) -> dict:
     p = R.n_faces
-    tri_start, _ = _csr(R.face, p)
-    edge_start, edge_order = _csr(R.owner, p)
     sizes = np.diff(R.face_start)
     poly_of_corner = np.repeat(np.arange(p), sizes)
     # Polygons around each vertex, then every ordered pair of polygons at one vertex.
@@ -154,14 +180,14 @@ def _self_topology(R: Readings) -> dict:
     local = np.arange(rep.size) - np.repeat(np.cumsum(count * count) - count * count, count * count)
     b = polys[rep + local % np.repeat(count, count * count)]
     touching = np.unique(a * p + b)
-    P, Q = touching // p, touching % p
-    edges, tris = _expand(P, Q, edge_start, edge_order, tri_start)
+    m = R.members()
+    edges, tris = _expand(touching // p, touching % p, m["edge_start"], m["edge_order"], m["tri_start"])
     e, t = R.E[edges], R.F[tris]
     keep = ~((e[:, :1] == t).any(axis=1) | (e[:, 1:] == t).any(axis=1)) & ~R.same_polygon(edges, tris)
     # Each polygon pair once, each edge owned by one polygon: every (edge, triangle) pair comes once.
     near = np.stack([edges[keep], tris[keep]], axis=1)
-    return {"tri_start": tri_start, "edge_start": edge_start, "edge_order": edge_order, "touching": touching,
-            "near": near, "near_corners": np.concatenate([e[keep], t[keep]], axis=1).astype(np.int32)}
+    return {"touching": touching, "near": near,
+            "near_corners": np.concatenate([e[keep], t[keep]], axis=1).astype(np.int32)}
 
 
 def _expand(P, Q, edge_start, edge_order, tri_start):
@@ -185,9 +211,9 @@ def expand_polygon_pairs(R: Readings, P, Q):
     (j,2) int64
         (index into ``R.E``, index into ``R.F``).
     """
-    top = R.topology()
-    edges, tris = _expand(np.asarray(P, np.int64), np.asarray(Q, np.int64), top["edge_start"], top["edge_order"],
-                          top["tri_start"])
+    m = R.members()
+    edges, tris = _expand(np.asarray(P, np.int64), np.asarray(Q, np.int64), m["edge_start"], m["edge_order"],
+                          m["tri_start"])
     return np.stack([edges, tris], axis=1)
 
 
@@ -278,3 +304,22 @@ def readings_of(mesh) -> Readings:
 def as_readings(F) -> Readings:
     """``F`` itself when it is ``Readings``; a triangle array (m,3) as one reading."""
     return F if isinstance(F, Readings) else triangle_readings(F)
+
+
+def merge_readings(parts) -> Readings:
+    """One ``Readings`` of several meshes: parts is a list of (number of vertices, Readings); each part's
+    indices are offset by the vertices and polygons before it."""
+    vb = fb = 0
+    F, face, E, diag, owner, split, fv, fs = [], [], [], [], [], [], [], [np.zeros(1, np.int64)]
+    for n, R in parts:
+        F.append(R.F + vb)
+        face.append(R.face + fb)
+        E.append(R.E + vb)
+        diag.append(np.where(R.diagonal_of >= 0, R.diagonal_of + fb, -1))
+        owner.append(R.owner + fb)
+        split.append(R.split + vb)
+        fv.append(R.face_vertices + vb)
+        fs.append(R.face_start[1:] + fs[-1][-1])
+        vb += int(n)
+        fb += R.n_faces
+    return Readings(*(np.concatenate(x) for x in (F, face, E, diag, owner, split, fv, fs)))

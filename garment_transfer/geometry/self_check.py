@@ -137,3 +137,36 @@ class SelfCheck:
         """The self-intersecting pairs of V, given ``pairs`` of an earlier shape from which only ``moved``
         vertices moved."""
         return unique_pairs(np.concatenate([pairs[~self.touching(pairs, moved)], self.local(V, moved)]))
+
+
+def beyond_source(pairs, R: Readings, source_V, source_pairs):
+    """The self-intersecting pairs of a result that count against its source: those its source shape does not
+    have (exact test, pair by pair), less those at the source's own tangles while the result has no more pairs
+    than the source (a crossing the source has, slid by an edge).
+
+    Parameters
+    ----------
+    pairs : (k,2) int
+        The result's self-intersecting (edge, triangle) pairs.
+    R : Readings
+    source_V : (n,3) float
+        The garment's source shape.
+    source_pairs : (j,2) int
+        The source's own self-intersecting pairs.
+
+    Returns
+    -------
+    (i,2) int64
+    """
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    e, t = R.E[pairs[:, 0]], R.F[pairs[:, 1]]
+    S = np.asarray(source_V, dtype=np.float64)
+    meet, _ = segments_meet_triangles(S[e[:, 0]], S[e[:, 1]], S[t[:, 0]], S[t[:, 1]], S[t[:, 2]])
+    new = pairs[~meet]
+    if new.shape[0] == 0 or pairs.shape[0] > source_pairs.shape[0]:
+        return new
+    tangled = np.zeros(S.shape[0], bool)
+    tangled[R.E[source_pairs[:, 0]]] = True
+    tangled[R.F[source_pairs[:, 1]]] = True
+    at = tangled[R.E[new[:, 0]]].any(axis=1) | tangled[R.F[new[:, 1]]].any(axis=1)
+    return new[~at]

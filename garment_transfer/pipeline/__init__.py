@@ -2,9 +2,10 @@
 built on that. ``transfer`` (prepare a garment once, transfer it to each target), ``any_body`` (a target of
 another mesh: registered first), ``outfit`` (layers, each outside the ones under it), ``shape_keys`` (one garment
 fitted to every shape of a body), ``weights`` (skinning weights from the body), ``metrics`` (MDC, penetration,
-drape and vertex error, crossings: ``evaluate``), ``model_check`` (a trained model on held-out garments), and
-``batch`` (a catalogue of garments on many targets, resumable, on a process pool or Dask). Built on ``geometry``,
-``fitting`` and ``learning``.
+drape and vertex error, crossings: ``evaluate``), ``result_check`` (the promise measured on a result as written:
+no crossing under any triangulation, against the body given), ``model_check`` (a trained model on held-out
+garments), and ``batch`` (a catalogue of garments on many targets, resumable, on a process pool or Dask).
+Built on ``geometry``, ``fitting`` and ``learning``.
 """
 
 from .any_body import transfer_to_any_body
@@ -13,10 +14,13 @@ from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .shape_keys import ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files, transfer_to_shapes
-from .transfer import OFFSET_SHARE, PreparedGarment, TransferResult, crossings_left, prepare_garment, transfer_garment
+from .result_check import check_result, result_warnings
+from .transfer import (OFFSET_SHARE, POSE_LIMIT_DEGREES, PreparedGarment, TransferResult, pose_check, prepare_garment,
+                       transfer_garment)
 from .weights import surface_weights
 
-__all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "crossings_left",
+__all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
+           "POSE_LIMIT_DEGREES", "check_result", "result_warnings",
            "transfer_to_any_body", "OutfitError", "OutfitResult", "transfer_outfit", "ShapeKeyFit", "fit_shape_keys",
            "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",

@@ -6,11 +6,9 @@ import time
 
 from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
-from ..geometry import penetration
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, same_mesh
-from ..geometry.proximity import TriangleSurface
-from .transfer import OFFSET_SHARE, transfer_garment
+from .transfer import OFFSET_SHARE, check_offset, fit_to_body, pose_check, prepare_garment, transfer_garment
 
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
@@ -18,9 +16,10 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
                          shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
-    The garment is transferred in the source's frame onto the fitted body (so the ``model`` method
-    sees the frame and units it was trained in), kept out of the real target surface, and taken to
-    the target's frame.
+    The garment is solved in the source's frame on the fitted body (so the ``model`` method sees the
+    frame and units it was trained in), taken to the target's frame, and there pushed out of the target
+    itself and cleared of every crossing with it (``transfer.fit_to_body``): the penetration fix, the crossing
+    pass and their figures are those of the body the user gave, not of the fitted one.
 
     Parameters
     ----------
@@ -40,7 +39,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     body_model : bool
         See ``register``.
     **options
-        Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, ...).
+        Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, prepared, ...);
+        ``offset`` is in the target's units.
 
     Returns
     -------
@@ -61,29 +61,42 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
                                    progress=sub(0.0, 0.6), shape_basis=shape_basis,
                                    shape_bounds=shape_bounds, body_model=body_model)
     options = dict(options)
-    if options.get("offset") is not None:
-        options["offset"] = options["offset"] * reg.alignment.scale
+    offset = options.pop("offset", None)
+    fix = options.pop("fix_penetration", True)
+    resolve = options.pop("resolve_crossings", True)
+    prepared = options.pop("prepared", None)
     fitted = source_body.with_vertices(reg.V_source_frame,
                                        name=f"{source_body.name} fitted to {target_body.name}")
-    result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.95), **options)
+    made = prepared is None
+    if made:
+        prepared = prepare_garment(source_body, garment, interpolate=options.get("interpolate", True),
+                                   stiffness=options.get("stiffness"), need_solver=options.get("method") != "surface",
+                                   anchoring=options.get("anchoring", "everywhere"), reused=False)
+    # Solved in the source's frame on the fitted body (a model sees the frame and units it was trained in);
+    # the fix and the crossing pass then run on the target itself, in its own frame: the body the user gave.
+    pose = pose_check(source_body, fitted.V, target_body.name, prepared.limbs()) if options.pop("check_pose", True) \
+        else None
+    result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.9), fix_penetration=False,
+                              prepared=prepared, check_pose=False, **options)
+    if pose is not None:
+        result.info["pose_difference"] = pose
+    if made:
+        for stage, seconds in prepared.seconds.items():
+            result.seconds[stage] = result.seconds.get(stage, 0.0) + seconds
+        result.seconds["total"] += sum(prepared.seconds.values())
     t = time.perf_counter()
-    # The fitted body follows the target within the fit's residual; the cloth must clear the real one.
-    surface = TriangleSurface(reg.alignment.apply(target_body.V), target_body.F)
-    offset = options.get("offset")
+    back = reg.alignment.inverse()
+    V = back.apply(result.V)
+    offset = check_offset(offset, target_body)
     if offset is None:
-        offset = OFFSET_SHARE * body_scale(surface.V)
-    if options.get("fix_penetration", True):
-        V, fix = penetration.fix_penetration(result.V, garment.F, surface, offset)
-        result.info["target_fix"] = fix
-        inside = fix["inside_after"]
-    else:
-        V = result.V
-        inside = int((surface.signed_distance(V)[0] < 0).sum())
-    result.V = reg.alignment.inverse().apply(V)
-    result.penetrating_vertices = inside
+        offset = OFFSET_SHARE * body_scale(target_body.V)
+    result.info.update(offset=float(offset), fix_penetration=bool(fix))
+    result.V, result.penetrating_vertices = fit_to_body(
+        V, prepared, target_body, offset, fix_penetration=fix, resolve_crossings=resolve,
+        source_V=back.apply(garment.V), info=result.info, seconds=result.seconds,
+        step=None if progress is None else (lambda f, stage: progress(0.9 + 0.5 * (f - 0.8), stage)))
     result.info["registration"] = reg.summary()
-    result.info["offset"] = float(offset / reg.alignment.scale)
     result.seconds["register"] = float(reg.seconds.get("total", 0.0)) if not reg.cached else 0.0
-    result.seconds["target_fix"] = time.perf_counter() - t
-    result.seconds["total"] += result.seconds["register"] + result.seconds["target_fix"]
+    result.seconds["target_fit"] = time.perf_counter() - t
+    result.seconds["total"] += result.seconds["register"] + result.seconds["target_fit"]
     return result, reg

@@ -44,6 +44,7 @@ from ..learning.dataset import load_dataset
 from ..learning.model_files import read_model_file
 from ..version import __version__
 from .metrics import evaluate
+from .result_check import result_warnings
 from .transfer import prepare_garment, transfer_garment
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,10 @@ CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seco
 METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetration_depth",
                "penetrating_vertices", "drape_reference", "drape_error", "drape_error_source",
                "drape_error_relative", "vertex_error_mean", "vertex_error_max")
+#: The figures of the promise a record keeps (``result_check.check_result``'s, of the file as written).
+CHECK_KEYS = ("garment_edges_through_body", "body_edges_through_garment", "garment_edge_body_pairs",
+              "body_edge_garment_pairs", "inside_vertices", "self_intersections", "self_intersections_source",
+              "self_intersections_new", "min_body_distance")
 #: Outcomes of a pair: transferred now, found from an earlier run, failed, or not reached.
 OUTCOMES = ("done", "skipped", "failed", "not run")
 PARTIAL_PREFIX = ".partial-"
@@ -704,15 +709,18 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                                       target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
                                       interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
             reference = _read_garment(t.reference) if t.reference is not None else None
-            # Without a reference: the design (MDC) and penetration only; the drape error against the
-            # body-driven fit would cost as much again and judge nothing the transfer did not aim at.
-            metrics = evaluate(garment, garment.with_vertices(result.V), target_body, reference=reference)
             text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} "
                                                       f"({s.method})").encode("utf-8")
+            obj_path, json_path = result_paths(out, job.name, t.name)
+            write_atomic(obj_path, text)
+            # Measured on the file as written and read back, against the target as given (the record, written
+            # last, is what marks the pair done). Without a reference: the design (MDC) and penetration only;
+            # the drape error against the body-driven fit would cost as much again and judge nothing the
+            # transfer did not aim at.
+            metrics = evaluate(garment, garment.with_vertices(read_obj(obj_path).V), target_body, reference=reference)
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue
-        obj_path, json_path = result_paths(out, job.name, t.name)
         rec.update({k: _plain(metrics.get(k)) for k in METRIC_KEYS})
         rec.update(outcome="done", output=str(obj_path), worker=_where(),
                    seconds=time.perf_counter() - t1, prepare_seconds=prepare_seconds)
@@ -720,9 +728,10 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                                          if k in ("model_kind", "field_share", "placement", "nearest_garments")}
         record = dict(rec, run_id=run_id, code=code_version(), settings=_settings_record(s), **used,
                       inputs=digests, stage_seconds=result.seconds,
-                      crossings_left=int(result.info.get("crossings_after") or 0),
+                      crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
+                      check={k: metrics[k] for k in CHECK_KEYS},
+                      warnings=result_warnings(metrics, str(obj_path)),
                       output_sha256=hashlib.sha256(text).hexdigest())
-        write_atomic(obj_path, text)
         write_atomic(json_path, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
     return _finish(records, t_start)
 

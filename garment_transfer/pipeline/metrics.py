@@ -8,10 +8,11 @@ import scipy.sparse.linalg as spla
 
 from ..geometry.binding import bind, carry
 from ..geometry.embedding import body_scale
-from ..geometry.intersections import intersection_report
 from ..geometry.mesh import Mesh, edge_lengths_mean, require_same_topology, triangle_normals
 from ..geometry.penetration import penetration, vertex_adjacency
 from ..geometry.proximity import TriangleSurface
+from ..geometry.readings import readings_of
+from .result_check import check_result
 
 
 def discrete_curvature(V, F):
@@ -143,11 +144,13 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
     dict
         ``mdc``, ``penetration_ratio``, ``max_penetration_depth``, ``penetrating_vertices``,
         ``drape_error``, ``drape_error_source``, ``drape_error_relative``, ``drape_reference``
-        and, with a reference, ``vertex_error_mean``, ``vertex_error_max``; with
-        ``intersections``: ``garment_edges_through_body``, ``body_edges_through_garment`` (edges
-        crossing), ``garment_edge_body_pairs``, ``body_edge_garment_pairs`` (edge-triangle pairs),
-        ``self_intersections`` (pairs, in the result), ``self_intersections_source`` (in the
-        source garment), ``layer_crossings`` and ``min_body_distance``.
+        and, with a reference, ``vertex_error_mean``, ``vertex_error_max``; with ``intersections``, the
+        figures of ``result_check.check_result`` (under every triangulation of the result's and the body's
+        faces): ``garment_edges_through_body``, ``body_edges_through_garment`` (edges crossing),
+        ``garment_edge_body_pairs``, ``body_edge_garment_pairs`` (edge-triangle pairs), ``inside_vertices``,
+        ``self_intersections`` (pairs, in the result), ``self_intersections_source`` (in the source garment),
+        ``self_intersections_new`` (those counting against the source), ``layer_crossings`` and
+        ``min_body_distance``.
     """
     require_same_topology(source, result)
     F = source.F
@@ -174,8 +177,8 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
         out.update(drape_error=de, drape_error_source=de0,
                    drape_error_relative=de / de0 if de0 > 0 else None)
     if intersections:
-        out.update(intersection_report(result.V, F, target_body.V, target_body.F, source_V=source.V,
-                                       layers_below=[(m.V, m.F) for m in layers_below]))
+        out.update(check_result(source, result.V, target_body,
+                                layers_below=[(m.V, readings_of(m)) for m in layers_below]))
     if reference is not None:
         out["vertex_error_mean"], out["vertex_error_max"] = vertex_error(result.V, reference.V)
     return out

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -34,6 +34,8 @@ from ..errors import Cancelled, MeshError
 from ..geometry import clearance, penetration
 from ..geometry.embedding import body_scale
 from ..geometry.intersections import crossings, self_intersections
+from ..geometry.obstacle import Obstacle, edge_length
+from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
 from ..geometry.mesh import Mesh, edge_lengths_mean
 from ..geometry.proximity import TriangleSurface
 from .transfer import OFFSET_SHARE, transfer_garment
@@ -104,14 +106,15 @@ def oriented_outward(V, F, body: TriangleSurface):
     -------
     F : (m,3) int64
     """
-    F = np.asarray(F, dtype=np.int64)
+    R = F if isinstance(F, Readings) else None
+    F = R.split if R is not None else np.asarray(F, dtype=np.int64)
     c = V[F].mean(axis=1)
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     _, closest, normal, _ = body.signed_distance(c)
     # Most triangles face the way the skin under them faces; a garment made inside out is flipped.
     if np.sum(np.einsum("ij,ij->i", n, normal) < 0) > 0.5 * F.shape[0]:
-        return F[:, [0, 2, 1]]
-    return F
+        return F[:, [0, 2, 1]] if R is None else replace(R, F=R.F[:, [0, 2, 1]], split=R.split[:, [0, 2, 1]])
+    return F if R is None else R
 
 
 def merge_meshes(parts):
@@ -267,10 +270,11 @@ def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
     Parameters
     ----------
     V : (n,3) float
-    F : (m,3) int
+    F : (m,3) int or Readings
     obstacle_V : (p,3) float
-    obstacle_F : (q,3) int
-        The body, or the body and the layers under this one (their triangles facing away from it).
+    obstacle_F : (q,3) int or Readings
+        The body, or the body and the layers under this one (their triangles facing away from it); with
+        ``Readings``, no crossing is left under any triangulation of either.
     offset : float
         The layer's clearance.
     scale : float
@@ -287,23 +291,24 @@ def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
         ``self_intersections_after``.
     """
     V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    surface = TriangleSurface(obstacle_V, obstacle_F) if surface is None else surface
+    G, under = as_readings(F), as_readings(obstacle_F)
+    surface = TriangleSurface(obstacle_V, under.split) if surface is None else surface
+    obstacle = Obstacle(obstacle_V, under, surface, edge_length(V, G))
     sd, normal = obstacle_distance(surface, V)
-    before = self_intersections(V, F)[0]
+    before = self_intersections(V, G)[0]
     info = {"pushed_vertices": int((sd < offset).sum()), "self_intersections_before": before}
     best, tried = None, 0
     for k, warp in enumerate(WARPS):
         tried += 1
         if warp is None:
-            W = penetration.fix_penetration(V, F, surface, offset)[0]
+            W = penetration.fix_penetration(V, G.split, surface, offset)[0]
         else:
             times, band, radius = warp
             W = warp_out(V, sd, normal, times * offset, band * scale,
                          None if radius is None else radius * scale)
         # With the layer as it came as the source shape, the crossing pass also gives the cloth
         # around any self-intersection the push made its shape from before the push.
-        W, sep = clearance.separate(W, F, surface.V, surface.F, offset, surface=surface, source_V=V)
+        W, sep = clearance.separate(W, G, obstacle.V, obstacle, offset, source_V=V)
         after = sep["self_intersections_after"]
         key = (sep["crossings_after"], max(after - before, 0), sep["near_after"], after)
         if best is None or key < best[0]:
@@ -311,7 +316,7 @@ def push_out(V, F, obstacle_V, obstacle_F, offset, scale, surface=None):
         if key[:3] == (0, 0, 0):
             break
     (left, _, _, after), k, W, sep = best
-    c = crossings(V, F, surface.V, surface.F)
+    c = crossings(V, G, obstacle.V, under)
     info.update(warp=k, tried=tried, crossings_before=c["a_edge_pairs"] + c["b_edge_pairs"],
                 crossings_after=left, self_intersections_after=after, separation=sep)
     if after > before:
@@ -325,7 +330,8 @@ def separate_layers(body_V, body_F, garments, Vs, offsets):
     Parameters
     ----------
     body_V : (p,3) float
-    body_F : (q,3) int
+    body_F : (q,3) int or Readings
+        The body (every reading of its polygons: nothing crosses under any triangulation).
     garments : list of Mesh
     Vs : list of (n_k,3) float
         The layers' vertices.
@@ -338,23 +344,27 @@ def separate_layers(body_V, body_F, garments, Vs, offsets):
         New arrays.
     info : list of dict
     """
-    body = TriangleSurface(body_V, body_F)
+    B = as_readings(body_F)
+    body = TriangleSurface(body_V, B.split)
     scale = body_scale(body_V)
     out, info = [], []
-    under = [(np.asarray(body_V, dtype=np.float64), np.asarray(body_F, dtype=np.int64))]
+    under = [(np.asarray(body_V, dtype=np.float64), B)]
     for k, (garment, V) in enumerate(zip(garments, Vs)):
-        obstacle_V, obstacle_F = merge_meshes(under)
-        surface = TriangleSurface(obstacle_V, obstacle_F) if k else body
-        V, push = push_out(V, garment.F, obstacle_V, obstacle_F, offsets[k], scale, surface=surface)
+        obstacle_V = np.concatenate([u[0] for u in under])
+        obstacle_F = merge_readings([(u[0].shape[0], u[1]) for u in under])
+        surface = TriangleSurface(obstacle_V, obstacle_F.split) if k else body
+        G = readings_of(garment)
+        V, push = push_out(V, G, obstacle_V, obstacle_F, offsets[k], scale, surface=surface)
         out.append(V)
         info.append(dict(push, self_intersections_added=push["self_intersections_after"]
                          - push["self_intersections_before"]))
-        under.append((V, oriented_outward(V, garment.F, body)))
+        under.append((V, oriented_outward(V, G, body)))
     return out, info
 
 
 def outfit_crossings(body_V, body_F, garments, Vs):
-    """Crossings of every layer with the body and with every other layer.
+    """Crossings of every layer with the body (``body_F``: triangles or Readings) and with every other layer,
+    under every reading of the layers' polygons.
 
     Returns
     -------
@@ -362,12 +372,13 @@ def outfit_crossings(body_V, body_F, garments, Vs):
         (name, name, edge-triangle pairs both ways) for every pair that crosses.
     """
     bad = []
+    G = [readings_of(g) for g in garments]
     for k, (g, V) in enumerate(zip(garments, Vs)):
-        c = crossings(V, g.F, body_V, body_F)
+        c = crossings(V, G[k], body_V, body_F)
         if c["a_edge_pairs"] + c["b_edge_pairs"]:
             bad.append((g.name, "the body", c["a_edge_pairs"] + c["b_edge_pairs"]))
         for i in range(k):
-            c = crossings(V, g.F, Vs[i], garments[i].F)
+            c = crossings(V, G[k], Vs[i], G[i])
             if c["a_edge_pairs"] + c["b_edge_pairs"]:
                 bad.append((g.name, garments[i].name, c["a_edge_pairs"] + c["b_edge_pairs"]))
     return bad
@@ -421,9 +432,9 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     source_surface = TriangleSurface(source_body.V, source_body.F)
     check_order(garments, [g.V for g in garments], source_surface)
     t = time.perf_counter()
-    src_Vs, src_info = separate_layers(source_body.V, source_body.F, garments, [g.V for g in garments],
-                                       offsets)
-    bad = outfit_crossings(source_body.V, source_body.F, garments, src_Vs)
+    source_readings = readings_of(source_body)
+    src_Vs, src_info = separate_layers(source_body.V, source_readings, garments, [g.V for g in garments], offsets)
+    bad = outfit_crossings(source_body.V, source_readings, garments, src_Vs)
     if bad:
         _raise_inseparable(bad, f"on the source body {source_body.name}")
     seconds["separate_source"] = time.perf_counter() - t
@@ -435,11 +446,11 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
     seconds["transfer"] = time.perf_counter() - t
     t = time.perf_counter()
-    tgt_Vs, tgt_info = separate_layers(target_body.V, target_body.F, garments, [r.V for r in results],
-                                       offsets)
+    target_readings = readings_of(target_body)
+    tgt_Vs, tgt_info = separate_layers(target_body.V, target_readings, garments, [r.V for r in results], offsets)
     seconds["separate_target"] = time.perf_counter() - t
     t = time.perf_counter()
-    bad = outfit_crossings(target_body.V, target_body.F, garments, tgt_Vs)
+    bad = outfit_crossings(target_body.V, target_readings, garments, tgt_Vs)
     seconds["check"] = time.perf_counter() - t
     if bad:
         _raise_inseparable(bad, f"on the target body {target_body.name}")

@@ -31,6 +31,7 @@ from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
+from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
 
@@ -51,6 +52,8 @@ class ShapeKeyFit:
         Per key (and per corrective ``"a+b"``): ``seconds`` by stage, ``penetrating_vertices``, ``offset``.
     seconds : dict
         ``prepare``, ``keys``, ``correctives``, ``total``.
+    prepared : PreparedGarment
+        The garment's preparation (its readings and its own self-intersections, for checking the keys).
     """
 
     basis: np.ndarray
@@ -58,6 +61,7 @@ class ShapeKeyFit:
     correctives: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
+    prepared: PreparedGarment | None = field(default=None, repr=False)
 
     def blend(self, weights, correctives=True):
         """The garment at slider values ``weights`` (a dict name -> value; missing keys are 0).
@@ -213,7 +217,7 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
         yield 2 + len(shapes) + i, total, f"{a}+{b}"
     seconds["correctives"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
-    return ShapeKeyFit(basis, keys, correctives, info, seconds)
+    return ShapeKeyFit(basis, keys, correctives, info, seconds, prepared)
 
 
 def drain(steps, progress=None):
@@ -356,17 +360,21 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
         raise MeshError(str(out_dir), "is a file; --out must be a folder")
     out_dir.mkdir(parents=True, exist_ok=True)
     g = Path(garment_path).stem
-    rows = []
+    rows, warnings = [], []
     for name, V in fit.keys.items():
         out = out_dir / f"{g}_on_{name}.obj"
         write_obj(out, garment, V, header=f"Garment Transfer: {os.path.basename(garment_path)} on "
                                           f"{os.path.basename(paths[name])} (one of {len(shapes)} shapes)")
+        # The figures of the file as written, against that shape as given.
+        check = check_result(garment, read_obj(out).V, source.with_vertices(shapes[name]),
+                             source_pairs=fit.prepared.source_pairs(), readings=fit.prepared.readings())
         info = fit.info[name]
+        warnings += result_warnings(check, str(out))
         rows.append({"target": name, "target_body": paths[name], "out": str(out),
-                     "penetrating_vertices": info["penetrating_vertices"], "offset": info["offset"],
+                     "penetrating_vertices": check["inside_vertices"], "check": check, "offset": info["offset"],
                      "seconds": info["seconds"]})
     summary = {"source_body": str(source_body_path), "garment": str(garment_path),
-               "vertices": garment.n_vertices, "faces": garment.n_faces, "shapes": rows,
+               "vertices": garment.n_vertices, "faces": garment.n_faces, "shapes": rows, "warnings": warnings,
                "seconds": fit.seconds, "summary": str(out_dir / "shapes.json")}
     write_json_atomic(out_dir / "shapes.json", summary)
     return summary

@@ -1,0 +1,98 @@
+"""The promise checked on a result as the user has it: the file as written and read back (or the object as
+Blender evaluates it), against the body the user gave, under every triangulation of both.
+
+The crossing pass (``geometry.clearance``) keeps its own counts as it works, on the coordinates it computed.
+What a user gets is those coordinates written (rounded to the file's digits, taken back to the target's frame
+after a registration, stored as 32-bit floats by Blender) and triangulated by whatever tool reads it. So the
+figures a user is told (the command line's JSON, the batch records, Blender's panel) are measured again here,
+on what was written, with every reading of the garment's and the body's polygons
+(``geometry.readings``): a quad's two splits, an n-gon's triangles, every diagonal as an edge.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.intersections import crossings
+from ..geometry.mesh import Mesh
+from ..geometry.obstacle import Obstacle, edge_length, garment_crossings, garment_distance
+from ..geometry.proximity import TriangleSurface
+from ..geometry.readings import Readings, readings_of
+from ..geometry.self_check import SelfCheck, beyond_source
+
+#: The keys of a transfer's ``info`` that describe the result as the pass left it in memory; a report of the
+#: result as written gives ``check_result``'s figures instead.
+PASS_RESULT_KEYS = ("crossings_after", "near_after", "inside_after", "self_intersections_after",
+                    "self_intersections_new", "self_intersections_added", "self_intersections_source")
+
+
+def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, readings: Readings | None = None,
+                 body_readings: Readings | None = None, layers_below=()) -> dict:
+    """Every figure of the promise, measured on a result.
+
+    Parameters
+    ----------
+    garment : Mesh
+        The garment on the source body (its faces, and its source shape for the self-intersections).
+    V : (n,3) float
+        The result as the user has it (read back from the file written).
+    target_body : Mesh
+        The body the user gave, in the result's frame.
+    source_pairs : (k,2) int, optional
+        The garment's own self-intersecting pairs on the source (``PreparedGarment.source_pairs()``), if known.
+    readings, body_readings : Readings, optional
+        ``readings_of(garment)``, ``readings_of(target_body)``, if known.
+    layers_below : sequence of (V (k,3), Readings or (l,3) int)
+        Garments worn under this one, as the user has them.
+
+    Returns
+    -------
+    dict
+        ``garment_edges_through_body``, ``body_edges_through_garment`` (edges of every reading),
+        ``garment_edge_body_pairs``, ``body_edge_garment_pairs`` ((edge, triangle) pairs), ``inside_vertices``
+        (garment vertices inside the body), ``self_intersections`` (pairs of the result),
+        ``self_intersections_source`` (of the garment on the source), ``self_intersections_new`` (pairs of the
+        result that count against the source: ``self_check.beyond_source``), ``layer_crossings`` (pairs with
+        the layers below, both ways) and ``min_body_distance`` (0 where it crosses the body).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    G = readings if readings is not None else readings_of(garment)
+    B = body_readings if body_readings is not None else readings_of(target_body)
+    surface = TriangleSurface(target_body.V, target_body.F)
+    body = Obstacle(target_body.V, B, surface, edge_length(V, G))
+    c = garment_crossings(V, G, body)
+    pairs = SelfCheck(V, G).all(V)
+    if source_pairs is None:
+        source_pairs = SelfCheck(garment.V, G).all(garment.V)
+    layer = 0
+    for V_l, F_l in layers_below:
+        cl = crossings(V, G, V_l, F_l)
+        layer += cl["a_edge_pairs"] + cl["b_edge_pairs"]
+    crossed = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
+    return {"garment_edges_through_body": c["a_edges_through_b"],
+            "body_edges_through_garment": c["b_edges_through_a"],
+            "garment_edge_body_pairs": c["a_edge_pairs"], "body_edge_garment_pairs": c["b_edge_pairs"],
+            "inside_vertices": int((surface.signed_distance(V)[0] < 0).sum()),
+            "self_intersections": int(pairs.shape[0]), "self_intersections_source": int(source_pairs.shape[0]),
+            "self_intersections_new": int(beyond_source(pairs, G, garment.V, source_pairs).shape[0]),
+            "layer_crossings": int(layer),
+            "min_body_distance": 0.0 if crossed else garment_distance(V, G, body)}
+
+
+def result_warnings(check: dict, name: str) -> list:
+    """What a user must be told about a result (``check_result``'s figures), one sentence each, naming it."""
+    out = []
+    through = check["garment_edges_through_body"] + check["body_edges_through_garment"]
+    if through:
+        out.append(f"{name}: {check['garment_edges_through_body']} garment edges pass through the body and "
+                   f"{check['body_edges_through_garment']} body edges through the garment, under some "
+                   "triangulation of the faces: look at the result before using it")
+    if check["inside_vertices"]:
+        out.append(f"{name}: {check['inside_vertices']} garment vertices are inside the body")
+    if check["self_intersections_new"]:
+        out.append(f"{name}: the garment crosses itself at {check['self_intersections_new']} edge-triangle pairs "
+                   f"its source does not ({check['self_intersections']} in all, "
+                   f"{check['self_intersections_source']} on the source)")
+    if check.get("layer_crossings"):
+        out.append(f"{name}: {check['layer_crossings']} edge-triangle pairs cross the layers under it")
+    return out
