@@ -47,7 +47,8 @@ LAYERS = {
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
                  "OFFSET_SHARE", "POSE_LIMIT_DEGREES", "pose_check", "check_result", "result_warnings",
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
-                 "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
+                 "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "all_pairs", "fit_steps", "surface_weights",
+                 "evaluate", "mdc",
                  "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
                  "check_after_training", "read_catalogue", "run_batch"),
 }

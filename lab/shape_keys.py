@@ -15,7 +15,10 @@ Blending study: random slider combinations of 3 to 6 keys with values in [0, 1];
 blend of the garment's keys against the body at that combination (share of garment vertices more than
 1 mm inside), and the distance of the blend from a transfer to that exact body. Remedies: a margin
 (every key transferred further from the body), corrective keys for every pair of keys, and keeping the
-blend outside the body (``shape_keys.keep_outside``: what the operator's Shrinkwrap modifier does).
+blend outside the body (``shape_keys.keep_outside``: what the operator's Shrinkwrap modifier does, at
+``KEEP_OUTSIDE_SHARE`` of the offset; on the surface and at the whole offset beside it). For each, the mixes in
+which a garment edge passes through the body or a body edge through the garment under some triangulation of
+the faces (``crossings`` under every reading).
 """
 
 from __future__ import annotations
@@ -28,7 +31,9 @@ import numpy as np
 
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
-from garment_transfer.pipeline.shape_keys import all_pairs, body_at, fit_shape_keys, keep_outside
+from garment_transfer.geometry.intersections import crossings
+from garment_transfer.geometry.readings import readings_of
+from garment_transfer.pipeline.shape_keys import KEEP_OUTSIDE_SHARE, all_pairs, body_at, fit_shape_keys, keep_outside
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
@@ -125,6 +130,7 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
     rows = []
     for name in garments:
         garment = read_obj(folder / "garments" / name / f"{MAKEHUMAN_SOURCE}.obj", name=name)
+        G, B = readings_of(garment), readings_of(basis)
         prepared = prepare_garment(basis, garment)
         exact = [transfer_garment(basis, basis.with_vertices(V), garment, prepared=prepared).V
                  for V in bodies]
@@ -133,7 +139,9 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
         remedies = [("none", 0.0, False, False)]
         remedies += [(f"margin {m:g} mm", m * MM, False, False) for m in margin_mm]
         remedies += [("pair correctives", 0.0, True, False),
-                     ("keep outside (Shrinkwrap)", 0.0, False, True)]
+                     ("keep outside, on the surface", 0.0, False, 0.0),
+                     ("keep outside (Shrinkwrap)", 0.0, False, KEEP_OUTSIDE_SHARE),
+                     ("keep outside, the whole offset", 0.0, False, 1.0)]
         fits = {}
         for label, margin, pairs, outside in remedies:
             key = (margin, pairs)
@@ -141,21 +149,25 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
                 fits[key] = fit_shape_keys(basis, shapes, garment, prepared=prepared, margin=margin,
                                            pairs=all_pairs(shapes) if pairs else ())
             fit = fits[key]
-            inside, worst, error = [], [], []
-            for w, surface, ex in zip(combos, surfaces, exact):
+            inside, worst, error, crossed = [], [], [], []
+            for w, surface, ex, body in zip(combos, surfaces, exact, bodies):
                 V = fit.blend(w)
-                if outside:
-                    V = keep_outside(V, surface)
+                if outside is not False:
+                    V = keep_outside(V, surface, outside * fit.info["Basis"]["offset"])
                 sd = surface.signed_distance(V)[0]
                 inside.append(float((sd < -MM).mean()))
                 worst.append(float(max(0.0, -sd.min())))
                 error.append(float(np.linalg.norm(V - ex, axis=1).mean()))
+                c = crossings(V, G, body, B)
+                crossed.append(c["a_edges_through_b"] + c["b_edges_through_a"])
             print(f"  {name}: {label} done", flush=True)
             rows.append({"garment": name, "vertices": garment.n_vertices, "remedy": label,
                          "mean_inside": float(np.mean(inside)), "max_inside": float(np.max(inside)),
                          "combinations_over_half_percent": int(np.sum(np.array(inside) > 0.005)),
                          "deepest_mm": max(worst) / MM,
                          "mean_distance_to_exact_mm": float(np.mean(error)) / MM,
+                         "combinations_crossing": int(np.count_nonzero(crossed)),
+                         "most_edges_crossing": int(max(crossed)),
                          "fit_seconds": fit.seconds["total"], "extra_keys": len(fit.correctives),
                          "exact_mean_inside": float(np.mean(exact_inside)),
                          "exact_max_inside": float(np.max(exact_inside))})
@@ -190,13 +202,16 @@ def main(argv=None):
         print(f"\nBlending study: {args.combinations} combinations of 3 to 6 of 10 keys, values in [0,1] "
               f"(seed {args.seed}); share of vertices > 1 mm inside the blended body")
         print("mean/max: over the combinations; >0.5%: combinations above the goal; to exact: mean "
-              "vertex distance from the transfer to that exact body; exact: the exact transfer's own share")
+              "vertex distance from the transfer to that exact body; exact: the exact transfer's own share; "
+              "crossing: combinations where an edge passes through the other mesh under some triangulation "
+              "(most: edges in the worst)")
         print(f"{'garment':20s} {'remedy':33s} {'mean':>7s} {'max':>7s} {'>0.5%':>5s} {'deepest':>9s} "
-              f"{'to exact':>9s} {'exact':>7s} {'keys+':>5s} {'fit s':>6s}")
+              f"{'to exact':>9s} {'exact':>7s} {'crossing':>8s} {'most':>5s} {'keys+':>5s} {'fit s':>6s}")
         for r in rows:
             print(f"{r['garment']:20s} {r['remedy']:33s} {r['mean_inside']:7.3%} {r['max_inside']:7.3%} "
                   f"{r['combinations_over_half_percent']:5d} {r['deepest_mm']:7.2f}mm "
                   f"{r['mean_distance_to_exact_mm']:7.2f}mm {r['exact_mean_inside']:7.3%} "
+                  f"{r['combinations_crossing']:8d} {r['most_edges_crossing']:5d} "
                   f"{r['extra_keys']:5d} {r['fit_seconds']:6.1f}")
     return 0
 

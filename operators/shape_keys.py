@@ -153,15 +153,17 @@ def write_key(me, key_block, V_local):
     key_block.data.foreach_set("co", np.ascontiguousarray(V_local, dtype=np.float32).reshape(-1))
 
 
-def add_keep_outside(obj, body):
+def add_keep_outside(obj, body, distance=0.0):
     """A Shrinkwrap modifier at the end of the stack (after any Armature modifier, so that posed cloth
-    meets the posed body) that moves only vertices inside the body onto its surface: what a blend of
-    keys clips, at any slider setting and pose (shape_keys.keep_outside is the same rule)."""
+    meets the posed body) that moves only vertices inside the body, or closer to it than ``distance`` (world
+    units), out to that distance: what a blend of keys clips, at any slider setting and pose
+    (shape_keys.keep_outside is the same rule; the distance: ``KEEP_OUTSIDE_SHARE`` of the transfer's offset)."""
     mod = obj.modifiers.new(name="Keep Outside Body", type='SHRINKWRAP')
     mod.target = body
     mod.wrap_method = 'NEAREST_SURFACEPOINT'
     mod.wrap_mode = 'OUTSIDE'
-    mod.offset = 0.0
+    # The modifier's offset is in the garment's own units.
+    mod.offset = distance / float(np.mean(np.array(obj.matrix_world.to_scale())))
     return mod
 
 
@@ -218,7 +220,10 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
                         new.use_deform_preserve_volume = m.use_deform_preserve_volume
                         break
         if keep_outside:
-            add_keep_outside(obj, body)
+            from ..garment_transfer import KEEP_OUTSIDE_SHARE
+
+            offset = fit.info["Basis"]["offset"] if "Basis" in fit.info else 0.0
+            add_keep_outside(obj, body, KEEP_OUTSIDE_SHARE * offset)
         me.update()
         for coll in convert.result_collections(garment, context.scene, context.view_layer):
             coll.objects.link(obj)

@@ -173,11 +173,16 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
 def result_metrics(context, result, garment, target):
     """``evaluate`` of the new object as Blender has it (evaluated, in world space, its 32-bit coordinates),
     against the target body as read (``garment``, ``target``: the core meshes read): the panel's and the
-    report's figures, crossings under every triangulation of the faces included."""
+    report's figures, crossings under every triangulation of the faces included. A result that keeps a refining
+    modifier (Use Evaluated off) is measured before it."""
     from ..garment_transfer import evaluate
 
     context.view_layer.update()
-    written = convert.core_mesh_from_object(result, context.evaluated_depsgraph_get(), True, "result")
+    depsgraph = context.evaluated_depsgraph_get()
+    written = convert.core_mesh_from_object(result, depsgraph, True, "result")
+    if written.n_vertices != garment.n_vertices:
+        # A refining modifier kept on the result (Subdivision, with Use Evaluated off): the mesh it refines.
+        written = convert.core_mesh_from_object(result, depsgraph, False, "result")
     return evaluate(garment, garment.with_vertices(written.V), target)
 
 

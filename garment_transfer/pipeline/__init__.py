@@ -13,7 +13,8 @@ from .batch import BatchSummary, Catalogue, read_catalogue, run_batch
 from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit
-from .shape_keys import ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files, transfer_to_shapes
+from .shape_keys import (KEEP_OUTSIDE_SHARE, ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files,
+                         transfer_to_shapes)
 from .result_check import check_result, result_warnings
 from .transfer import (OFFSET_SHARE, POSE_LIMIT_DEGREES, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
@@ -21,7 +22,8 @@ from .weights import surface_weights
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
            "POSE_LIMIT_DEGREES", "check_result", "result_warnings",
-           "transfer_to_any_body", "OutfitError", "OutfitResult", "transfer_outfit", "ShapeKeyFit", "fit_shape_keys",
+           "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "OutfitError", "OutfitResult", "transfer_outfit",
+           "ShapeKeyFit", "fit_shape_keys",
            "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
            "check_after_training", "check_lines", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]

@@ -232,23 +232,54 @@ def make_tiny_dataset(makehuman, folder, garments, bodies=("female_average", "fe
     return folder
 
 
-def test_crossings_the_pass_leaves_are_reported_as_a_warning(dressed, extension, monkeypatch, capfd):
-    # The result is made and kept, and the artist is told that the garment still crosses the body.
+def test_the_panel_and_the_warnings_say_what_the_object_crosses_as_blender_has_it(dressed, extension, monkeypatch,
+                                                                                   capfd):
+    # The result is made and kept; its figures are those of the new object as Blender evaluates it (world space,
+    # 32-bit coordinates) against the target as read, under every triangulation of both: the panel shows them
+    # and the artist is told what crosses.
+    import json
+    import logging
+
     from garment_transfer.geometry import clearance
+
     real = clearance.separate
 
     def defeated(V, *args, **kwargs):
         out, info = real(V, *args, **kwargs)
-        info.update(crossings_after=41, kept_input=True)
+        out = out.copy()
+        out[0] = 2 * out[0] - out[1000]         # one vertex taken far off: its edges pass through the body
+        logging.getLogger("garment_transfer.geometry.clearance").warning("the pass gave up here")
         return out, info
+
+    gt = core(extension)
+
+    def mesh_of(obj):
+        me = obj.data
+        fv = np.empty(len(me.loops), dtype=np.int64)
+        me.loops.foreach_get("vertex_index", fv)
+        sizes = np.empty(len(me.polygons), dtype=np.int64)
+        me.polygons.foreach_get("loop_total", sizes)
+        return gt.mesh_from_polygons(world_vertices(obj), np.split(fv, np.cumsum(sizes)[:-1]), name=obj.name)
+
+    def independent(result):
+        cloth, body = mesh_of(result), mesh_of(dressed.target)
+        return gt.crossings(cloth.V, gt.readings_of(cloth), body.V, gt.readings_of(body))
 
     monkeypatch.setattr(clearance, "separate", defeated)
     result = transfer_result()
     assert result is not None and result.name == "sportsuit_on_pear"
+    shown = json.loads(dressed.settings.last_metrics)
+    c = independent(result)
+    assert shown["garment_edges_through_body"] == c["a_edges_through_b"] > 0
+    assert shown["body_edges_through_garment"] == c["b_edges_through_a"]
     err = capfd.readouterr()
-    assert "sportsuit_on_pear: 41 garment-body crossings are left" in err.out + err.err
+    assert "sportsuit_on_pear: " in err.out + err.err and "garment edges pass through the body" in err.out + err.err
     monkeypatch.setattr(clearance, "separate", real)
     bpy.data.objects.remove(result)
-    transfer_result()
+    result = transfer_result()
     err = capfd.readouterr()
-    assert "crossings are left" not in err.out + err.err
+    assert "pass through the body" not in err.out + err.err
+    shown = json.loads(dressed.settings.last_metrics)
+    c = independent(result)
+    assert shown["garment_edges_through_body"] == shown["body_edges_through_garment"] == 0
+    assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and shown["min_body_distance"] > 0
