@@ -45,7 +45,7 @@ LAYERS = {
     "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
                  "load_dataset", "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings"),
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
-                 "OFFSET_SHARE", "POSE_LIMIT_DEGREES", "pose_check", "check_result", "result_warnings",
+                 "OFFSET_SHARE", "POSE_LIMITS", "pose_check", "check_result", "result_warnings",
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
                  "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "all_pairs", "fit_steps", "surface_weights",
                  "evaluate", "mdc",

@@ -35,6 +35,7 @@ GAP_SHARE = 0.4
 HEAVY_ROUNDS = 8
 #: The arm bones turned by ``arms_down`` (with everything below them).
 ARM_ROOTS = ("upperarm01.L", "upperarm01.R")
+LEG_ROOTS = ("upperleg01.L", "upperleg01.R")
 
 
 def body(name):
@@ -123,23 +124,36 @@ def _descendants(bones, roots):
     return out
 
 
+def legs_apart(base, body_name, degrees):
+    """Both legs of ``base`` turned outward by ``degrees`` about the hip joints, in the front plane (skinned as
+    ``arms_down``)."""
+    return _turned(base, body_name, degrees, LEG_ROOTS, f"{body_name}_legs_apart_{degrees:g}")
+
+
 def arms_down(base, body_name, degrees):
     """Both arms of ``base`` (a fixture body named ``body_name``) turned down by ``degrees`` about the
     shoulder joints, in the front plane, by linear blend skinning with MakeHuman's weights."""
+    return _turned(base, body_name, degrees, ARM_ROOTS, f"{body_name}_arms_down_{degrees:g}")
+
+
+def _turned(base, body_name, degrees, roots, name):
+    """``base`` with the bones ``roots`` (one per side) and everything below them turned by ``degrees`` in the
+    front plane about their head joints: down for an arm, outward for a leg (the same turn: away from the
+    body's middle at the top, towards it below)."""
     bones, weights = _rig()
     joints = json.loads((MAKEHUMAN / "rig" / "joints" / f"{body_name}.json").read_text())
     V = base.V
     move = np.zeros_like(V)
     theta = np.radians(degrees)
-    for root in ARM_ROOTS:
+    for root in roots:
         pivot = np.asarray(joints[bones[root]["head"]], dtype=np.float64)
-        # Down in the front plane (Y up, Z forward): about +Z for the left arm (x > 0), -Z for the right.
-        a = -np.sign(pivot[0]) * theta
+        # In the front plane (Y up, Z forward): about +Z for the left side (x > 0), -Z for the right.
+        a = -np.sign(pivot[0]) * theta * (1.0 if root in ARM_ROOTS else -1.0)
         R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        for name in _descendants(bones, [root]) & set(weights):
-            v, w = weights[name]
+        for bone in _descendants(bones, [root]) & set(weights):
+            v, w = weights[bone]
             np.add.at(move, v, w[:, None] * ((V[v] - pivot) @ R.T + pivot - V[v]))
-    return base.with_vertices(V + move, name=f"{body_name}_arms_down_{degrees:g}")
+    return base.with_vertices(V + move, name=name)
 
 
 def remeshed(base, triangles, seed=0):

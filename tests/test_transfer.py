@@ -145,7 +145,7 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
     # A shape of the same pose, and arms a little lower, are not; the angle is in the result's info.
     pear = read_obj(root / "bodies" / "female_pear.obj")
     near = source.with_vertices(arms_down(source.V, np.radians(10)), name="arms_10")
-    for body, most in ((pear, 3.0), (near, transfer.POSE_LIMIT_DEGREES)):
+    for body, most in ((pear, 3.0), (near, transfer.POSE_LIMITS["upper arm"])):
         pose = transfer_garment(source, body, garment, resolve_crossings=False).info["pose_difference"]
         assert 0.0 < pose["degrees"] < most
     unchecked = transfer_garment(source, posed, garment, resolve_crossings=False, check_pose=False)

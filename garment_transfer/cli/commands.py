@@ -73,7 +73,7 @@ def cmd_transfer(args):
                      f"{os.path.basename(args.target_body)} ({args.method})")
     write = time.perf_counter() - t
     t = time.perf_counter()
-    check = written_check(args.out, garment, target_body, result.prepared)
+    check = written_check(args.out, garment, target_body, result)
     seconds = dict(result.seconds, load=load, write=write, check=time.perf_counter() - t)
     out = {"out": args.out, "method": args.method, "target": args.target,
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
@@ -93,10 +93,12 @@ def cmd_transfer(args):
     emit(args, out, lines)
 
 
-def written_check(path, garment, target_body, prepared=None):
-    """``check_result`` of the file as written at ``path`` (read back), against the target body given."""
+def written_check(path, garment, target_body, result=None):
+    """``check_result`` of the file as written at ``path`` (read back), against the target body given (``result``:
+    the transfer's, for what it prepared and binned)."""
     written = read_obj(path)
-    return check_result(garment, written.V, target_body,
+    prepared = None if result is None else result.prepared
+    return check_result(garment, written.V, target_body, obstacle=None if result is None else result.obstacle,
                         source_pairs=None if prepared is None else prepared.source_pairs(),
                         readings=None if prepared is None else prepared.readings())
 

@@ -77,6 +77,8 @@ SPREAD_RINGS = 2.0
 GAIN = 0.5
 #: Rounds in which a push that makes the cloth cross itself is held back; later the body comes first.
 PROTECT_ROUNDS = 3
+#: Once nothing crosses, the clearance alone gets at most this many rounds (it is best effort).
+CLEARANCE_ROUNDS = 2
 #: Around a self-intersection the source does not have, the cloth within this many offsets (times
 #: the try, up to ``RESTORE_TRIES``) takes its source shape (``restore_source_shape``).
 RESTORE_RADIUS = 2.2
@@ -348,7 +350,13 @@ class _SourceTangles:
         """The source's own self-intersecting pairs (k,2)."""
         if self.own is None:
             self.own = SelfCheck(self.S, self.G).all(self.S)
+        elif callable(self.own):
+            self.own = self.own()
         return self.own
+
+    def known(self):
+        """Whether the source's pairs have been found (or were given)."""
+        return self.own is not None and not callable(self.own)
 
     def beyond(self, pairs):
         """The pairs (k,2) of a result that count against the source."""
@@ -476,8 +484,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         does not have (the transfer pressed close layers of cloth through each other) are undone
         too: the cloth around them takes its source shape (``restore_source_shape``), and the body
         is cleared again where that moved it, with a larger radius at each of ``RESTORE_TRIES``.
-    source_pairs : (k,2) int, optional
-        The source's own self-intersecting pairs (``SelfCheck(source_V, G).all(source_V)``), when known.
+    source_pairs : (k,2) int, or a callable that returns them, optional
+        The source's own self-intersecting pairs (``SelfCheck(source_V, G).all(source_V)``), when known (a
+        callable is asked only when they are needed).
 
     Returns
     -------
@@ -531,11 +540,10 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
     new = tangles.beyond(pairs)
     # Tries start from the latest shape that still has pairs to undo (``base``); the best result
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
-    near_given = info["near_after"]
     base = best = (V, pairs, new, state, info["crossings_after"], info["near_after"], 0, 0)
     for attempt in range(RESTORE_TRIES):
-        if best[2].shape[0] == 0 and best[5] <= near_given:
-            break
+        if best[4] == 0 and best[2].shape[0] == 0:
+            break   # clean: no crossing, nothing the source lacks (pairs closer than the clearance may be left)
         V_b, pairs_b, new_b, state_b = base[:4]
         # Each radius is tried with the cloth left where it is, then moved out as one piece.
         radius = (attempt // 2 + 1) * RESTORE_RADIUS * offset
@@ -556,7 +564,8 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
     V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best
     info["rounds"] += rounds
     info["undone"] += undone
-    info["self_intersections_source"] = int(tangles.pairs().shape[0])
+    if tangles.known():
+        info["self_intersections_source"] = int(tangles.pairs().shape[0])
     if ((info["crossings_after"], pairs.shape[0], info["near_after"])
             > (info["crossings_before"], info["self_intersections_before"], info["near_before"])):
         # Nothing it tried is better than what it was given (a garment pressed through the body can leave
@@ -630,8 +639,8 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
             n_near = near_count(close)
         log.debug("round %d: %d crossings, %d near, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, int(step.sum()))
-        if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and n_near >= last_near:
-            break   # only the clearance is left, and it no longer improves
+        if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and (n_near >= last_near or rounds >= CLEARANCE_ROUNDS):
+            break   # clean; only the clearance is left, and it no longer improves or has had its rounds
     info["rounds"] = rounds
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
     info["near_after"] = n_near

@@ -130,12 +130,12 @@ class Readings:
     def triangles_of(self, P):
         """Every triangle of the polygons P (k,) int: (which (m,) index into P, triangle (m,) index into F)."""
         m = self.members()
-        return _runs(m["tri_start"], None, np.asarray(P, dtype=np.int64))
+        return group_members(m["tri_start"], None, np.asarray(P, dtype=np.int64))
 
     def edges_of(self, P):
         """Every edge the polygons P (k,) int own: (which (m,) index into P, edge (m,) index into E)."""
         m = self.members()
-        return _runs(m["edge_start"], m["edge_order"], np.asarray(P, dtype=np.int64))
+        return group_members(m["edge_start"], m["edge_order"], np.asarray(P, dtype=np.int64))
 
     def topology(self) -> dict:
         """What a self-intersection check needs of the polygons alone (made once, kept): ``members`` and
@@ -143,7 +143,8 @@ class Readings:
         polygon with itself included), sorted; ``near`` (r,2) int64: every (edge, triangle) pair of polygons
         that share a vertex whose edge and triangle share none and are not a diagonal and a triangle of one
         polygon (the pairs a check of polygons that share no vertex would miss), and ``near_corners`` (r,5)
-        int32: their edge's two vertices and triangle's three.
+        int32: their edge's two vertices and triangle's three; per vertex, its near pairs (``near_start`` (n+1,),
+        ``near_order``) and its polygons (``faces_start`` (n+1,), ``faces_order``).
         """
         if self._topology is None:
             self._topology = dict(self.members(), **_self_topology(self))
@@ -156,7 +157,7 @@ def _csr(groups, count):
     return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), order
 
 
-def _runs(start, order, P):
+def group_members(start, order, P):
     """The members of each group in P (k,) int, given the groups' ``start`` (and ``order``, None when the
     members are in order already): (which (m,) index into P, member (m,))."""
     n = start[P + 1] - start[P]
@@ -186,8 +187,14 @@ def _self_topology(R: Readings) -> dict:
     keep = ~((e[:, :1] == t).any(axis=1) | (e[:, 1:] == t).any(axis=1)) & ~R.same_polygon(edges, tris)
     # Each polygon pair once, each edge owned by one polygon: every (edge, triangle) pair comes once.
     near = np.stack([edges[keep], tris[keep]], axis=1)
-    return {"touching": touching, "near": near,
-            "near_corners": np.concatenate([e[keep], t[keep]], axis=1).astype(np.int32)}
+    corners = np.concatenate([e[keep], t[keep]], axis=1)
+    n = int(R.face_vertices.max()) + 1 if R.face_vertices.size else 0
+    near_start, near_order = _csr(corners.reshape(-1), n)
+    faces_start, faces_order = _csr(R.face_vertices, n)
+    return {"touching": touching, "near": near, "near_corners": corners.astype(np.int32),
+            # Per vertex: the near pairs and the polygons it is in (``_runs`` reads them).
+            "near_start": near_start, "near_order": near_order // 5,
+            "faces_start": faces_start, "faces_order": poly_of_corner[faces_order]}
 
 
 def _expand(P, Q, edge_start, edge_order, tri_start):

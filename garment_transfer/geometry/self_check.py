@@ -16,7 +16,7 @@ import numpy as np
 
 from .broad_phase import BoxGrid
 from .predicates import segments_meet_triangles
-from .readings import Readings, expand_polygon_pairs
+from .readings import Readings, expand_polygon_pairs, group_members
 
 NO_PAIRS = np.zeros((0, 2), np.int64)
 
@@ -54,44 +54,53 @@ class SelfCheck:
 
     def _sync(self, V):
         """The polygon bins made for V: from scratch the first time, else the boxes of what moved since."""
-        lo, hi = self.R.face_boxes(V)
         if self.V_binned is None:
+            lo, hi = self.R.face_boxes(V)
             self.grid = BoxGrid(lo, hi, self.cell)
         else:
             moved = np.flatnonzero(np.any(V != self.V_binned, axis=1))
             if moved.size:
                 faces = self._faces_of(moved)
-                self.grid.update(faces, lo[faces], hi[faces])
+                self.grid.update(faces, *self._boxes(V, faces))
         self.V_binned = V.copy()
-        return lo, hi
+
+    def _boxes(self, V, faces):
+        """(k,3), (k,3): the boxes of the polygons ``faces`` (k,) in V."""
+        which, corner = group_members(self.R.face_start, None, faces)
+        X = V[self.R.face_vertices[corner]]
+        start = np.searchsorted(which, np.arange(faces.shape[0]))
+        return np.minimum.reduceat(X, start, axis=0), np.maximum.reduceat(X, start, axis=0)
 
     def _faces_of(self, vertices):
         """The polygons with a corner among ``vertices`` (k,) int, each once."""
-        mark = np.zeros(self.V_binned.shape[0], bool)
-        mark[vertices] = True
-        corner = mark[self.R.face_vertices]
-        return np.unique(np.repeat(np.arange(self.R.n_faces), np.diff(self.R.face_start))[corner])
+        _, k = group_members(self.top["faces_start"], None, np.asarray(vertices, dtype=np.int64))
+        return np.unique(self.top["faces_order"][k])
+
+    def _near_of(self, vertices):
+        """The ``near`` pairs with one of ``vertices`` (k,) int in the edge or the triangle, each once."""
+        _, k = group_members(self.top["near_start"], None, np.asarray(vertices, dtype=np.int64))
+        return np.unique(self.top["near_order"][k])
 
     def all(self, V):
         """Every self-intersecting pair of V: (k,2) (edge, triangle) indices into ``R.E``, ``R.F``, sorted."""
         V = np.asarray(V, dtype=np.float64)
-        lo, hi = self._sync(V)
-        pairs = self.grid.query(lo, hi)
+        self._sync(V)
+        pairs = self.grid.query(self.grid.lo, self.grid.hi)
         return self._test(V, self._apart(pairs), self._near_overlapping(V))
 
     def local(self, V, moved):
         """The self-intersecting pairs of V with a ``moved`` ((n,) bool) vertex in the edge or the triangle,
         sorted."""
         V = np.asarray(V, dtype=np.float64)
-        lo, hi = self._sync(V)
-        faces = self._faces_of(np.flatnonzero(moved))
+        self._sync(V)
+        vertices = np.flatnonzero(moved)
+        faces = self._faces_of(vertices)
         if faces.size == 0:
             return NO_PAIRS
-        pairs = self.grid.query(lo[faces], hi[faces])
+        pairs = self.grid.query(self.grid.lo[faces], self.grid.hi[faces])
         pairs = self._apart(np.stack([faces[pairs[:, 0]], pairs[:, 1]], axis=1))
-        corners = self.top["near_corners"]
-        near = np.flatnonzero(moved[corners].any(axis=1))
-        found = self._test(V, np.concatenate([pairs, pairs[:, ::-1]]), self._near_overlapping(V, near))
+        near = self._near_overlapping(V, self._near_of(vertices))
+        found = self._test(V, np.concatenate([pairs, pairs[:, ::-1]]), near)
         return found[self.touching(found, moved)]
 
     def _near_overlapping(self, V, which=None):

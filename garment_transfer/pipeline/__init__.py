@@ -16,12 +16,12 @@ from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .shape_keys import (KEEP_OUTSIDE_SHARE, ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files,
                          transfer_to_shapes)
 from .result_check import check_result, result_warnings
-from .transfer import (OFFSET_SHARE, POSE_LIMIT_DEGREES, PreparedGarment, TransferResult, pose_check, prepare_garment,
+from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
 from .weights import surface_weights
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
-           "POSE_LIMIT_DEGREES", "check_result", "result_warnings",
+           "POSE_LIMITS", "check_result", "result_warnings",
            "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "OutfitError", "OutfitResult", "transfer_outfit",
            "ShapeKeyFit", "fit_shape_keys",
            "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",

@@ -27,7 +27,7 @@ PASS_RESULT_KEYS = ("crossings_after", "near_after", "inside_after", "self_inter
 
 
 def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, readings: Readings | None = None,
-                 body_readings: Readings | None = None, layers_below=()) -> dict:
+                 body_readings: Readings | None = None, layers_below=(), obstacle: Obstacle | None = None) -> dict:
     """Every figure of the promise, measured on a result.
 
     Parameters
@@ -44,6 +44,8 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         ``readings_of(garment)``, ``readings_of(target_body)``, if known.
     layers_below : sequence of (V (k,3), Readings or (l,3) int)
         Garments worn under this one, as the user has them.
+    obstacle : Obstacle, optional
+        ``target_body`` binned already (``TransferResult.obstacle``: the same body, as the crossing pass saw it).
 
     Returns
     -------
@@ -57,9 +59,12 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     """
     V = np.asarray(V, dtype=np.float64)
     G = readings if readings is not None else readings_of(garment)
-    B = body_readings if body_readings is not None else readings_of(target_body)
-    surface = TriangleSurface(target_body.V, target_body.F)
-    body = Obstacle(target_body.V, B, surface, edge_length(V, G))
+    if obstacle is not None and obstacle.V.shape == target_body.V.shape and np.array_equal(obstacle.V, target_body.V):
+        body = obstacle
+    else:
+        B = body_readings if body_readings is not None else readings_of(target_body)
+        body = Obstacle(target_body.V, B, TriangleSurface(target_body.V, target_body.F), edge_length(V, G))
+    surface = body.surface
     c = garment_crossings(V, G, body)
     pairs = SelfCheck(V, G).all(V)
     if source_pairs is None:
