@@ -57,10 +57,10 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .intersections import segment_closest, segment_distances
-from .obstacle import Obstacle, as_obstacle, edge_length, garment_crossings
+from .obstacle import Obstacle, as_obstacle, edge_length, faces_touching, garment_crossings, polygon_pairs
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import closest_on_triangles
-from .readings import Readings, as_readings
+from .readings import Readings, as_readings, group_members
 from .self_check import NO_PAIRS, SelfCheck, beyond_source, unique_pairs
 
 log = logging.getLogger(__name__)
@@ -226,22 +226,32 @@ def near_pairs(V, G: Readings, obstacle: Obstacle, near, active=None):
     if idx.size == 0:
         return out
     out["vertex"] = idx[obstacle.surface.signed_distance(V[idx])[0] < near]
-    t_act = np.flatnonzero(active[G.F].any(axis=1))
-    e_act = np.flatnonzero(active[G.E].any(axis=1))
-    if t_act.size:
-        T = V[G.F[t_act]]
-        pairs = obstacle.vertices_near(T.min(axis=1) - near, T.max(axis=1) + near)
-        j, i = pairs[:, 0], pairs[:, 1]
-        p, _ = closest_on_triangles(obstacle.V[i], T[j, 0], T[j, 1], T[j, 2])
-        k = np.linalg.norm(p - obstacle.V[i], axis=1) < near
-        out["triangle"] = np.stack([i[k], t_act[j[k]]], axis=1)
-    if e_act.size:
-        P0, P1 = V[G.E[e_act, 0]], V[G.E[e_act, 1]]
-        pairs = obstacle.edges_near(np.minimum(P0, P1) - near, np.maximum(P0, P1) + near)
-        i, j = e_act[pairs[:, 0]], pairs[:, 1]
-        Q0, Q1 = obstacle.V[obstacle.E[j, 0]], obstacle.V[obstacle.E[j, 1]]
-        k = segment_distances(V[G.E[i, 0]], V[G.E[i, 1]], Q0, Q1) < near
-        out["edge"] = np.stack([i[k], j[k]], axis=1)
+    Pg, Pb = polygon_pairs(V, G, obstacle, faces_touching(G, active), near)
+    # Obstacle vertices (its polygons' corners) near the garment polygons' triangles.
+    which, tri = G.triangles_of(Pg)
+    keep = active[G.F[tri]].any(axis=1)
+    tri, Pt = tri[keep], Pb[which[keep]]
+    which, corner = group_members(obstacle.R.face_start, None, Pt)
+    key = np.unique(obstacle.R.face_vertices[corner] * G.n_triangles + tri[which])
+    i, t = key // G.n_triangles, key % G.n_triangles
+    T = V[G.F[t]]
+    keep = np.all((T.min(axis=1) - near <= obstacle.V[i]) & (obstacle.V[i] <= T.max(axis=1) + near), axis=1)
+    i, t, T = i[keep], t[keep], T[keep]
+    p, _ = closest_on_triangles(obstacle.V[i], T[:, 0], T[:, 1], T[:, 2])
+    k = np.linalg.norm(p - obstacle.V[i], axis=1) < near
+    out["triangle"] = np.stack([i[k], t[k]], axis=1)
+    # The garment polygons' own edges near the obstacle polygons' own edges.
+    which, e = G.edges_of(Pg)
+    keep = active[G.E[e]].any(axis=1)
+    e, Pe = e[keep], Pb[which[keep]]
+    which, b = obstacle.R.edges_of(Pe)
+    e = e[which]
+    P0, P1, Q0, Q1 = V[G.E[e, 0]], V[G.E[e, 1]], obstacle.V[obstacle.E[b, 0]], obstacle.V[obstacle.E[b, 1]]
+    keep = np.all((np.minimum(P0, P1) - near <= np.maximum(Q0, Q1)) & (np.minimum(Q0, Q1) <= np.maximum(P0, P1) + near),
+                  axis=1)
+    k = np.flatnonzero(keep)
+    k = k[segment_distances(P0[k], P1[k], Q0[k], Q1[k]) < near]
+    out["edge"] = np.stack([e[k], b[k]], axis=1)
     return out
 
 

@@ -15,7 +15,7 @@ from .intersections import crossing_counts, segment_distances
 from .mesh import triangle_normals
 from .predicates import segments_meet_triangles
 from .proximity import TriangleSurface, closest_on_triangles
-from .readings import Readings, as_readings
+from .readings import Readings, as_readings, group_members
 
 
 class Obstacle:
@@ -110,7 +110,9 @@ def edge_length(V, G: Readings):
 
 def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
     """``intersections.crossings(V, G, obstacle.V, obstacle.R)``, the obstacle's bins asked about the
-    garment's edges and triangles (those with an ``active`` ((n,) bool) vertex, or all).
+    garment's polygons (those with an ``active`` ((n,) bool) vertex, or all): one query gives the pairs of
+    polygons whose boxes overlap, and each such pair the garment's edges against the obstacle's triangles and
+    the obstacle's edges against the garment's triangles.
 
     Returns
     -------
@@ -120,21 +122,75 @@ def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
         (``b_triangles`` index ``G.F``).
     """
     V = np.asarray(V, dtype=np.float64)
-    e_act = np.arange(G.n_edges) if active is None else np.flatnonzero(active[G.E].any(axis=1))
-    t_act = np.arange(G.n_triangles) if active is None else np.flatnonzero(active[G.F].any(axis=1))
-    P, Q = V[G.E[e_act, 0]], V[G.E[e_act, 1]]
-    pa = obstacle.triangles_near(np.minimum(P, Q), np.maximum(P, Q))
-    tri = obstacle.F[pa[:, 1]]
-    meet, ua = segments_meet_triangles(P[pa[:, 0]], Q[pa[:, 0]], obstacle.V[tri[:, 0]], obstacle.V[tri[:, 1]],
-                                       obstacle.V[tri[:, 2]])
-    pa = np.stack([e_act[pa[meet, 0]], pa[meet, 1]], axis=1)
-    T = V[G.F[t_act]]
-    pb = obstacle.edges_near(T.min(axis=1), T.max(axis=1))
-    e = obstacle.E[pb[:, 1]]
-    t = T[pb[:, 0]]
-    meet, ub = segments_meet_triangles(obstacle.V[e[:, 0]], obstacle.V[e[:, 1]], t[:, 0], t[:, 1], t[:, 2])
-    pb = np.stack([pb[meet, 1], t_act[pb[meet, 0]]], axis=1)
+    Pg, Pb = polygon_pairs(V, G, obstacle, np.arange(G.n_faces) if active is None else faces_touching(G, active))
+    blo, bhi = obstacle.polygon_grid.lo, obstacle.polygon_grid.hi
+    # Garment edges (each polygon's own: every edge once) whose box meets an obstacle polygon's, against its
+    # triangles.
+    which, edge = G.edges_of(Pg)
+    Pe = Pb[which]
+    if active is not None:
+        keep = active[G.E[edge]].any(axis=1)
+        edge, Pe = edge[keep], Pe[keep]
+    keep = _boxes_meet(V, G.E[edge], blo[Pe], bhi[Pe])
+    edge, Pe = edge[keep], Pe[keep]
+    j, tri = obstacle.R.triangles_of(Pe)
+    edge = edge[j]
+    pa, ua = _meet(V, G.E[edge], obstacle.V, obstacle.F[tri], np.stack([edge, tri], axis=1))
+    # The garment polygons' triangles whose box meets an obstacle polygon's, against its own edges.
+    which, tri = G.triangles_of(Pg)
+    Pt = Pb[which]
+    if active is not None:
+        keep = active[G.F[tri]].any(axis=1)
+        tri, Pt = tri[keep], Pt[keep]
+    keep = _boxes_meet(V, G.F[tri], blo[Pt], bhi[Pt])
+    tri, Pt = tri[keep], Pt[keep]
+    j, edge = obstacle.R.edges_of(Pt)
+    tri = tri[j]
+    pb, ub = _meet(obstacle.V, obstacle.E[edge], V, G.F[tri], np.stack([edge, tri], axis=1))
     return crossing_counts(G.E, _sorted(pa), obstacle.E, _sorted(pb), ua + ub)
+
+
+def _meet(V_e, ends, V_t, corners, pairs):
+    """The pairs (k,2) whose segment (``ends`` (k,2) vertices of V_e) meets its triangle (``corners`` (k,3)
+    vertices of V_t): boxes first, axis by axis on what the last axis kept, then exactly."""
+    k = np.arange(pairs.shape[0])
+    for axis in range(3):
+        e, t = V_e[:, axis][ends[k]], V_t[:, axis][corners[k]]
+        k = k[(np.minimum(e[:, 0], e[:, 1]) <= t.max(axis=1)) & (t.min(axis=1) <= np.maximum(e[:, 0], e[:, 1]))]
+    e, t = ends[k], corners[k]
+    meet, uncertain = segments_meet_triangles(V_e[e[:, 0]], V_e[e[:, 1]], V_t[t[:, 0]], V_t[t[:, 1]], V_t[t[:, 2]])
+    return pairs[k[meet]], uncertain
+
+
+def _boxes_meet(V, corners, lo, hi):
+    """(k,) bool: the box of each row of ``corners`` (k,c) vertices of V meets the box (lo, hi (k,3))."""
+    keep = np.ones(corners.shape[0], bool)
+    for axis in range(3):
+        x = V[:, axis][corners]
+        keep &= (x.min(axis=1) <= hi[:, axis]) & (lo[:, axis] <= x.max(axis=1))
+    return keep
+
+
+def polygon_pairs(V, G: Readings, obstacle: Obstacle, faces, pad=0.0):
+    """The pairs of a garment polygon among ``faces`` (k,) int and an obstacle polygon whose boxes (the garment's
+    grown by ``pad``) overlap: (garment polygons (j,), obstacle polygons (j,))."""
+    lo, hi = face_boxes_of(G, V, faces)
+    pairs = obstacle.polygon_grid.query(lo - pad, hi + pad)
+    return faces[pairs[:, 0]], pairs[:, 1]
+
+
+def faces_touching(G: Readings, active):
+    """The polygons with an ``active`` ((n,) bool) corner."""
+    corner = active[G.face_vertices]
+    return np.unique(np.repeat(np.arange(G.n_faces), np.diff(G.face_start))[corner])
+
+
+def face_boxes_of(G: Readings, V, faces):
+    """(k,3), (k,3): the boxes of the polygons ``faces`` (k,) int in V."""
+    which, corner = group_members(G.face_start, None, faces)
+    X = V[G.face_vertices[corner]]
+    start = np.searchsorted(which, np.arange(faces.shape[0]))
+    return np.minimum.reduceat(X, start, axis=0), np.maximum.reduceat(X, start, axis=0)
 
 
 def _sorted(pairs):

@@ -24,7 +24,11 @@ NO_PAIRS = np.zeros((0, 2), np.int64)
 def unique_pairs(pairs):
     """(k,2) int pairs, each once, sorted."""
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    return np.unique(pairs, axis=0) if pairs.shape[0] else pairs
+    if pairs.shape[0] == 0:
+        return pairs
+    base = int(pairs[:, 1].max()) + 1
+    key = np.unique(pairs[:, 0] * base + pairs[:, 1])
+    return np.stack([key // base, key % base], axis=1)
 
 
 class SelfCheck:
