@@ -21,7 +21,7 @@ which covers the fans other tools make, not every triangulation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 
 import numpy as np
@@ -301,11 +301,26 @@ def triangle_readings(F) -> Readings:
 def readings_of(mesh) -> Readings:
     """``Readings`` of a ``Mesh`` (its polygons; a mesh of triangles has one reading).
 
+    The readings depend on the polygons alone (but ``split``, the mesh's own): for shapes of one mesh (a body's
+    shape keys, a catalogue's targets, ``Mesh.with_vertices``, which keeps the polygon arrays) they are made once
+    and kept (``KEPT_READINGS`` meshes).
+
     Parameters
     ----------
     mesh : Mesh
     """
-    return polygon_readings(mesh.face_vertices, mesh.face_start, mesh.F)
+    for fv, fs, R in _kept:
+        if fv is mesh.face_vertices and fs is mesh.face_start:
+            return R if R.split is mesh.F else replace(R, split=np.asarray(mesh.F, dtype=np.int64))
+    R = polygon_readings(mesh.face_vertices, mesh.face_start, mesh.F)
+    _kept.insert(0, (mesh.face_vertices, mesh.face_start, R))
+    del _kept[KEPT_READINGS:]
+    return R
+
+
+#: How many meshes' readings ``readings_of`` keeps (their polygon arrays are held with them).
+KEPT_READINGS = 8
+_kept = []
 
 
 def as_readings(F) -> Readings:
