@@ -1,7 +1,8 @@
 """Study: does the crossing pass leave garments intersection-free, and at what cost?
 
 Per garment and target it prints the exact crossings (garment edges through the body + body edges
-through the garment, as edge-triangle pairs) before and after the pass, self-intersections of the
+through the garment, as edge-triangle pairs, under every triangulation of both meshes' quads) before and
+after the pass, self-intersections of the
 source garment, before and after the pass (and, after, how many of them the source does not have),
 the smallest garment-body distance kept, MDC against the source garment without and with the pass
 and their ratio, the time of the transfer and of the pass, and their ratio.
@@ -29,6 +30,7 @@ from garment_transfer.geometry.clearance import separate
 from garment_transfer.geometry.intersections import crossings, minimum_distance, self_intersections
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.readings import readings_of
 from garment_transfer.pipeline.metrics import mdc
 from garment_transfer.pipeline.transfer import transfer_garment
 
@@ -46,25 +48,28 @@ HEADER = (f"{'garment':<20} {'target':<18} {'tris':>6} {'cross':>5} {'after':>5}
 
 
 def crossing_count(V, F, body):
-    c = crossings(V, F, body.V, body.F)
+    """Edge-triangle pairs crossing, both ways, under every reading of both meshes' polygons (F: Readings)."""
+    c = crossings(V, F, body.V, readings_of(body))
     return c["a_edge_pairs"] + c["b_edge_pairs"]
 
 
 def study_pair(source_body, target_body, garment, label, target):
-    """One transfer without the pass, then the pass alone on its result: every figure of the study."""
+    """One transfer without the pass, then the pass alone on its result: every figure of the study, under every
+    triangulation of the garment's and the body's polygons."""
     t = time.perf_counter()
     plain = transfer_garment(source_body, target_body, garment, resolve_crossings=False)
     t_transfer = time.perf_counter() - t
+    G, B = readings_of(garment), readings_of(target_body)
     t = time.perf_counter()
-    V, info = separate(plain.V, garment.F, target_body.V, target_body.F, plain.info["offset"], source_V=garment.V)
+    V, info = separate(plain.V, G, target_body.V, B, plain.info["offset"], source_V=garment.V)
     t_pass = time.perf_counter() - t
     F = garment.F
     row = {"garment": label, "target": target, "triangles": garment.n_triangles,
-           "crossings_before": crossing_count(plain.V, F, target_body),
-           "crossings_after": crossing_count(V, F, target_body),
-           "self_source": self_intersections(garment.V, F)[0],
-           "self_before": self_intersections(plain.V, F)[0], "self_after": self_intersections(V, F)[0],
-           "min_distance": minimum_distance(V, F, target_body.V, target_body.F),
+           "crossings_before": crossing_count(plain.V, G, target_body),
+           "crossings_after": crossing_count(V, G, target_body),
+           "self_source": self_intersections(garment.V, G)[0],
+           "self_before": self_intersections(plain.V, G)[0], "self_after": self_intersections(V, G)[0],
+           "min_distance": minimum_distance(V, G, target_body.V, B),
            "offset": plain.info["offset"],
            "mdc_off": mdc(garment.V, plain.V, F), "mdc_on": mdc(garment.V, V, F),
            "self_new": info["self_intersections_new"],
@@ -124,7 +129,7 @@ def run_makehuman(quick):
     rows = []
     for g in garments:
         garment = read_obj(MAKEHUMAN / "garments" / g / "female_average.obj", name=g)
-        own = crossing_count(garment.V, garment.F, source)
+        own = crossing_count(garment.V, readings_of(garment), source)
         print(f"{g}: the source garment itself crosses female_average at {own} edge-triangle pairs")
         for t in manifest["bodies"]:
             if t != "female_average":

@@ -16,10 +16,13 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from garment_transfer.geometry.intersections import crossings, intersection_report, minimum_distance
 from garment_transfer.geometry.obj import read_obj
+from garment_transfer.geometry.readings import merge_readings, readings_of
 from garment_transfer.pipeline.metrics import mdc
-from garment_transfer.pipeline.outfit import OutfitError, merge_meshes, transfer_outfit
+from garment_transfer.pipeline.outfit import OutfitError, transfer_outfit
 
 from .paths import DEMO_DATA, mm_per_unit
 
@@ -50,20 +53,23 @@ def layer_rows(garments, target_body, result, outfit, target):
     list of dict
     """
     rows = []
+    R = [readings_of(g) for g in garments]
     for k, (g, V) in enumerate(zip(garments, result.V)):
-        below = [(result.V[i], garments[i].F) for i in range(k)]
-        rep = intersection_report(V, g.F, target_body.V, target_body.F, source_V=g.V, layers_below=below)
+        # Under every triangulation of the layers' and the body's polygons.
+        below = [(result.V[i], R[i]) for i in range(k)]
+        rep = intersection_report(V, R[k], target_body.V, readings_of(target_body), source_V=g.V, layers_below=below)
         row = {"outfit": outfit, "target": target, "layer": k + 1, "garment": g.name,
                "triangles": g.n_triangles,
                "garment_edge_body_pairs": rep["garment_edge_body_pairs"],
                "body_edge_garment_pairs": rep["body_edge_garment_pairs"],
                "layer_crossings": rep["layer_crossings"],
-               "layer_crossings_source": sum(crossing_pairs(g.V, g.F, garments[i].V, garments[i].F)
-                                             for i in range(k)),
+               "layer_crossings_source": sum(crossing_pairs(g.V, R[k], garments[i].V, R[i]) for i in range(k)),
                "self_intersections_source": rep["self_intersections_source"],
                "self_intersections": rep["self_intersections"],
                "min_body_distance": rep["min_body_distance"],
-               "min_layer_distance": (minimum_distance(V, g.F, *merge_meshes(below)) if below else None),
+               "min_layer_distance": (minimum_distance(V, R[k], np.concatenate([b[0] for b in below]),
+                                                       merge_readings([(b[0].shape[0], b[1]) for b in below]))
+                                      if below else None),
                "offset": result.info[k].get("offset"),
                "mdc": mdc(g.V, V, g.F), "mdc_separated_source": mdc(result.source_V[k], V, g.F)}
         rows.append(row)
