@@ -5,7 +5,7 @@ import pytest
 from meshes import arms_down, icosphere, require_makehuman
 
 from garment_transfer.errors import Cancelled, MeshError, TopologyMismatchError
-from garment_transfer.geometry.mesh import mesh_from_triangles
+from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.pipeline.metrics import evaluate
@@ -150,4 +150,13 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
         assert 0.0 < pose["degrees"] < most
     unchecked = transfer_garment(source, posed, garment, resolve_crossings=False, check_pose=False)
     assert unchecked.V.shape == garment.V.shape and "pose_difference" not in unchecked.info
+    # A garment that leaves the arms bare (the suit's trousers alone) does not care where they point.
+    legs = [p for p in garment.polygons() if garment.V[p, 1].max() < 0.0]
+    assert len(legs) > 0.2 * garment.n_faces
+    used = np.unique(np.concatenate(legs))
+    index = np.full(garment.n_vertices, -1)
+    index[used] = np.arange(used.size)
+    trousers = mesh_from_polygons(garment.V[used], [index[p] for p in legs], name="trousers")
+    pose = transfer_garment(source, posed, trousers, resolve_crossings=False).info["pose_difference"]
+    assert pose["band"] is None or "arm" not in pose["band"]
 

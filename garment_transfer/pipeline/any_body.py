@@ -74,8 +74,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
                                    anchoring=options.get("anchoring", "everywhere"), reused=False)
     # Solved in the source's frame on the fitted body (a model sees the frame and units it was trained in);
     # the fix and the crossing pass then run on the target itself, in its own frame: the body the user gave.
-    pose = pose_check(source_body, fitted.V, target_body.name, prepared.limbs()) if options.pop("check_pose", True) \
-        else None
+    pose = (pose_check(source_body, fitted.V, target_body.name, prepared.limbs(), prepared.covered())
+            if options.pop("check_pose", True) else None)
     result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.9), fix_penetration=False,
                               prepared=prepared, check_pose=False, **options)
     if pose is not None:

@@ -161,6 +161,13 @@ class PreparedGarment:
             self._readings = readings_of(self.garment)
         return self._readings
 
+    def covered(self):
+        """(n,) bool: the source body's vertices the garment lies on (the corners of the triangles it is bound
+        to)."""
+        mask = np.zeros(self.source_body.n_vertices, bool)
+        mask[self.source_body.F[self.binding.triangle]] = True
+        return mask
+
     def limbs(self):
         """The source body's limb bands (``limbs.find_limbs``; None when none are found), found on first use."""
         if self._limbs is None:
@@ -431,9 +438,9 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
     return V, inside, obstacle
 
 
-def pose_check(source_body: Mesh, body_V, name, limbs=None) -> dict:
+def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dict:
     """The pose difference between the source body and another shape of its mesh (``limbs.pose_difference``),
-    refused where a part of a limb turns further than ``POSE_LIMITS`` allows.
+    refused where a part of a limb the garment covers turns further than ``POSE_LIMITS`` allows.
 
     Parameters
     ----------
@@ -444,22 +451,28 @@ def pose_check(source_body: Mesh, body_V, name, limbs=None) -> dict:
         The target's name, for the error.
     limbs : Limbs, optional
         The source's, if known.
+    covered : (n,) bool, optional
+        The source body's vertices the garment lies on (``PreparedGarment.covered()``): a part of a limb with none
+        of them is not held to its limit (a skirt does not care where the arms point). Default: every part.
 
     Returns
     -------
     dict
-        ``degrees`` and ``band`` of the part furthest over its limit, or under it (None when the source's limbs
-        are not found), and ``bands``: every part's angle.
+        ``degrees`` and ``band`` of the part furthest over its limit, or under it, of those the garment covers
+        (None when the source's limbs are not found or none is covered), and ``bands``: every part's angle.
 
     Raises
     ------
     MeshError
         Naming the target, the part of the limb, its angle and the limit.
     """
+    limbs = find_limbs(source_body.V, source_body.F) if limbs is None else limbs
     d = pose_difference(source_body.V, source_body.F, body_V, limbs)
-    if d["degrees"] is None:
-        return {"degrees": None, "band": None, "bands": {}}
-    over = {band: angle / POSE_LIMITS[band.split(" ", 1)[1]] for band, angle in d["bands"].items()}
+    held = [b for k, b in enumerate(limbs.names) if covered is None or covered[limbs.near[k]].any()
+            or covered[limbs.far[k]].any()] if limbs is not None else []
+    if d["degrees"] is None or not held:
+        return {"degrees": None, "band": None, "bands": d["bands"]}
+    over = {band: d["bands"][band] / POSE_LIMITS[band.split(" ", 1)[1]] for band in held}
     band = max(over, key=over.get)
     limit = POSE_LIMITS[band.split(" ", 1)[1]]
     if over[band] > 1.0:
@@ -537,7 +550,8 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         seconds.update(prepared.seconds)
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
-    pose = pose_check(source_body, target_body.V, target_body.name, prepared.limbs()) if check_pose else None
+    pose = (pose_check(source_body, target_body.V, target_body.name, prepared.limbs(), prepared.covered())
+            if check_pose else None)
     step(0.5, "bind")
     t = time.perf_counter()
     anchors = carry(prepared.binding, target_body.V, source_body.F)
