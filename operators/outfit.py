@@ -110,13 +110,36 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
             bpy.data.objects.remove(obj)
             bpy.data.meshes.remove(me)
         raise
+    outcome.checks = layer_checks(context, results, cloths, target)
     return results, outcome, design
+
+
+def layer_checks(context, results, cloths, target):
+    """``check_result`` of each new object as Blender evaluates it (world space) against the target as read and
+    the layers under it as evaluated, under every triangulation (a refining modifier kept: the mesh it
+    refines)."""
+    from ..garment_transfer import check_result, readings_of
+
+    context.view_layer.update()
+    depsgraph = context.evaluated_depsgraph_get()
+    checks, below = [], []
+    for obj, cloth in zip(results, cloths):
+        V = convert.core_mesh_from_object(obj, depsgraph, True, "result").V
+        if V.shape != cloth.V.shape:
+            V = convert.core_mesh_from_object(obj, depsgraph, False, "result").V
+        checks.append(check_result(cloth, V, target, layers_below=below))
+        below.append((V, readings_of(cloth)))
+    return checks
 
 
 def outfit_message(results, outcome, design, elapsed):
     layers = ", ".join(f"{r.name} (MDC {m:.4f})" for r, m in zip(results, design))
-    return (f"Outfit of {len(results)} layers, from the body out: {layers}; no crossings between the "
-            f"layers or with the body; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
+    crossing = sum(c["garment_edge_body_pairs"] + c["body_edge_garment_pairs"] + c["layer_crossings"]
+                   for c in outcome.checks)
+    said = ("no crossings between the layers or with the body" if not crossing else
+            f"{crossing} edge-triangle pairs cross between the layers or with the body")
+    return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
+            f"triangulation); {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
 
 class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
@@ -161,6 +184,11 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         settings.last_outfit = " / ".join(r.name for r in results)
         settings.last_outfit_model = outcome.model_text
         self.report({'INFO'}, outfit_message(results, outcome, design, elapsed))
+        from ..garment_transfer import result_warnings
+
+        for obj, check in zip(results, outcome.checks):
+            for warning in result_warnings(check, obj.name):
+                self.report({'WARNING'}, warning)
         return {'FINISHED'}
 
 
