@@ -239,7 +239,8 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
               weights_from_body=False, keep_outside=False, offset=None):
     """Read the objects, transfer one key per step, then make the object: a generator.
 
-    Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note)``.
+    Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note, warnings)``:
+    the warnings of each key at 1 as stored (``key_warnings``).
     """
     from ..garment_transfer import MeshError, all_pairs, surface_weights
     from ..garment_transfer import fit_steps as core_steps
@@ -279,7 +280,22 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
             break
         yield done / total
     result = build_result(context, garment, body, fit, garment_basis_local, weights, keep_outside)
-    return result, fit, kept, note
+    return result, fit, kept, note, key_warnings(result, fit, cloth, body_mesh, shapes)
+
+
+def key_warnings(result, fit, cloth, body_mesh, shapes):
+    """What each key at 1 crosses, as stored in the new object (its 32-bit coordinates, in world space) against
+    the body at that key, under every triangulation (``check_result``): the warnings to report."""
+    from ..garment_transfer import check_result, result_warnings
+
+    blocks = result.data.shape_keys.key_blocks
+    out = []
+    for name, V_body in shapes.items():
+        V = world(key_coordinates(blocks[name]), result)
+        check = check_result(cloth, V, body_mesh.with_vertices(V_body), source_pairs=fit.prepared.source_pairs(),
+                             readings=fit.prepared.readings())
+        out += result_warnings(check, f"{result.name} with {name} at 1")
+    return out
 
 
 def drain(steps):
@@ -337,7 +353,7 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
                                 offset=None if settings.auto_offset else settings.offset)
 
     def _finish(self, context, outcome):
-        result, fit, kept, note = outcome
+        result, fit, kept, note, warnings = outcome
         settings = context.scene.garment_transfer
         settings.result = result
         for obj in context.view_layer.objects:
@@ -352,6 +368,8 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
             parts.append(note)
         parts.append(f"{time.perf_counter() - self._began:.2f} s")
         self.report({'INFO'}, "; ".join(parts))
+        for warning in warnings:
+            self.report({'WARNING'}, warning)
         return {'FINISHED'}
 
     def execute(self, context):
