@@ -234,9 +234,9 @@ def near_pairs(V, G: Readings, obstacle: Obstacle, near, active=None):
     which, corner = group_members(obstacle.R.face_start, None, Pt)
     key = np.unique(obstacle.R.face_vertices[corner] * G.n_triangles + tri[which])
     i, t = key // G.n_triangles, key % G.n_triangles
+    keep = _within(obstacle.V, i[:, None], V, G.F[t], near)
+    i, t = i[keep], t[keep]
     T = V[G.F[t]]
-    keep = np.all((T.min(axis=1) - near <= obstacle.V[i]) & (obstacle.V[i] <= T.max(axis=1) + near), axis=1)
-    i, t, T = i[keep], t[keep], T[keep]
     p, _ = closest_on_triangles(obstacle.V[i], T[:, 0], T[:, 1], T[:, 2])
     k = np.linalg.norm(p - obstacle.V[i], axis=1) < near
     out["triangle"] = np.stack([i[k], t[k]], axis=1)
@@ -246,13 +246,26 @@ def near_pairs(V, G: Readings, obstacle: Obstacle, near, active=None):
     e, Pe = e[keep], Pb[which[keep]]
     which, b = obstacle.R.edges_of(Pe)
     e = e[which]
-    P0, P1, Q0, Q1 = V[G.E[e, 0]], V[G.E[e, 1]], obstacle.V[obstacle.E[b, 0]], obstacle.V[obstacle.E[b, 1]]
-    keep = np.all((np.minimum(P0, P1) - near <= np.maximum(Q0, Q1)) & (np.minimum(Q0, Q1) <= np.maximum(P0, P1) + near),
-                  axis=1)
-    k = np.flatnonzero(keep)
-    k = k[segment_distances(P0[k], P1[k], Q0[k], Q1[k]) < near]
+    k = np.flatnonzero(_within(obstacle.V, obstacle.E[b], V, G.E[e], near))
+    e, b = e[k], b[k]
+    k = segment_distances(V[G.E[e, 0]], V[G.E[e, 1]], obstacle.V[obstacle.E[b, 0]], obstacle.V[obstacle.E[b, 1]]) < near
     out["edge"] = np.stack([e[k], b[k]], axis=1)
     return out
+
+
+def _within(V_a, a, V_b, b, pad):
+    """(k,) bool: the box of the points ``a`` (k,i) of V_a meets the box of ``b`` (k,j) of V_b grown by ``pad``,
+    axis by axis."""
+    keep = np.ones(a.shape[0], bool)
+    for axis in range(3):
+        x, y = V_a[:, axis][a], V_b[:, axis][b]
+        a_lo, a_hi, b_lo, b_hi = x[:, 0], x[:, 0], y[:, 0], y[:, 0]
+        for c in range(1, a.shape[1]):
+            a_lo, a_hi = np.minimum(a_lo, x[:, c]), np.maximum(a_hi, x[:, c])
+        for c in range(1, b.shape[1]):
+            b_lo, b_hi = np.minimum(b_lo, y[:, c]), np.maximum(b_hi, y[:, c])
+        keep &= (b_lo - pad <= a_hi) & (a_lo <= b_hi + pad)
+    return keep
 
 
 def near_pairs_again(V, G: Readings, obstacle: Obstacle, near, pairs, moved):

@@ -155,8 +155,11 @@ def _meet(V_e, ends, V_t, corners, pairs):
     vertices of V_t): boxes first, axis by axis on what the last axis kept, then exactly."""
     k = np.arange(pairs.shape[0])
     for axis in range(3):
-        e, t = V_e[:, axis][ends[k]], V_t[:, axis][corners[k]]
-        k = k[(np.minimum(e[:, 0], e[:, 1]) <= t.max(axis=1)) & (t.min(axis=1) <= np.maximum(e[:, 0], e[:, 1]))]
+        x, y = V_e[:, axis], V_t[:, axis]
+        e0, e1 = x[ends[k, 0]], x[ends[k, 1]]
+        t0, t1, t2 = y[corners[k, 0]], y[corners[k, 1]], y[corners[k, 2]]
+        k = k[(np.minimum(e0, e1) <= np.maximum(np.maximum(t0, t1), t2))
+              & (np.minimum(np.minimum(t0, t1), t2) <= np.maximum(e0, e1))]
     e, t = ends[k], corners[k]
     meet, uncertain = segments_meet_triangles(V_e[e[:, 0]], V_e[e[:, 1]], V_t[t[:, 0]], V_t[t[:, 1]], V_t[t[:, 2]])
     return pairs[k[meet]], uncertain
@@ -167,7 +170,10 @@ def _boxes_meet(V, corners, lo, hi):
     keep = np.ones(corners.shape[0], bool)
     for axis in range(3):
         x = V[:, axis][corners]
-        keep &= (x.min(axis=1) <= hi[:, axis]) & (lo[:, axis] <= x.max(axis=1))
+        lo_x, hi_x = x[:, 0], x[:, 0]
+        for c in range(1, corners.shape[1]):
+            lo_x, hi_x = np.minimum(lo_x, x[:, c]), np.maximum(hi_x, x[:, c])
+        keep &= (lo_x <= hi[:, axis]) & (lo[:, axis] <= hi_x)
     return keep
 
 
