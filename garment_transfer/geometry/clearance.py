@@ -522,8 +522,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         ``rounds``, ``moved_vertices``, ``self_intersections_before``, ``self_intersections_after`` (pairs
         of the garment), ``self_intersections_added`` (after minus before; 0 unless it could not avoid
         them), ``undone`` (pushes taken back because they made the cloth cross itself). With
-        ``source_V``: ``self_intersections_source`` (pairs of the source), ``self_intersections_new`` (pairs
-        left that the source does not have) and ``restored_vertices``. ``kept_input``: True when nothing
+        ``source_V``: ``self_intersections_source`` (pairs of the source, when they were needed or given),
+        ``self_intersections_new`` (pairs left that count against the source: ``self_check.beyond_source``) and
+        ``restored_vertices``. ``kept_input``: True when nothing
         tried was better than the input (more crossings, else more self-intersections, else more near pairs
         than it had): the input is returned.
     """
