@@ -6,7 +6,7 @@ transfer the held-out garment to every target, and compare with the garment fitt
 (the fixtures' ground truth). Variants, all on the same folds:
 
 * ``direct``: the body's own deformation gradients (no learning; the paper's fig. 2 baseline).
-* ``ours``: masked loss, the decoder at the mean latent of the training garments on the target.
+* ``shared``: masked loss, the decoder at the mean latent of the training garments on the target.
 * ``mean_field``: the mean of the training fields themselves (no network).
 * ``paper``: the paper's loss over every body triangle, decoder at the mean latent.
 * ``hidden_mean_latent`` / ``hidden_mean_decoded``: a sigmoid hidden layer on each side, where
@@ -48,7 +48,7 @@ from .paths import MAKEHUMAN_TARGETS, makehuman_folder
 TARGETS = list(MAKEHUMAN_TARGETS)
 DM_TO_MM = 100.0
 
-METHODS = ["direct", "ours", "mean_field", "paper", "hidden_mean_latent", "hidden_mean_decoded", "oracle"]
+METHODS = ["direct", "shared", "mean_field", "paper", "hidden_mean_latent", "hidden_mean_decoded", "oracle"]
 
 
 def run(folder, epochs, threads, seed, garments, log):
@@ -67,7 +67,7 @@ def run(folder, epochs, threads, seed, garments, log):
              "penetration": r["penetration_ratio"], "field_rms": r.get("field_rms"),
              "transfer_s": r["seconds_reused"]}
             for r in res["rows"] if r["method"] != "fitted"]
-    trainings = [{"heldout": t["test"][0], "variant": {"ours": "masked", "paper": "unmasked"}.get(t["variant"],
+    trainings = [{"heldout": t["test"][0], "variant": {"shared": "masked", "paper": "unmasked"}.get(t["variant"],
                                                                                                  t["variant"]),
                   "seconds": t["seconds"], "final_loss": t["final_loss"],
                   "final_masked_loss": t["final_masked_loss"]} for t in res["trainings"]]
@@ -112,7 +112,7 @@ def markdown(res, args, command, seconds):
         L.append(f"| {m} | " + " | ".join(f"{mean_of(rows, m, 'vertex_error_mm', target=t):.2f}"
                                           for t in TARGETS) + " |")
     L.append("\n## Vertex error (mm) per held-out garment (mean over targets)\n")
-    main = ["direct", "ours", "mean_field", "paper", "oracle"]
+    main = ["direct", "shared", "mean_field", "paper", "oracle"]
     L.append("| garment | " + " | ".join(main) + " |")
     L.append("|---|" + "---|" * len(main))
     for g in res["garments"]:

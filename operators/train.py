@@ -17,6 +17,7 @@ import time
 
 import bpy
 
+from .models import refresh_found_model
 from .reporting import ModalSteps, report_failure
 
 TORCH_PIN = "torch==2.13.0"
@@ -208,8 +209,10 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
     def _finish(self, context, info):
         settings = context.scene.garment_transfer
         settings.train_progress = 100.0
+        settings.last_trained_model = self._plan["out"]
         settings.model_path = self._plan["out"]
         settings.method = 'MODEL'
+        refresh_found_model(settings, context)
         if self._plan.get("kind") == "garment":
             parts = [f"{name} {part['epochs']} passes, loss {part['final_loss']:.4g}"
                      for name, part in (("field", info.get("field")), ("placement", info.get("placement")))

@@ -8,6 +8,8 @@ import sys
 
 import bpy
 
+from ..operators.models import model_file_path
+
 METRIC_LABELS = (
     ("mdc", "Design change (MDC)", "{:.4f}"),
     ("penetration_ratio", "Vertices inside body", "{:.1%}"),
@@ -51,8 +53,16 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
 
         col = layout.column()
         col.prop(settings, "method", expand=True)
+        if settings.found_model and (settings.method != 'MODEL'
+                                     or model_file_path(settings.model_path) != settings.found_model):
+            # The model trained for this source body, offered where the method is chosen.
+            row = col.row()
+            row.label(text=settings.found_model_text, icon='CHECKMARK')
+            row.operator("garment_transfer.find_model", text="Use")
         if settings.method == 'MODEL':
-            col.prop(settings, "model_path")
+            row = col.row(align=True)
+            row.prop(settings, "model_path")
+            row.operator("garment_transfer.find_model", text="", icon='VIEWZOOM')
             if settings.model_status:
                 col.label(text=settings.model_status,
                           icon='INFO' if settings.model_targets else 'ERROR')
@@ -74,7 +84,7 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         if settings.last_registration:
             layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')
         if settings.last_model:
-            layout.label(text=settings.last_model, icon='NETWORK_DRIVE')
+            layout.label(text=settings.last_model, icon='INFO')
         layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 
