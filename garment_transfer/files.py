@@ -134,9 +134,10 @@ def check_outputs(files=(), folders=(), *, inputs=(), input_folders=(), holds_no
 
     Parameters
     ----------
-    files : iterable of str or Path
+    files : iterable of str or Path, or of (path, option)
         Output files. Each must not be an input file or input folder, nor lie inside an input folder. Its
         folder must exist, unless it is (or lies inside) one of ``folders``, which the command makes.
+        An ``(path, option)`` pair is an output of another option than ``what`` (``--log``).
     folders : iterable of str or Path
         Output folders, made when missing. Each must not be an input, nor lie inside an input folder.
     inputs : iterable of str or Path
@@ -170,10 +171,11 @@ def check_outputs(files=(), folders=(), *, inputs=(), input_folders=(), holds_no
         check_output_folder(folder, what)
     made = [os.path.realpath(f) for f in folders]
     for path in files:
+        path, option = path if isinstance(path, tuple) else (path, what)
         path = os.fspath(path)
         folder = os.path.realpath(os.path.dirname(_as_given(path)))
         will_exist = any(folder == m or folder.startswith(m.rstrip(os.sep) + os.sep) for m in made)
-        _check_file(path, reads, what, folder_made=will_exist)
+        _check_file(path, reads, option, folder_made=will_exist)
 
 
 def check_output(path, inputs=(), what="output", input_folders=()):

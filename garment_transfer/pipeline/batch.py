@@ -199,7 +199,7 @@ def batch_paths(catalogue: Catalogue, out, log=None) -> dict:
     files, folders = catalogue.inputs()
     out = Path(os.fspath(out))
     outputs = [p for g, t in catalogue.pairs() for p in result_paths(out, g, t)]
-    outputs += [out / "summary.json", out / "summary.csv"] + ([] if log is None else [log])
+    outputs += [out / "summary.json", out / "summary.csv"] + ([] if log is None else [(log, "--log")])
     return dict(files=outputs, folders=[out], inputs=files, input_folders=folders, holds_none=True)
 
 

@@ -32,7 +32,7 @@ from ..files import check_outputs, write_json_atomic
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, as_same_mesh
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
 
@@ -368,7 +368,8 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
     for path in target_body_paths:
         name = Path(path).stem
         body = read_obj(path)
-        require_same_topology(source, body)
+        # A shape written with the other winding is still a shape of the source's mesh.
+        require_same_topology(source, as_same_mesh(source, body) or body)
         shapes[name], paths[name] = body.V, str(path)
     fit = fit_shape_keys(source, shapes, garment, with_basis=False, **options)
     out_dir = Path(out_dir)
