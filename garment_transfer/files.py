@@ -94,6 +94,25 @@ class _Reads:
         self.file_ids = {i: p for p in self.files if (i := _identity(p)) is not None}
         self.folder_ids = {i: p for p in self.folders if (i := _identity(p)) is not None}
         self.known = {}
+        self._inside = None
+
+    def inside(self):
+        """``{identity: path}`` of every file in the input folders (links followed: a dataset of links to
+        files elsewhere reads those files). Listed once, and only when an existing output needs it."""
+        if self._inside is None:
+            self._inside, seen = {}, set()
+            for top in self.folders:
+                for root, dirs, names in os.walk(top, followlinks=True):
+                    here = _identity(root)
+                    if here in seen:
+                        dirs[:] = []
+                        continue
+                    seen.add(here)
+                    for name in names:
+                        p = os.path.join(root, name)
+                        if (i := _identity(p)) is not None:
+                            self._inside.setdefault(i, p)
+        return self._inside
 
     def objection(self, path, what, folder=False):
         """Why the output ``path`` would harm an input (one phrase), or None."""
@@ -101,6 +120,9 @@ class _Reads:
         if ident in self.file_ids:
             return (f"is the input {self.file_ids[ident]}; refusing to overwrite an input: give {what} "
                     f"another {'folder' if folder else 'file name'}")
+        if ident is not None and self.folders and not folder and ident in self.inside():
+            return (f"is the input {self.inside()[ident]} (read from the input folder it is in); refusing to "
+                    f"overwrite an input: give {what} another file name")
         if ident in self.folder_ids:
             return (f"is the input folder {self.folder_ids[ident]}, which this command reads; give {what} "
                     "a place outside it")

@@ -317,6 +317,10 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
         fail("bodies", "a table of body name = OBJ path is needed (every body: source and targets)")
     bodies = {}
     for name, p in bodies_raw.items():
+        if name in ("source", "targets", "labels") and not (isinstance(p, str) and p.lower().endswith(".obj")):
+            # TOML: a key written after [bodies] belongs to that table.
+            fail(f"bodies.{name}", f"{name!r} is a top-level key: in TOML, write source, targets and labels "
+                                   "above the first [table]; after [bodies] they belong to it")
         _check_name(name, f"bodies.{name}", fail)
         bodies[name] = _path(p, base, f"bodies.{name}", fail)
     top_labels = _labels(data.get("labels"), bodies, "labels", fail)
