@@ -58,43 +58,59 @@ def _identity(path):
     return st.st_dev, st.st_ino
 
 
-def _folders_above(path, known=None):
-    """Identities of every existing folder above the place ``path`` reaches, nearest first.
-
-    The place is the real path (symlinks resolved; a ``..`` after a folder that does not exist yet taken
-    as the folder maker will take it); identities, not names, are compared, so a spelling in another case
-    on a case-folding file system reaches the same folder. ``known``: identities of folders already
-    looked up (a dict, for many paths in the same folders).
-    """
-    known = {} if known is None else known
-    p = os.path.realpath(path)
-    out = []
-    while True:
-        parent = os.path.dirname(p)
-        if parent == p:
-            return out
-        p = parent
-        if p not in known:
-            known[p] = _identity(p)
-        if known[p] is not None:
-            out.append(known[p])
-
-
 def _as_given(path):
     # Joined to the working folder without normalising: "link/../x" must go where the system takes it.
     return os.path.join(os.getcwd(), os.fspath(path))
 
 
 class _Reads:
-    """What a command reads, by identity: its input files and input folders."""
+    """What a command reads, by identity (device and inode): its input files and input folders.
+
+    Folders are looked up once per check (``_chain``): a catalogue's thousands of results share a few
+    hundred folders.
+    """
 
     def __init__(self, inputs=(), input_folders=()):
         self.files = [os.fspath(p) for p in inputs if p is not None]
         self.folders = [os.fspath(p) for p in input_folders if p is not None]
         self.file_ids = {i: p for p in self.files if (i := _identity(p)) is not None}
         self.folder_ids = {i: p for p in self.folders if (i := _identity(p)) is not None}
-        self.known = {}
-        self._inside = None
+        self._ids, self._chains, self._real, self._inside = {}, {}, {}, None
+
+    def _chain(self, folder):
+        """Identities of the real place of ``folder`` (where it exists) and of every existing folder above it.
+
+        The real place has its symlinks resolved, and a ``..`` after a folder that does not exist yet taken
+        as a folder maker takes it; identities, not names, are compared, so a spelling in another case on a
+        case-folding file system reaches the same folder.
+        """
+        if folder not in self._chains:
+            p, chain = os.path.realpath(folder), []
+            while True:
+                if p not in self._ids:
+                    self._ids[p] = _identity(p)
+                if self._ids[p] is not None:
+                    chain.append(self._ids[p])
+                parent = os.path.dirname(p)
+                if parent == p:
+                    break
+                p = parent
+            self._chains[folder] = chain
+        return self._chains[folder]
+
+    def real_folder(self, path):
+        """The real place of the folder ``path`` is named in (looked up once per folder)."""
+        folder = os.path.dirname(_as_given(path))
+        if folder not in self._real:
+            self._real[folder] = os.path.realpath(folder)
+        return self._real[folder]
+
+    def places(self, path):
+        """Identities of the folders ``path`` lies in: those of its name, and of the file a link leads to."""
+        chain = self._chain(os.path.dirname(_as_given(path)))
+        if os.path.islink(path):
+            chain = chain + self._chain(os.path.dirname(os.path.realpath(path)))
+        return chain
 
     def inside(self):
         """``{identity: path}`` of every file in the input folders (links followed: a dataset of links to
@@ -126,7 +142,7 @@ class _Reads:
         if ident in self.folder_ids:
             return (f"is the input folder {self.folder_ids[ident]}, which this command reads; give {what} "
                     "a place outside it")
-        for above in _folders_above(_as_given(path), self.known):
+        for above in self.places(path):
             if above in self.folder_ids:
                 return (f"lies inside the input folder {self.folder_ids[above]}, which this command reads; "
                         f"give {what} a place outside it")
@@ -138,11 +154,7 @@ class _Reads:
         if ident is None:
             return None
         for p in self.files + self.folders:
-            given = _as_given(p)
-            # Where the input really is, and the folder its name is in (a link to it counts too).
-            places = (_folders_above(given, self.known)
-                      + _folders_above(os.path.join(os.path.dirname(given), "_"), self.known))
-            if ident in places:
+            if ident in self.places(p):
                 return p
         return None
 
@@ -195,7 +207,7 @@ def check_outputs(files=(), folders=(), *, inputs=(), input_folders=(), holds_no
     for path in files:
         path, option = path if isinstance(path, tuple) else (path, what)
         path = os.fspath(path)
-        folder = os.path.realpath(os.path.dirname(_as_given(path)))
+        folder = reads.real_folder(path)
         will_exist = any(folder == m or folder.startswith(m.rstrip(os.sep) + os.sep) for m in made)
         _check_file(path, reads, option, folder_made=will_exist)
 
@@ -245,14 +257,14 @@ def _check_file(path, reads, what, folder_made=False):
         if not stat.S_ISREG(st.st_mode):
             raise OutputError(path, "is not a regular file (a device, FIFO or socket); refusing to "
                                     "replace it: give another file name")
-    # The folder the system will write into (".." after a symlink goes where the system takes it); the
+    # The folder as the system reaches it ("new/.." fails where "new" is missing, as the write would); the
     # messages show the path as the user wrote it.
-    real, folder = os.path.dirname(os.path.realpath(path)), os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(real):
-        if os.path.lexists(real):
+    real, folder = reads.real_folder(path), os.path.dirname(os.path.abspath(path))
+    if folder_made and not os.path.lexists(real):
+        return
+    if not os.path.isdir(os.path.dirname(_as_given(path))):
+        if os.path.isfile(real):
             raise OutputError(path, f"its folder {folder} is a file, not a folder")
-        if folder_made:
-            return
         raise OutputError(path, f"its folder {folder} does not exist; create it first")
     # Mode bits as well as access(): root may write anywhere, but a file or folder marked read-only
     # says its owner wants it kept.
