@@ -314,6 +314,7 @@ def test_missing_file_in_the_way_and_read_only_places_are_refused_before_any_wor
     try:
         for opt, kind in command.outputs.items():
             cases = [(tmp_path / "missing" / "deeper" / "x.out", "does not exist" if kind == "file" else ""),
+                     (tmp_path / "missing" / ".." / "x.out", "does not exist" if kind == "file" else ""),
                      (afile / "x.out", "is a file"), (locked / "x.out", "not writable")]
             if kind == "folder":
                 cases = [(afile, "is a file, not a folder"), (locked / "x", "not writable"),
