@@ -472,17 +472,17 @@ def _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen, pr
 #: Learning rate schedules of ``_fit``.
 SCHEDULES = ("exp", "cosine")
 #: Passes of ``train_garment_fit_from_dataset`` over the field model's and the placement model's samples:
-#: those of the measured combination (docs/garment-model.md: 3 and 30).
+#: those of the measured combination (lab/notes/garment-model-study.md: 3 and 30).
 FIELD_EPOCHS = 3
 PLACEMENT_EPOCHS = 30
 #: Placement models averaged (``train_placement_ensemble``). Chosen among 1, 3 and 5 on held-out training
 #: garments (the demo's validation fold, pear, half the field): drape error 0.412, 0.4035 and 0.4036
-#: (docs/garment-model.md).
+#: (lab/notes/garment-model-study.md).
 PLACEMENT_MEMBERS = 3
 #: Whether the placement networks learn the offset less the training garments' mean offset per triangle
 #: (``train_placement_model``'s ``residual``). Chosen on held-out training garments (the demo's validation
 #: fold, pear, half the field, 3 members; mean of 3 seed sets): drape error 0.406 -> 0.390, against 0.393
-#: for wider layers and 0.398 for more passes; on the test garments 0.352 -> 0.313 (docs/garment-model.md).
+#: for wider layers and 0.398 for more passes; on the test garments 0.352 -> 0.313 (lab/notes/garment-model-study.md).
 PLACEMENT_RESIDUAL = True
 
 
