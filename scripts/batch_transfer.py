@@ -14,8 +14,10 @@ Every (garment, target) pair goes through the add-on's own operator (bpy.ops.gar
 and is written to DIR/<garment>_on_<target>.obj (with a catalogue: DIR/<garment>/<target>.obj, the
 core batch's layout), in the input files' axes and units. A file that cannot
 be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
-exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Every file is written whole or not
-at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
+exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Before Blender reads anything, every
+output (each result, the summary, --blend) is checked against every file the run reads, with the core's
+check (an output that is an input, or a catalogue's results folder holding one, is a bad argument). Every
+file is written whole or not at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
 """
 
 from __future__ import annotations
