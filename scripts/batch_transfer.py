@@ -17,7 +17,8 @@ be read or a pair that fails is reported and skipped; the run goes on, writes DI
 exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Before Blender reads anything, every
 output (each result, the summary, --blend) is checked against every file the run reads, with the core's
 check (an output that is an input, or a catalogue's results folder holding one, is a bad argument). Every
-file is written whole or not at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
+file is written whole or not at all. Ctrl+C stops the run: what was written stays, summary.json lists it,
+and the exit code is 130.
 """
 
 from __future__ import annotations
