@@ -31,10 +31,10 @@ import time
 import numpy as np
 
 from ..errors import Cancelled, DatasetError, SettingError
-from ..files import check_output
+from ..files import check_outputs
 from ..geometry.mesh import faces_hash
 from ..version import __version__
-from .dataset import build_training_fields, load_dataset
+from .dataset import build_training_fields, dataset_inputs, load_dataset
 from .model import FORMAT, FORMAT_VERSION, SharedDeformationModel
 
 log = logging.getLogger(__name__)
@@ -639,9 +639,10 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
         raise TypeError(f"unknown training options: {', '.join(sorted(unknown))}")
     check_training_settings(epochs=epochs, latent=latent)
     if out is not None:
-        # Before the long work: a missing or read-only folder must not cost a whole training.
-
-        check_output(out, (), "the model file")
+        # Before the long work: a missing or read-only folder must not cost a whole training, and the
+        # model file must not land on what the training reads.
+        files, folders = dataset_inputs(dataset_dir)
+        check_outputs([out], inputs=files, input_folders=folders, what="the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     if isinstance(targets, str):
