@@ -14,11 +14,11 @@ import time
 import numpy as np
 
 from ..errors import Cancelled, DatasetError
-from ..files import check_output
+from ..files import check_outputs
 from ..geometry.binding import bind
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import faces_hash
-from .dataset import build_training_fields, load_dataset
+from .dataset import build_training_fields, dataset_inputs, load_dataset
 from .garment_model import (
     FORMAT,
     FORMAT_VERSION,
@@ -554,8 +554,9 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
         if int(n) != n or n < 1:
             raise ValueError(f"{what} must be a whole number >= 1, got {n}")
     if out is not None:
-
-        check_output(out, (), "the model file")
+        # Before the long work, and never onto what the training reads.
+        files, folders = dataset_inputs(dataset_dir)
+        check_outputs([out], inputs=files, input_folders=folders, what="the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     garments = list(ds.garments) if garments is None else list(garments)
