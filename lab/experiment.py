@@ -98,9 +98,6 @@ VARIANTS = {"shared": {"masked": True}, "paper": {"masked": False}, "hidden": {"
             "garment": {"garment_model": True}, "garment_nolabel": {"garment_model": True, "use_label": False},
             "garment_blind": {"garment_model": True, "garment_inputs": False},
             "placement": {"placement_model": True}, "product": {"product": True}}
-#: The variants of the paper's shared deformation model (``train_model``): its training time grows with its
-#: garments, so an experiment may train them on fewer (``run_experiment``'s ``shared_garments``).
-SHARED_VARIANTS = ("shared", "paper", "hidden")
 #: Passes over the samples of the garment model, whatever ``epochs`` the shared model gets.
 GARMENT_EPOCHS = 6
 #: Passes over the samples of the placement model.
@@ -416,8 +413,9 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         Called with each fold's trained models.
     progress : callable(fraction, stage), optional
     shared_garments : list of str, optional
-        The shared deformation model's variants (``SHARED_VARIANTS``) train on those of a fold's training
-        garments that are in this list (default: on all of them, as every other variant).
+        The shared deformation model's variants (those ``train_model`` trains: its training time grows with
+        its garments) train on those of a fold's training garments that are in this list (default: on all of
+        them, as every other variant).
     model_file : callable(fold) -> path, optional
         Where the ``product`` variant's model file of each fold is written (default: a temporary folder,
         removed when the run ends).
