@@ -1,10 +1,10 @@
 """The pipeline: a garment on the source body made into the same garment on a target body, and what is
 built on that. ``transfer`` (prepare a garment once, transfer it to each target), ``any_body`` (a target of
 another mesh: registered first), ``outfit`` (layers, each outside the ones under it), ``shape_keys`` (one garment
-fitted to every shape of a body), ``weights`` (skinning weights from the body), ``metrics`` (MDC, penetration,
+fitted to every shape of a body), ``metrics`` (MDC, penetration,
 drape and vertex error, crossings: ``evaluate``), ``model_check`` (a trained model on held-out garments), and
 ``batch`` (a catalogue of garments on many targets, resumable, on a process pool or Dask). Built on ``geometry``,
-``fitting`` and ``learning``.
+``fitting``, ``learning`` and ``rigging``.
 """
 
 from .any_body import transfer_to_any_body
@@ -14,10 +14,9 @@ from .model_check import check_after_training, check_lines, check_model, trainin
 from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .shape_keys import ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files, transfer_to_shapes
 from .transfer import OFFSET_SHARE, PreparedGarment, TransferResult, crossings_left, prepare_garment, transfer_garment
-from .weights import surface_weights
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "crossings_left",
            "transfer_to_any_body", "OutfitError", "OutfitResult", "transfer_outfit", "ShapeKeyFit", "fit_shape_keys",
-           "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
+           "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
            "check_after_training", "check_lines", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]
