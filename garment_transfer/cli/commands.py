@@ -40,6 +40,7 @@ from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.transfer import crossings_left
 from .batch import add_batch_arguments, batch_main
 from .options import emit, number_option, share_option, stderr_progress
+from .weights import add_weights_arguments
 
 log = logging.getLogger("garment_transfer")
 
@@ -453,6 +454,8 @@ def build_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
+    add_weights_arguments(sub.add_parser("weights", help="a garment's skinning weights from the body it is dressed "
+                                                         "on (matched where close, inpainted elsewhere)"))
     add_batch_arguments(sub.add_parser(
         "batch", help="every garment of a catalogue on every target body, resumable, on this machine "
                       "or a Dask cluster"))

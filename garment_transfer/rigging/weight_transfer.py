@@ -37,6 +37,8 @@ MATCH_DISTANCE_SHARE = 0.02
 MATCH_ANGLE = 30.0
 #: Influences kept per vertex by default (what game engines take).
 MAX_INFLUENCES = 4
+#: A garment whose median distance from the body exceeds this share of the body's scale is not dressed on it.
+FAR_SHARE = 0.2
 
 
 def surface_weights(body_V, body_F, weights, points, surface=None):
@@ -243,7 +245,8 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     weights : SkinWeights
         (p, g), the body's groups; normalised, at most ``max_influences`` per vertex.
     info : dict
-        ``matched`` (vertices), ``inpainted`` (vertices), ``groups_used``, ``distance``, ``angle``.
+        ``matched`` (vertices), ``inpainted`` (vertices), ``groups_used``, ``distance``, ``angle``,
+        ``max_influences``, ``warnings`` (a list of sentences).
     """
     garment_V = np.asarray(garment_V, dtype=np.float64)
     garment_F = np.asarray(garment_F, dtype=np.int64)
@@ -256,7 +259,12 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     if distance is None:
         distance = MATCH_DISTANCE_SHARE * body_scale(surface.V)
     matched, dist, tri, bary = match(surface.V, surface.F, garment_V, garment_F, distance, angle, surface)
+    scale = body_scale(surface.V)
+    if np.median(dist) > FAR_SHARE * scale:
+        raise MeshError(name, f"is far from the body (median distance {np.median(dist):.3g}, body size "
+                              f"{scale:.3g}): is it dressed on that body, in the same units and space?")
     known = _seed_lonely_pieces(matched, garment_F, dist)
+    seeded = int((known & ~matched).sum())
     nearest = _barycentric(body_weights.W, surface.F[tri], bary)
     # Only groups present at a known vertex can appear anywhere in the solution (the solve is linear).
     present = np.flatnonzero(np.asarray(abs(nearest[known]).sum(axis=0)).ravel() > 0)
@@ -271,7 +279,11 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     weights = weights.limited(max_influences) if max_influences else weights.normalised()
     info = {"matched": int(matched.sum()), "inpainted": int((~known).sum()), "groups_used": int(present.size),
             "distance": float(distance), "angle": float(angle),
-            "max_influences": int(max_influences) if max_influences else None}
+            "max_influences": int(max_influences) if max_influences else None, "warnings": []}
+    if seeded:
+        info["warnings"].append(f"{seeded} pieces of {name} (or vertices in no face) have no vertex close to the "
+                                "body and facing it: each follows the bones at its vertex nearest the body, as "
+                                "a whole")
     log.debug("weights of %s: %d of %d vertices matched, %d inpainted", name, info["matched"],
               garment_V.shape[0], info["inpainted"])
     return weights, info
