@@ -36,6 +36,7 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
+from ..pipeline.pose_fit import poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.transfer import crossings_left
 from .batch import add_batch_arguments, batch_main
@@ -145,6 +146,13 @@ def cmd_register(args):
 
 
 def cmd_shapes(args):
+    if args.poses:
+        summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
+                                 progress=stderr_progress("poses") if args.verbose else None)
+        emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
+                             f"{s['crossings_at_contact']} where the body crosses itself"
+                             for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
+        return
     summary = shapes_to_files(args.source_body, args.target_body, args.garment, args.out,
                               offset=args.offset, margin=args.margin or 0.0,
                               fix_penetration=not args.no_fix, progress=stderr_progress("shapes")
@@ -373,6 +381,9 @@ def build_parser():
     h.add_argument("--margin", type=number_option(float, 0.0, what="a distance"), default=None,
                    help="extra distance for every shape, so that blends of the shapes clip less")
     h.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
+    h.add_argument("--poses", action="store_true",
+                   help="the targets are the source body posed: fit the garment to each pose (the crossing pass "
+                        "leaves out where the body crosses itself, and counts it apart); writes DIR/poses.json")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
 

@@ -1,7 +1,7 @@
 """The pipeline: a garment on the source body made into the same garment on a target body, and what is
 built on that. ``transfer`` (prepare a garment once, transfer it to each target), ``any_body`` (a target of
 another mesh: registered first), ``outfit`` (layers, each outside the ones under it), ``shape_keys`` (one garment
-fitted to every shape of a body), ``metrics`` (MDC, penetration,
+fitted to every shape of a body), ``pose_fit`` (a garment fitted to its body posed), ``metrics`` (MDC, penetration,
 drape and vertex error, crossings: ``evaluate``), ``model_check`` (a trained model on held-out garments), and
 ``batch`` (a catalogue of garments on many targets, resumable, on a process pool or Dask). Built on ``geometry``,
 ``fitting``, ``learning`` and ``rigging``.
@@ -12,6 +12,7 @@ from .batch import BatchSummary, Catalogue, read_catalogue, run_batch
 from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit
+from .pose_fit import every_split, fit_to_pose, poses_to_files, self_contact
 from .shape_keys import ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files, transfer_to_shapes
 from .transfer import OFFSET_SHARE, PreparedGarment, TransferResult, crossings_left, prepare_garment, transfer_garment
 
@@ -19,4 +20,5 @@ __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment
            "transfer_to_any_body", "OutfitError", "OutfitResult", "transfer_outfit", "ShapeKeyFit", "fit_shape_keys",
            "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
-           "check_after_training", "check_lines", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]
+           "check_after_training", "check_lines", "fit_to_pose", "poses_to_files", "every_split", "self_contact",
+           "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]
