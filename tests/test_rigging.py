@@ -272,10 +272,15 @@ def test_inpainted_weights_turn_a_garment_wound_inside_out():
 
 def test_a_piece_far_from_the_body_takes_its_nearest_vertex_weights():
     V, F, W = sphere_rig()
-    G, GF = icosphere(1, radius=0.1, centre=(0, 0, 3.0))     # a button floating above the top
-    weights, info = inpainted_weights(V, F, W, G, GF, max_influences=None)
-    assert info["matched"] == 0 and info["inpainted"] == G.shape[0] - 1
-    assert np.allclose(weights.dense(), weights.dense()[0]) and weights.dense()[0, 1] > 0.99
+    G, GF = icosphere(2, radius=1.02)
+    B, BF = icosphere(1, radius=0.05, centre=(0, 0, 1.4))     # a button floating above the top
+    garment_V, garment_F = np.vstack([G, B]), np.vstack([GF, BF + len(G)])
+    weights, info = inpainted_weights(V, F, W, garment_V, garment_F, max_influences=None)
+    button = weights.dense()[len(G):]
+    assert np.allclose(button, button[0]) and button[0, 1] > 0.99
+    assert info["inpainted"] == len(B) - 1 and len(info["warnings"]) == 1 and "1 pieces" in info["warnings"][0]
+    with pytest.raises(MeshError, match="far from the body"):
+        inpainted_weights(V, F, W, B + [0, 0, 3], BF, name="lost button")
 
 
 def test_weight_transfer_refuses_mismatched_weights_and_empty_garments():

@@ -161,45 +161,77 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result = transfer_garment(rest_body, posed, garment, prepared=prepared, offset=offset,
                               resolve_crossings=False)
     t = time.perf_counter()
-    contact, body_self = self_contact(posed.V, posed.F, contact_rings, rest_body.V,
-                                      CONTACT_GAP * result.info["offset"])
-    body_F = every_split(rest_body)
+    result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
+                                                             resolve_crossings=resolve_crossings,
+                                                             contact_rings=contact_rings, name=name)
+    result.seconds["crossings"] = time.perf_counter() - t
+    result.seconds["total"] += result.seconds["crossings"]
+    return result
+
+
+def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
+                     contact_rings=CONTACT_RINGS, name="pose"):
+    """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
+
+    Parameters
+    ----------
+    V : (g,3) float
+        The garment on the posed body (after the penetration fix).
+    garment : Mesh
+        Its faces (the polygons, for every split).
+    body : Mesh
+        The posed body.
+    info : dict
+        A transfer's ``info`` (``offset`` is read); the counts and ``warnings`` are added to it.
+    rest_V : (n,3) float, optional
+        The body at rest (same mesh): with it, body parts pressed together are contact too.
+    resolve_crossings : bool
+        Only count (False).
+    contact_rings : int
+    name : str
+
+    Returns
+    -------
+    V : (g,3) float64
+    inside : int
+        Garment vertices inside the posed body.
+    """
+    offset = float(info["offset"])
+    contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    body_F = every_split(body)
     free_F = body_F[~contact[body_F].any(axis=1)]
     garment_F = every_split(garment)
-    outside = sum(crossing_counts(result.V, garment_F, posed.V, free_F))
-    info = result.info
-    info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()), warnings=[])
+    V = np.asarray(V, dtype=np.float64)
+    outside = sum(crossing_counts(V, garment_F, body.V, free_F))
+    info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
+    info.setdefault("warnings", [])
     if resolve_crossings and outside:
         # The pass sees the body without its own contact: there the garment cannot be outside both surfaces.
-        surface = TriangleSurface(posed.V, free_F)
+        surface = TriangleSurface(body.V, free_F)
         info["crossing_pass"] = []
         for _ in range(PASSES):
-            V, sep = clearance.separate(result.V, garment_F, posed.V, free_F, info["offset"], surface=surface,
-                                        keep_offset=False)
-            after = sum(crossing_counts(V, garment_F, posed.V, free_F))
+            W, sep = clearance.separate(V, garment_F, body.V, free_F, offset, surface=surface, keep_offset=False)
+            after = sum(crossing_counts(W, garment_F, body.V, free_F))
             info["crossing_pass"].append({"before": int(outside), "after": int(after), "rounds": sep["rounds"],
                                           "moved_vertices": sep["moved_vertices"]})
             if after >= outside:
                 break
-            result.V, outside = V, after
+            V, outside = W, after
             if not outside:
                 break
     info["crossings_outside_contact"] = int(outside)
     at_contact = body_F[contact[body_F].any(axis=1)]
-    info["crossings_at_contact"] = int(sum(crossing_counts(result.V, garment_F, posed.V, at_contact))
+    info["crossings_at_contact"] = int(sum(crossing_counts(V, garment_F, body.V, at_contact))
                                        if at_contact.size else 0)
-    inside = TriangleSurface(posed.V, posed.F).signed_distance(result.V)[0] < 0
-    result.penetrating_vertices = int(inside.sum())
+    inside = int((TriangleSurface(body.V, body.F).signed_distance(V)[0] < 0).sum())
     if outside:
         info["warnings"].append(f"{outside} garment-body crossings are left in {name} away from where the body "
                                 "crosses itself")
     if info["crossings_at_contact"]:
         info["warnings"].append(f"{info['crossings_at_contact']} garment-body crossings in {name} where the body "
-                                f"crosses itself ({body_self} crossings of its own): no garment can be outside "
-                                "both surfaces there")
-    result.seconds["crossings"] = time.perf_counter() - t
-    result.seconds["total"] += result.seconds["crossings"]
-    return result
+                                f"crosses itself or closes on itself ({body_self} crossings of its own): no "
+                                "garment can be outside both surfaces there")
+    return V, inside
 
 
 def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None):

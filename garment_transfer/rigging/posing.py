@@ -55,6 +55,11 @@ class Rig:
         w = deforming(weights if weights is not None else self.weights, self.skeleton)
         return skin(V, w, group_transforms(w, self.skeleton, T))
 
+    def posed_frames(self, T):
+        """(b,3,3) the bones' frames (``bone_frames``) turned by the transforms ``T`` (b,3,4): an armature's
+        bones in the pose."""
+        return np.einsum("bij,bjk->bik", T[:, :, :3], bone_frames(self.skeleton, self.joints))
+
     def posed_joints(self, T):
         """Every joint moved by the bones that own it (as a head first, else as a tail), with the
         transforms ``T`` (b,3,4); the skeleton on the posed body."""
@@ -102,20 +107,27 @@ def bvh_rotations(motion: Motion, skeleton: Skeleton, frame=0, file_up="Z", body
     return R
 
 
-def matching_rotations(skeleton: Skeleton, joints, target_joints):
+def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=None):
     """The local rotations that pose a body's skeleton (``joints``) into another's pose (``target_joints``).
 
     Each bone takes the turn ``G_b`` that best carries what it moves rigidly (its tail and its children's heads,
-    from its head) onto the target's (Kabsch); where those all lie on the bone's line, the turn of its frame
-    (``bone_frames``: along the bone, rolled by its plane) onto the target's, ``G_b = F_target F_own^T``. Its
-    rotation relative to its parent is ``G_parent^T G_b``. Bones of no length follow their parent. A pose made by
-    ``pose_transforms`` is found again exactly, joints and turns, wherever a bone carries points off its line.
+    from its head) onto the target's (Kabsch). Where those all lie on the bone's line, it takes its parent's
+    turn followed by the smallest turn that points the bone along the target's (a root: the turn of its frame,
+    ``bone_frames``, onto the target's, ``G_b = F_target F_own^T``). Its rotation relative to its parent is
+    ``G_parent^T G_b``. Bones of no length follow their parent. A pose made by ``pose_transforms`` is found
+    again exactly, joints and turns, wherever a bone carries points off its line.
+
+    Joints alone do not say how far a bone turned about itself (a forearm's twist moves no joint). The target's
+    bone frames say it: with ``target_frames`` (an armature's bones, posed), ``G_b = F_target F_own^T`` for
+    every bone, exactly the pose's turns when the target is this skeleton posed (``Rig.posed_frames``).
 
     Parameters
     ----------
     skeleton : Skeleton
     joints, target_joints : dict of str to (3,) float
         The joints on the body to pose and on the body whose pose it takes (the same skeleton's joints).
+    target_frames : (b,3,3) float, optional
+        The target's bone frames (columns X, Y along the bone, Z), when known.
 
     Returns
     -------
@@ -124,6 +136,11 @@ def matching_rotations(skeleton: Skeleton, joints, target_joints):
         Each bone's global turn, in degrees (how far the two poses differ there).
     """
     own = bone_frames(skeleton, joints)
+    if target_frames is not None:
+        G = np.einsum("bij,bkj->bik", np.asarray(target_frames, dtype=np.float64), own)
+        R = np.array([G[b] if p < 0 else G[p].T @ G[b] for b, p in enumerate(skeleton.parents)])
+        cos = np.clip((np.einsum("bii->b", G) - 1.0) / 2.0, -1.0, 1.0)
+        return R, np.degrees(np.arccos(cos))
     target = bone_frames(skeleton, target_joints)
     heads, tails = skeleton.rest(joints)
     heads_t, tails_t = skeleton.rest(target_joints)
@@ -139,15 +156,30 @@ def matching_rotations(skeleton: Skeleton, joints, target_joints):
         if length[b] <= 0:
             G[b] = G[parent] if parent >= 0 else np.eye(3)
         else:
-            # What the bone carries rigidly (its tail, its children's heads) fixes its turn wherever those
-            # points are not all on one line; the plane's roll is for a bone that carries only a line.
-            a = np.vstack([tails[b], heads[children[b]]]) - heads[b] if children[b] else (tails[b] - heads[b])[None]
-            c = (np.vstack([tails_t[b], heads_t[children[b]]]) - heads_t[b] if children[b]
-                 else (tails_t[b] - heads_t[b])[None])
-            G[b] = _turn(a, c, G[b], 1e-3 * scale)
+            # A bone whose points all lie on its line is turned as little as it can be from its parent's turn
+            # (its frame's, for a root): a plane through a child's joints would turn with the child's bend.
+            own_turn = G[b] if parent < 0 else _swing(G[parent] @ (tails[b] - heads[b]),
+                                                      tails_t[b] - heads_t[b]) @ G[parent]
+            a = np.vstack([tails[b], heads[children[b]]]) - heads[b]
+            c = np.vstack([tails_t[b], heads_t[children[b]]]) - heads_t[b]
+            G[b] = _turn(a, c, own_turn, 1e-3 * scale)
         R[b] = G[b] if parent < 0 else G[parent].T @ G[b]
     cos = np.clip((np.einsum("bii->b", G) - 1.0) / 2.0, -1.0, 1.0)
     return R, np.degrees(np.arccos(cos))
+
+
+def _swing(a, b):
+    """The smallest rotation (3,3) that turns the direction of ``a`` (3,) onto that of ``b`` (3,)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-12:
+        # Half a turn: about any axis across ``a``.
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
 
 
 def _turn(a, b, fallback, tiny):
