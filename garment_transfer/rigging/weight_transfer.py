@@ -9,9 +9,10 @@ Two rules:
   underside takes the torso's.
 - ``inpainted_weights``, after Abdrashitov et al., "Robust Skin Weights Transfer via Weight Inpainting"
   (SIGGRAPH Asia 2023): the body's weights are taken only where the garment vertex is close to the body and
-  faces the same way (*matched*); the rest is filled by the smoothest field over the garment with the matched
-  vertices fixed (minimising ``tr(W^T Q W)``, ``Q = -L + L M^-1 L``: the cotangent Laplacian ``L`` and the
-  lumped mass ``M``, harmonic and biharmonic), then each vertex keeps its few largest weights, normalised.
+  faces the same way, or touches it (*matched*); the rest is filled by the smoothest field over the garment
+  with the matched vertices fixed (minimising ``tr(W^T Q W)``, ``Q = -L + L M^-1 L``: the cotangent Laplacian
+  ``L`` and the lumped mass ``M``, harmonic and biharmonic), then each vertex keeps its few largest weights,
+  normalised.
 """
 
 from __future__ import annotations
@@ -33,8 +34,11 @@ log = logging.getLogger(__name__)
 #: A garment vertex is matched when it is within this share of the body's scale from the body (about 4 cm on
 #: a 1.7 m body; the paper's 5% of the bounding box diagonal is about 10 cm) ...
 MATCH_DISTANCE_SHARE = 0.02
-#: ... and its normal is within this angle of the body's at its closest point (the paper's 30 degrees).
+#: ... and its normal is within this angle of the body's at its closest point (the paper's 30 degrees) ...
 MATCH_ANGLE = 30.0
+#: ... or it touches the body, closer than this share of the body's scale (about 1 cm), facing any way: a
+#: cuff's rim at the wrist, a collar's edge at the neck follow the skin they touch.
+TOUCH_SHARE = 0.005
 #: Influences kept per vertex by default (what game engines take).
 MAX_INFLUENCES = 4
 #: A garment whose median distance from the body exceeds this share of the body's scale is not dressed on it.
@@ -164,8 +168,8 @@ def oriented_normals(V, F, toward):
     return N * np.where(sums[label] < 0, -1.0, 1.0)[:, None]
 
 
-def match(body_V, body_F, garment_V, garment_F, distance=None, angle=MATCH_ANGLE, surface=None):
-    """Which garment vertices match the body: close to it and facing the same way.
+def match(body_V, body_F, garment_V, garment_F, distance=None, angle=MATCH_ANGLE, surface=None, touch=None):
+    """Which garment vertices match the body: close to it and facing the same way, or touching it.
 
     Parameters
     ----------
@@ -178,6 +182,8 @@ def match(body_V, body_F, garment_V, garment_F, distance=None, angle=MATCH_ANGLE
     angle : float
         Largest angle between the garment's normal and the body's, in degrees.
     surface : TriangleSurface, optional
+    touch : float, optional
+        Closer than this matches whichever way it faces (default ``TOUCH_SHARE`` of the body's scale; 0: never).
 
     Returns
     -------
@@ -192,13 +198,15 @@ def match(body_V, body_F, garment_V, garment_F, distance=None, angle=MATCH_ANGLE
     surface = surface or TriangleSurface(body_V, body_F)
     if distance is None:
         distance = MATCH_DISTANCE_SHARE * body_scale(body_V)
+    if touch is None:
+        touch = TOUCH_SHARE * body_scale(body_V)
     _, dist, tri, bary = surface.closest(garment_V)
     body_N = vertex_normals(surface.V, surface.F) * surface.orientation
     at = np.einsum("pc,pcj->pj", bary, body_N[surface.F[tri]])
     at /= np.maximum(np.linalg.norm(at, axis=1, keepdims=True), 1e-300)
     N = oriented_normals(garment_V, garment_F, at)
     facing = np.einsum("ij,ij->i", N, at) >= np.cos(np.radians(angle))
-    return (dist <= distance) & facing, dist, tri, bary
+    return ((dist <= distance) & facing) | (dist <= min(touch, distance)), dist, tri, bary
 
 
 def _seed_lonely_pieces(matched, garment_F, distance_to_body):
@@ -217,7 +225,7 @@ def _seed_lonely_pieces(matched, garment_F, distance_to_body):
 
 
 def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garment_F, *, distance=None,
-                      angle=MATCH_ANGLE, max_influences=MAX_INFLUENCES, surface=None, name="garment"):
+                      angle=MATCH_ANGLE, max_influences=MAX_INFLUENCES, surface=None, name="garment", touch=None):
     """A garment's weights from a body's, matched where the surfaces agree and inpainted elsewhere.
 
     Parameters
@@ -239,6 +247,8 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
         The body prepared for queries.
     name : str
         The garment's name, for messages.
+    touch : float, optional
+        Closer than this matches whichever way the vertex faces (``match``).
 
     Returns
     -------
@@ -258,7 +268,7 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     surface = surface or TriangleSurface(body_V, body_F)
     if distance is None:
         distance = MATCH_DISTANCE_SHARE * body_scale(surface.V)
-    matched, dist, tri, bary = match(surface.V, surface.F, garment_V, garment_F, distance, angle, surface)
+    matched, dist, tri, bary = match(surface.V, surface.F, garment_V, garment_F, distance, angle, surface, touch)
     scale = body_scale(surface.V)
     if np.median(dist) > FAR_SHARE * scale:
         raise MeshError(name, f"is far from the body (median distance {np.median(dist):.3g}, body size "
