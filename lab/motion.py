@@ -23,6 +23,7 @@ gives them) and with the inpainted weights (``rigging.inpainted_weights``, at mo
   seconds per pose after the first (the garment prepared once).
 
     python -m lab.motion [--fit] [--garments a b ...] [--poses p q ...] [--json OUT.json]
+    python -m lab.motion --speed      # the pose fit's seconds per pose after the first, beside the baseline
 """
 
 from __future__ import annotations
@@ -208,13 +209,48 @@ def run(garments=None, poses=POSES, fit=False, say=print):
     return rows
 
 
+def speed(name="female_casualsuit01", poses=POSES, say=print):
+    """Seconds per pose of the pose fit after the first (the garment prepared once), by stage, beside the
+    baseline: ``transfer_garment`` to each posed body as ``shapes`` runs it (prepared once, the crossing pass as
+    for any target)."""
+    root = makehuman_folder()
+    skeleton = gt.read_skeleton(root / "rig" / "skeleton.json")
+    weights = gt.read_weights(root / "rig" / "weights.json", 13380)
+    body_name, garment = rest_garments(root, [name], lambda _: None)[name]
+    body = gt.read_obj(root / "bodies" / f"{body_name}.obj")
+    rig = rig_of(root, body_name, skeleton, weights)
+    t = time.perf_counter()
+    prepared = gt.prepare_garment(body, garment)
+    say(f"{name} ({garment.n_vertices} vertices) on {body_name}: prepared once in {time.perf_counter() - t:.2f} s")
+    rows = []
+    for pose in poses:
+        posed = rig.pose(body.V, rig.transforms(gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"),
+                                                                 skeleton)))
+        t = time.perf_counter()
+        result = gt.fit_to_pose(body, posed, garment, prepared=prepared, name=pose)
+        fit = time.perf_counter() - t
+        t = time.perf_counter()
+        gt.transfer_garment(body, body.with_vertices(posed), garment, prepared=prepared)
+        base = time.perf_counter() - t
+        s = result.seconds
+        rows.append((pose, fit, base))
+        say(f"{pose:>10}: pose fit {fit:.2f} s (transfer {s['total'] - s['crossings']:.2f}, contact and crossings "
+            f"{s['crossings']:.2f}; passes {len(result.info.get('crossing_pass', []))}), baseline {base:.2f} s, "
+            f"ratio {fit / base:.2f}; goal 0.3 s: {fit / 0.3:.1f}x")
+    return rows
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.motion", description=__doc__.split("\n\n")[0])
     p.add_argument("--garments", nargs="+", help="garments (default: the 8 suits and the 14 dresses and skirts)")
     p.add_argument("--poses", nargs="+", default=list(POSES))
     p.add_argument("--fit", action="store_true", help="also the pose fit (slower)")
     p.add_argument("--json", help="write every row to this JSON file")
+    p.add_argument("--speed", action="store_true", help="only the pose fit's seconds per pose, beside the baseline")
     args = p.parse_args(argv)
+    if args.speed:
+        speed(poses=args.poses)
+        return
     rows = run(args.garments, args.poses, args.fit, say=lambda line: print(line, file=sys.stderr, flush=True))
     for loose, title in ((False, "MakeHuman suits"), (True, "the demo's dresses and skirts")):
         if any(r["loose"] == loose for r in rows):
