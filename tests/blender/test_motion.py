@@ -154,3 +154,15 @@ def test_fit_to_pose_and_bake(character):
     bpy.context.scene.frame_set(3)
     assert [round(k.value, 6) for k in keys[1:]] == [0.0, 0.0, 1.0]
     assert np.linalg.norm(evaluated_world(baked) - expected.V, axis=1).mean() < 1e-3   # frame 3: the kick's fit
+
+
+def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_nothing(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    body.modifiers.remove(body.modifiers["Armature"])
+    settings.result = garment
+    groups = len(garment.vertex_groups)
+    with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
+        bpy.ops.garment_transfer.rig_garment()
+    assert len(garment.vertex_groups) == groups and not garment.modifiers
+    with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
+        bpy.ops.garment_transfer.fit_pose()
