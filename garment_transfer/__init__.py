@@ -32,17 +32,19 @@ import importlib
 
 from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError,
                      RegistrationError, RigError, SettingError, TopologyMismatchError)
-from .files import OutputError, atomic_path, check_output, check_output_folder, write_atomic, write_json_atomic
+from .files import (OutputError, atomic_path, check_output, check_output_folder, check_outputs, write_atomic,
+                    write_json_atomic)
 from .version import __version__
 
 #: The public names of each layer, by subpackage (imported on first use).
 LAYERS = {
     "geometry": ("Mesh", "read_obj", "write_obj", "obj_text", "mesh_from_polygons", "mesh_from_triangles",
-                 "require_same_topology", "same_mesh", "TriangleSurface", "body_scale", "fix_penetration",
-                 "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report"),
+                 "require_same_topology", "same_mesh", "as_same_mesh", "TriangleSurface", "body_scale",
+                 "fix_penetration", "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report"),
     "fitting": ("register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS"),
     "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
-                 "load_dataset", "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings"),
+                 "load_dataset", "dataset_inputs", "train_from_dataset", "train_garment_fit_from_dataset",
+                 "check_training_settings"),
     "rigging": ("Skeleton", "read_skeleton", "read_joints", "Motion", "read_bvh", "parse_bvh", "axes_between",
                 "SkinWeights", "skin_weights", "read_weights", "write_weights", "weights_from_dict", "weights_to_dict",
                 "skin", "pose_transforms", "group_transforms", "Rig", "bvh_rotations", "matching_rotations",
@@ -60,7 +62,7 @@ __all__ = [
     "__version__",
     "GarmentTransferError", "NamedError", "MeshError", "TopologyMismatchError", "ModelError", "DatasetError",
     "SettingError", "RegistrationError", "RigError", "OutputError", "Cancelled",
-    "check_output", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
+    "check_output", "check_outputs", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
     *_LAYER_OF,
 ]
 

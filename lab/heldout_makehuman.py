@@ -37,13 +37,14 @@ import time
 
 import numpy as np
 
-from garment_transfer.files import write_json_atomic, write_text_atomic
+from garment_transfer.errors import GarmentTransferError
+from garment_transfer.files import check_outputs, write_json_atomic, write_text_atomic
 from garment_transfer.learning.dataset import load_dataset
 
 from .experiment import METHODS as ALL_METHODS
 from .experiment import run_experiment
 from .paths import MAKEHUMAN_SOURCE as SOURCE
-from .paths import MAKEHUMAN_TARGETS, makehuman_folder
+from .paths import MAKEHUMAN_TARGETS, data_folders, makehuman_folder
 
 TARGETS = list(MAKEHUMAN_TARGETS)
 DM_TO_MM = 100.0
@@ -142,6 +143,12 @@ def main(argv=None):
     folder = makehuman_folder()
     if folder is None:
         raise SystemExit("MakeHuman fixtures not found (../shared/data/makehuman)")
+    try:
+        # Before the study, not after it: never into the fixtures, never a missing folder.
+        check_outputs([(p, o) for p, o in ((args.out, "--out"), (args.json, "--json")) if p],
+                      input_folders=data_folders())
+    except GarmentTransferError as exc:
+        raise SystemExit(f"error: {exc}") from None
     command = "nice .venv/bin/python -m lab heldout " + " ".join(argv if argv is not None else sys.argv[1:])
     t0 = time.perf_counter()
     res = run(folder, args.epochs, args.threads, args.seed,

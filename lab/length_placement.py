@@ -22,7 +22,7 @@ from garment_transfer.learning.placement import true_offsets
 #: Share of a piece's height whose highest vertices are its top (where it hangs from).
 TOP_SHARE = 0.03
 #: Share of the length difference given back (chosen on the catalogue garments draped on the MakeHuman bodies:
-#: the lowest placement error on three of four bodies; docs/garment-model.md, "A placement from the cloth's
+#: the lowest placement error on three of four bodies; lab/notes/garment-model-study.md, "A placement from the cloth's
 #: length").
 ALPHA = 0.5
 #: Steps up the shortest-path tree that give a vertex its direction towards the top.

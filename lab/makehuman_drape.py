@@ -105,7 +105,8 @@ def waist_pins(G, F, body_V, body_F):
 
 
 #: A drape has failed where a piece that reaches the shoulders has its top slid further than this share of the
-#: target body's height below where the body carries it (docs/garment-model.md, "A failed drape in the data").
+#: target body's height below where the body carries it (lab/notes/garment-model-study.md, "A failed drape in the
+#: data").
 SLID_SHARE = 0.03
 #: The top of a piece: its highest share of vertices; a piece reaches the shoulders where that lies above this
 #: share of the source body's height from the soles.

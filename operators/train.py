@@ -71,13 +71,15 @@ class TrainingRun:
 
 def training_output(settings):
     """The model file to write, and the training numbers, checked: a missing or read-only folder must
-    not cost a whole training (nor an install of torch). Returns the path."""
-    from ..garment_transfer import check_output, check_training_settings
+    not cost a whole training (nor an install of torch), and the file must not land on the dataset the
+    training reads (the core's one check of outputs against inputs). Returns the path."""
+    from ..garment_transfer import check_outputs, check_training_settings, dataset_inputs
 
     out = bpy.path.abspath(settings.train_output)
     if not out.lower().endswith(".npz") and not os.path.isdir(out):
         out += ".npz"
-    check_output(out, (), "Save Model As")
+    files, folders = dataset_inputs(bpy.path.abspath(settings.dataset_path))
+    check_outputs([out], inputs=files, input_folders=folders, what="Save Model As")
     check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
     return out
 

@@ -71,9 +71,10 @@ def test_model_of_the_mannequins_serves_a_makehuman_garment(mannequin_model):
     turned_wrong = np.einsum("ij,mjk->mik", np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), field)
     from garment_transfer.pipeline.transfer import prepare_garment
 
+    # Without the crossing pass: it cannot mend a garment that wrecked, and its rounds would only cost time.
     prepared = prepare_garment(source, garment)
     wrong = transfer_garment(source, target, garment, prepared=prepared, method="model",
-                             model=_Fixed(mannequin_model, turned_wrong), target="pear")
+                             model=_Fixed(mannequin_model, turned_wrong), target="pear", resolve_crossings=False)
     assert mdc(garment.V, wrong.V, garment.F) > 2.0 * mdc(garment.V, r.V, garment.F)
 
 

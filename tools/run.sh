@@ -9,6 +9,10 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
+# Python writes the compiled form of what it imports (.pyc, in __pycache__ folders: the environments', the
+# checkout's, all ignored by git): without it, every process of the test suite and the demo compiles torch,
+# scipy, bpy and the project again from source (seconds each; machines that set PYTHONDONTWRITEBYTECODE).
+unset PYTHONDONTWRITEBYTECODE
 cmd="${1:-}"; shift || true
 case "$cmd" in
   demo)

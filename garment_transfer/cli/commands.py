@@ -4,9 +4,10 @@ Exit code 0 on success, 1 on an input or model problem (one line naming the file
 wrong, and no output file written), 2 on a usage error (including an option out of its range),
 130 when stopped with Ctrl+C (one line, nothing half-written).
 
-Outputs are checked before any long work starts (see ``files.check_output``): an output that is
-one of the inputs, a symlink, a special file or a folder, or whose folder is missing or read-only,
-is refused at once.
+Every command declares what it reads and writes (``paths.DECLARED``), and ``main`` checks its outputs
+against its inputs before any work (``files.check_outputs``): an output that is an input or lies inside an
+input folder (however spelled), a symlink, a special file or a folder, or whose folder is missing or
+read-only, is refused at once.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import sys
 import time
 
 from ..errors import GarmentTransferError
-from ..files import atomic_path, check_output
+from ..files import atomic_path
 from ..fitting.body_model import makehuman_shape_basis
 from ..fitting.registration import register
 from ..fitting.shape_basis import shape_basis_from_bodies
@@ -41,6 +42,7 @@ from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.transfer import crossings_left
 from .batch import add_batch_arguments, batch_main
 from .options import emit, number_option, share_option, stderr_progress
+from .paths import check_command_paths, outfit_out_paths
 from .weights import add_weights_arguments
 
 log = logging.getLogger("garment_transfer")
@@ -54,7 +56,6 @@ def cmd_transfer(args):
 
     args.garment, args.out = args.garment[0], args.out[0]
     inputs = [args.source_body, args.target_body, args.garment, args.model]
-    check_output(args.out, inputs, "--out")
     t = time.perf_counter()
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
@@ -134,7 +135,7 @@ def cmd_register(args):
     reg = register(source_body, target_body, cache=not args.no_cache,
                    **{k: v for k, v in shape.items() if not k.startswith("_")},
                    progress=stderr_progress("register") if args.verbose else None)
-    write_obj(args.out, source_body, reg.V,
+    write_obj(args.out, source_body, reg.V, inputs=[args.source_body, args.target_body],
               header=f"Garment Transfer: {os.path.basename(args.source_body)} registered onto "
                      f"{os.path.basename(args.target_body)}")
     out = {"out": args.out, "source_body": args.source_body, "target_body": args.target_body,
@@ -179,21 +180,6 @@ def _model_summary(model):
     if model is None:
         return {"model": None, "model_kind": None, "field_share": None, "placement": False, "nearest_garments": None}
     return {k: v for k, v in model.summary().items() if k != "targets"}
-
-
-def outfit_out_paths(garments, outs):
-    """Output files of an outfit: one --out per garment, or one existing folder for all
-    (``<garment file name>`` inside it). Refuses to overwrite an input."""
-    if len(outs) == 1 and os.path.isdir(outs[0]):
-        paths = [os.path.join(outs[0], os.path.basename(g)) for g in garments]
-    elif len(outs) == len(garments):
-        paths = list(outs)
-    else:
-        raise GarmentTransferError(f"{len(garments)} garments need {len(garments)} --out files or one "
-                                   f"existing --out folder, got {len(outs)} --out")
-    if len({os.path.abspath(p) for p in paths}) != len(paths):
-        raise GarmentTransferError(f"two layers would be written to the same file: {', '.join(paths)}")
-    return paths
 
 
 def write_all_or_nothing(paths, texts, inputs=()):
@@ -257,7 +243,6 @@ def cmd_train(args):
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
 
-    check_output(args.out, (), "--out")
     targets = [t for t in args.targets.split(",") if t]
     garments = [g for g in args.garments.split(",") if g] if args.garments else None
     held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
@@ -511,6 +496,7 @@ def main(argv=None):
             _check_train_options(parser, args)
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
+        check_command_paths(args)
         code = args.func(args)
     except KeyboardInterrupt:
         # Every writer renames a complete temporary file at the end: nothing is half-written.

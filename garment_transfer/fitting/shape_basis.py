@@ -41,7 +41,7 @@ SHAPE_MIN_EXPLAINED = 0.5
 #: ``SHAPE_SPARSITY`` of the height times the RMS length of its delta per unit (an L1 penalty, solved
 #: by coordinate descent), so a slider is moved only where it explains a misfit of about that size:
 #: a body model has hundreds of near-collinear sliders, and a ridge or no prior lets the surface fit
-#: spread the target over many of them (wrong regional weights, measured in docs/registration.md).
+#: spread the target over many of them (wrong regional weights, measured in lab/notes/registration-study.md).
 #: Then the sliders it moved are refitted with a tenth of the penalty (the L1 shrinks the weights).
 SHAPE_SPARSITY = 1e-4
 SHAPE_REFIT_SHARE = 0.1

@@ -348,7 +348,7 @@ class GarmentFitModel:
     def with_field_share(self, share):
         """The same model giving ``Q_body + share * (Q - Q_body)``: its field part of the way back to the
         body's own (0: direct transfer's field; 1: the model's). With the learned placement, half
-        (0.5) kept the MDC at direct transfer's (docs/garment-model.md).
+        (0.5) kept the MDC at direct transfer's (lab/notes/garment-model-study.md).
 
         Parameters
         ----------

@@ -14,10 +14,10 @@ import time
 import numpy as np
 
 from ..errors import Cancelled, DatasetError
-from ..files import check_output
+from ..files import check_outputs
 from ..geometry.binding import bind
 from ..geometry.mesh import faces_hash
-from .dataset import build_training_fields, load_dataset
+from .dataset import build_training_fields, dataset_inputs, load_dataset
 from .garment_model import (
     FORMAT,
     FORMAT_VERSION,
@@ -472,17 +472,17 @@ def _fit(GX, TX, gi, ki, ai, Y, K, hidden, epochs, batch, lr, use_label, gen, pr
 #: Learning rate schedules of ``_fit``.
 SCHEDULES = ("exp", "cosine")
 #: Passes of ``train_garment_fit_from_dataset`` over the field model's and the placement model's samples:
-#: those of the measured combination (docs/garment-model.md: 3 and 30).
+#: those of the measured combination (lab/notes/garment-model-study.md: 3 and 30).
 FIELD_EPOCHS = 3
 PLACEMENT_EPOCHS = 30
 #: Placement models averaged (``train_placement_ensemble``). Chosen among 1, 3 and 5 on held-out training
 #: garments (the demo's validation fold, pear, half the field): drape error 0.412, 0.4035 and 0.4036
-#: (docs/garment-model.md).
+#: (lab/notes/garment-model-study.md).
 PLACEMENT_MEMBERS = 3
 #: Whether the placement networks learn the offset less the training garments' mean offset per triangle
 #: (``train_placement_model``'s ``residual``). Chosen on held-out training garments (the demo's validation
 #: fold, pear, half the field, 3 members; mean of 3 seed sets): drape error 0.406 -> 0.390, against 0.393
-#: for wider layers and 0.398 for more passes; on the test garments 0.352 -> 0.313 (docs/garment-model.md).
+#: for wider layers and 0.398 for more passes; on the test garments 0.352 -> 0.313 (lab/notes/garment-model-study.md).
 PLACEMENT_RESIDUAL = True
 
 
@@ -549,8 +549,9 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
         if int(n) != n or n < 1:
             raise ValueError(f"{what} must be a whole number >= 1, got {n}")
     if out is not None:
-
-        check_output(out, (), "the model file")
+        # Before the long work, and never onto what the training reads.
+        files, folders = dataset_inputs(dataset_dir)
+        check_outputs([out], inputs=files, input_folders=folders, what="the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     garments = list(ds.garments) if garments is None else list(garments)

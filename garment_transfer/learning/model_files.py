@@ -57,7 +57,7 @@ MAX_PLACEMENT_MEMBERS = 64
 #: The share of the garment fit model's field used by default (``GarmentFitModel.with_field_share``):
 #: with the learned placement, half the field kept MDC at 0.93x direct transfer's with 0.63x its vertex
 #: error on the demo's unseen test garments on pear (0.96x and 0.57x on heavy), where the whole field
-#: gave 1.29x MDC at 0.59x (docs/garment-model.md). Chosen again among 0, 0.25, 0.5, 0.75 and 1 on
+#: gave 1.29x MDC at 0.59x (lab/notes/garment-model-study.md). Chosen again among 0, 0.25, 0.5, 0.75 and 1 on
 #: held-out training garments: the lowest drape error with MDC at most 1.1x direct's.
 DEFAULT_FIELD_SHARE = 0.5
 #: What ``ModelFile.kind`` says.

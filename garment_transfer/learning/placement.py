@@ -557,10 +557,10 @@ LIBRARY_FORMAT_VERSION = 1
 #: there, each feature over its spread in the training garments; a training garment weighs
 #: ``exp(-d^2 / (2 w^2))`` times its bound points, ``w`` this width. Chosen among 0.5, 1 and 2 on held-out
 #: training garments (the demo's validation fold, pear, half the field and the mixed placement): drape error
-#: 0.403, 0.411 and 0.420 (docs/garment-model.md, "The nearest garments' placement").
+#: 0.403, 0.411 and 0.420 (lab/notes/garment-model-study.md, "The nearest garments' placement").
 SIMILARITY_WIDTH = 0.5
-#: The nearest garments' share in a ``MixedPlacement`` of them and the placement networks (docs/garment-model.md,
-#: "The nearest garments' placement").
+#: The nearest garments' share in a ``MixedPlacement`` of them and the placement networks
+#: (lab/notes/garment-model-study.md, "The nearest garments' placement").
 LIBRARY_SHARE = 0.5
 #: Array names and dtypes of a ``NearestGarments``.
 LIBRARY_ARRAYS = {"triangles": "i", "garment": "i", "features": "f", "offsets": "f", "weights": "f",
@@ -729,7 +729,7 @@ class MixedPlacement:
     """The placement networks' prediction and the nearest garments' (``NearestGarments``), mixed:
     ``(1 - share) y_networks + share y_nearest`` in each triangle's unrotated frame; optionally shrunk
     towards no offset where the two disagree (``shrink``, ``shrink_gain``; measured, not what ``train`` writes:
-    docs/garment-model.md, "Shrinking the placement where its two predictions disagree").
+    lab/notes/garment-model-study.md, "Shrinking the placement where its two predictions disagree").
 
     Goes wherever a ``PlacementModel`` goes (``transfer_garment``'s ``placement``, ``BlendedPlacement``).
 

@@ -26,13 +26,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from ..files import check_outputs, write_json_atomic
 from ..geometry import clearance
 from ..geometry.intersections import crossings, self_intersections
 from ..geometry.mesh import Mesh, require_same_topology
-from ..geometry.proximity import TriangleSurface
-from ..errors import MeshError
-from ..files import write_json_atomic
 from ..geometry.obj import read_obj, write_obj
+from ..geometry.proximity import TriangleSurface
+from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
 log = logging.getLogger(__name__)
@@ -257,14 +257,15 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     dict
         The summary written to ``poses.json`` (with ``warnings``).
     """
+    outs, summary_path = shapes_outputs(posed_body_paths, garment_path, out_dir)
+    summary_path = summary_path.with_name("poses.json")
+    check_outputs([*outs.values(), summary_path], [out_dir],
+                  inputs=[rest_body_path, *posed_body_paths, garment_path])
     rest = read_obj(rest_body_path)
     garment = read_obj(garment_path)
     poses, paths = {}, {}
     for path in posed_body_paths:
         name = Path(path).stem
-        if name in poses:
-            raise MeshError(str(path), f"has the same name as {paths[name]}; each pose needs its own file name "
-                                       "(it names the output)")
         body = read_obj(path)
         require_same_topology(rest, body)
         poses[name], paths[name] = body.V, str(path)
@@ -277,14 +278,10 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
             progress(i / len(poses), name)
         results[name] = fit_to_pose(rest, V, garment, prepared=prepared, offset=offset, name=name)
     seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise MeshError(str(out_dir), "is a file; --out must be a folder")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
     rows, warnings = [], []
-    stem = Path(garment_path).stem
     for name, result in results.items():
-        out = out_dir / f"{stem}_on_{name}.obj"
+        out = outs[name]
         write_obj(out, garment, result.V, inputs=[rest_body_path, *posed_body_paths],
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
         info = result.info
@@ -298,6 +295,6 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
                "faces": garment.n_faces, "poses": True, "shapes": rows, "seconds": seconds,
-               "summary": str(out_dir / "poses.json"), "warnings": warnings}
-    write_json_atomic(out_dir / "poses.json", summary)
+               "summary": str(summary_path), "warnings": warnings}
+    write_json_atomic(summary_path, summary)
     return summary

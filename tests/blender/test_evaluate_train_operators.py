@@ -193,3 +193,27 @@ def test_without_torch_the_panel_and_train_say_how_to_install_it(dressed, tmp_pa
     assert scene_state() == before and settings.method == 'DIRECT'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+
+
+def test_the_model_file_is_refused_in_the_dataset_it_reads_before_training(dressed, tmp_path, extension):
+    # The core's one check of outputs against inputs, before any training (and without torch): never in the
+    # dataset's bodies/ or garments/, however the path is spelled. (Save Model As ends in .npz: ".npz" is
+    # added to a name without it, so a body's own file name cannot be reached.)
+    train = extension.operators.train
+    settings = dressed.settings
+    ds = make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01",))
+    settings.dataset_path = str(ds)
+    (tmp_path / "alias").symlink_to(ds / "garments")
+    (tmp_path / "sub").mkdir()
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    for out, problem in ((ds / "bodies" / "female_pear.obj", "lies inside the input folder"),
+                         (ds / "bodies", "is the input folder"),
+                         (tmp_path / "alias" / "model.npz", "lies inside the input folder"),
+                         (tmp_path / "sub" / ".." / "ds" / "garments" / "female_casualsuit01" / "m.npz",
+                          "lies inside the input folder")):
+        settings.train_output = str(out)
+        with pytest.raises(extension.garment_transfer.OutputError, match=problem):
+            train.training_plan(settings)
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+    settings.train_output = str(ds / "model.npz")      # beside bodies/ and garments/: fine
+    assert train.training_plan(settings)["out"] == str(ds / "model.npz")
