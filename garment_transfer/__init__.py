@@ -11,7 +11,8 @@ below it):
 - ``geometry``: meshes, OBJ files, closest points, gradients, the Poisson solve, intersections;
 - ``fitting``: the source body registered onto a target body of any mesh;
 - ``learning``: the shared deformation model, the garment fit model and its placement, datasets;
-- ``pipeline``: transfer, any body, outfits, shape keys, weights, metrics, the catalogue batch;
+- ``rigging``: skeletons, BVH poses, skinning weights and their transfer from a body to a garment;
+- ``pipeline``: transfer, any body, outfits, shape keys, poses, metrics, the catalogue batch;
 - ``cli``: the command line (``python -m garment_transfer``), not imported here.
 
 What this module exports (``__all__``) is the public API that a pipeline script, the Blender layer and the
@@ -30,7 +31,7 @@ instant until a transfer is asked for::
 import importlib
 
 from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError,
-                     RegistrationError, SettingError, TopologyMismatchError)
+                     RegistrationError, RigError, SettingError, TopologyMismatchError)
 from .files import (OutputError, atomic_path, check_output, check_output_folder, check_outputs, write_atomic,
                     write_json_atomic)
 from .version import __version__
@@ -44,18 +45,23 @@ LAYERS = {
     "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
                  "load_dataset", "dataset_inputs", "train_from_dataset", "train_garment_fit_from_dataset",
                  "check_training_settings"),
+    "rigging": ("Skeleton", "read_skeleton", "read_joints", "Motion", "read_bvh", "parse_bvh", "axes_between",
+                "SkinWeights", "skin_weights", "read_weights", "write_weights", "weights_from_dict", "weights_to_dict",
+                "skin", "pose_transforms", "group_transforms", "Rig", "bvh_rotations", "matching_rotations",
+                "bone_frames", "surface_weights", "nearest_weights", "inpainted_weights", "MAX_INFLUENCES"),
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
                  "OFFSET_SHARE", "crossings_left", "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys",
-                 "transfer_to_shapes", "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps", "surface_weights",
+                 "transfer_to_shapes", "shapes_to_files", "ShapeKeyFit", "all_pairs", "fit_steps",
                  "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
-                 "check_model", "check_after_training", "read_catalogue", "run_batch"),
+                 "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
+                 "poses_to_files", "every_split", "transfer_across_rest_poses", "pose_difference"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 
 __all__ = [
     "__version__",
     "GarmentTransferError", "NamedError", "MeshError", "TopologyMismatchError", "ModelError", "DatasetError",
-    "SettingError", "RegistrationError", "OutputError", "Cancelled",
+    "SettingError", "RegistrationError", "RigError", "OutputError", "Cancelled",
     "check_output", "check_outputs", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
     *_LAYER_OF,
 ]

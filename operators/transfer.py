@@ -11,6 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
+from .rigging import body_armature, rest_position, rig_to_body
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -250,8 +251,11 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
+        armature = body_armature(settings.target_body) if settings.rig_result else None
+        rigged = None
         try:
-            with window_progress(context) as progress:
+            # A rigged result is made on the body's rest pose, so that its Armature modifier poses it.
+            with window_progress(context) as progress, rest_position(armature):
                 result, outcome, metrics = transfer_objects(
                     context, settings.source_body, settings.target_body, settings.garment,
                     method=settings.method, model_path=settings.model_path,
@@ -260,6 +264,15 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
                     progress=progress, keep_registered=settings.keep_registered_body,
                     use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path)
+            if armature is not None:
+                try:
+                    rigged = rig_to_body(context, result, settings.target_body,
+                                         max_influences=settings.max_influences)[1]
+                except BaseException:
+                    me = result.data
+                    bpy.data.objects.remove(result)
+                    bpy.data.meshes.remove(me)
+                    raise
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start
@@ -277,6 +290,8 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         left = crossings_left(outcome.info)
         if left:
             self.report({'WARNING'}, f"{result.name}: {left}")
+        for warning in (rigged or {}).get("warnings", []):
+            self.report({'WARNING'}, warning)
         return {'FINISHED'}
 
 

@@ -25,6 +25,7 @@ from test_careless_inputs import one_clean_line, run_cli, snapshot
 
 from garment_transfer.cli import batch as cli_batch
 from garment_transfer.cli import commands, paths
+from garment_transfer.cli import weights as cli_weights
 from garment_transfer.cli.commands import build_parser
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import write_obj
@@ -40,7 +41,7 @@ class WorkStarted(Exception):
 WORK = [(commands, name) for name in ("read_obj", "transfer_to_any_body", "transfer_outfit", "register",
                                       "shapes_to_files", "evaluate", "train_from_dataset",
                                       "train_garment_fit_from_dataset", "training_garments", "check_after_training")]
-WORK += [(cli_batch, "run_batch")]
+WORK += [(cli_batch, "run_batch"), (commands, "poses_to_files"), (cli_weights, "read_obj")]
 
 
 @pytest.fixture
@@ -84,6 +85,7 @@ def world(tmp_path_factory):
     write_obj(w / "clothes" / "coat.obj", mesh_from_triangles(GV * 1.03, GF))
     write_obj(w / "result.obj", mesh_from_triangles(GV * 1.1, GF))
     write_obj(w / "reference.obj", mesh_from_triangles(GV * 1.1, GF))
+    (w / "weights.json").write_text('{"weights": {"spine": [[0, 1.0]]}}\n')
     np.savez(w / "model.npz", a=np.zeros(3))
     np.savez(w / "targets.npz", a=np.zeros(3))
     (w / "cat.toml").write_text(
@@ -144,7 +146,12 @@ COMMANDS = {
                                       "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
                       {"--source-body": "source.obj", "--target-body": "target.obj",
                        "--garment": "clothes/garment.obj"},
-                      {"--out": "folder"}, {"--offset", "--margin", "--no-fix", "--json"}),
+                      {"--out": "folder"}, {"--offset", "--margin", "--no-fix", "--poses", "--json"}),
+    "weights": Command(lambda w, out: ["weights", "--body", w / "source.obj", "--weights", w / "weights.json",
+                                       "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
+                       {"--body": "source.obj", "--weights": "weights.json", "--garment": "clothes/garment.obj"},
+                       {"--out": "file"},
+                       {"--rule", "--max-influences", "--match-distance", "--match-angle", "--json"}),
     "register": Command(lambda w, out: ["register", "--source-body", w / "source.obj", "--target-body",
                                         w / "target.obj", "--shape-basis", w / "basis.obj", "--body-model",
                                         w / "targets.npz", "--out", out["--out"]],

@@ -139,6 +139,26 @@ class VIEW3D_PT_garment_transfer_outfit(GarmentPanel, bpy.types.Panel):
                 layout.label(text=settings.last_outfit_model, icon='NETWORK_DRIVE')
 
 
+class VIEW3D_PT_garment_transfer_motion(GarmentPanel, bpy.types.Panel):
+    bl_label = "Motion"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        layout.prop(settings, "rig_result")
+        layout.prop(settings, "max_influences")
+        layout.prop(settings, "result")
+        layout.operator("garment_transfer.rig_garment", icon='ARMATURE_DATA')
+        layout.operator("garment_transfer.fit_pose", icon='POSE_HLT')
+        op = layout.operator("garment_transfer.bake_pose_fit", icon='REC')
+        op.frame_start = context.scene.frame_start
+        op.frame_end = context.scene.frame_end
+
+
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):
     bl_label = "Evaluation"
     bl_parent_id = "VIEW3D_PT_garment_transfer"
@@ -233,6 +253,7 @@ CLASSES = (
     GARMENT_TRANSFER_UL_outfit_layers,
     VIEW3D_PT_garment_transfer,
     VIEW3D_PT_garment_transfer_outfit,
+    VIEW3D_PT_garment_transfer_motion,
     VIEW3D_PT_garment_transfer_evaluation,
     VIEW3D_PT_garment_transfer_training,
     VIEW3D_PT_garment_transfer_drape,

@@ -216,6 +216,15 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Last Check",
         description="The last trained model measured on its held-out garments (JSON; empty: none held out)")
 
+    rig_result: BoolProperty(
+        name="Rig Result", default=True,
+        description="When the target body has an Armature modifier, transfer on its rest pose and give the "
+                    "result the body's bones as vertex groups (matched where the cloth lies on the skin, filled "
+                    "smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside")
+    max_influences: IntProperty(
+        name="Bones per Vertex", default=4, min=1, max=16,
+        description="The most bones that move one garment vertex (game engines take 4 or 8)")
+
     drape_frames: IntProperty(
         name="Frames", default=30, min=1, soft_max=400,
         description="Frames to let the cloth settle after the body has morphed (the morph takes as "

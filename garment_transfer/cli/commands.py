@@ -37,11 +37,13 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
+from ..pipeline.pose_fit import poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.transfer import crossings_left
 from .batch import add_batch_arguments, batch_main
 from .options import emit, number_option, share_option, stderr_progress
 from .paths import check_command_paths, outfit_out_paths
+from .weights import add_weights_arguments
 
 log = logging.getLogger("garment_transfer")
 
@@ -145,6 +147,13 @@ def cmd_register(args):
 
 
 def cmd_shapes(args):
+    if args.poses:
+        summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
+                                 progress=stderr_progress("poses") if args.verbose else None)
+        emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
+                             f"{s['crossings_at_contact']} where the body crosses itself"
+                             for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
+        return
     summary = shapes_to_files(args.source_body, args.target_body, args.garment, args.out,
                               offset=args.offset, margin=args.margin or 0.0,
                               fix_penetration=not args.no_fix, progress=stderr_progress("shapes")
@@ -357,6 +366,9 @@ def build_parser():
     h.add_argument("--margin", type=number_option(float, 0.0, what="a distance"), default=None,
                    help="extra distance for every shape, so that blends of the shapes clip less")
     h.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
+    h.add_argument("--poses", action="store_true",
+                   help="the targets are the source body posed: fit the garment to each pose (the crossing pass "
+                        "leaves out where the body crosses itself, and counts it apart); writes DIR/poses.json")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
 
@@ -437,6 +449,8 @@ def build_parser():
     r.add_argument("--json", action="store_true", help="print one JSON object")
     r.set_defaults(func=cmd_train)
 
+    add_weights_arguments(sub.add_parser("weights", help="a garment's skinning weights from the body it is dressed "
+                                                         "on (matched where close, inpainted elsewhere)"))
     add_batch_arguments(sub.add_parser(
         "batch", help="every garment of a catalogue on every target body, resumable, on this machine "
                       "or a Dask cluster"))

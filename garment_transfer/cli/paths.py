@@ -55,8 +55,14 @@ def _register(args):
 
 def _shapes(args):
     outs, summary = shapes_outputs(args.target_body, args.garment, args.out)
+    if getattr(args, "poses", False):
+        summary = summary.with_name("poses.json")
     return dict(files=[*outs.values(), summary], folders=[args.out],
                 inputs=[args.source_body, *args.target_body, args.garment])
+
+
+def _weights(args):
+    return dict(files=[args.out], inputs=[args.body, args.weights, args.garment])
 
 
 def _evaluate(args):
@@ -103,7 +109,7 @@ def _batch(args):
 #: Command -> its declaration: a function of the parsed arguments giving ``files.check_outputs``'s
 #: arguments (``files``, ``folders`` written; ``inputs``, ``input_folders`` read).
 DECLARED = {"transfer": _transfer, "register": _register, "shapes": _shapes, "evaluate": _evaluate,
-            "train": _train, "batch": _batch}
+            "train": _train, "batch": _batch, "weights": _weights}
 
 
 def command_paths(args) -> dict:
