@@ -11,7 +11,8 @@ below it):
 - ``geometry``: meshes, OBJ files, closest points, gradients, the Poisson solve, intersections;
 - ``fitting``: the source body registered onto a target body of any mesh;
 - ``learning``: the shared deformation model, the garment fit model and its placement, datasets;
-- ``pipeline``: transfer, any body, outfits, shape keys, weights, metrics, the catalogue batch;
+- ``rigging``: skeletons, BVH poses, skinning weights and their transfer from a body to a garment;
+- ``pipeline``: transfer, any body, outfits, shape keys, poses, metrics, the catalogue batch;
 - ``cli``: the command line (``python -m garment_transfer``), not imported here.
 
 What this module exports (``__all__``) is the public API that a pipeline script, the Blender layer and the
@@ -30,35 +31,41 @@ instant until a transfer is asked for::
 import importlib
 
 from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError,
-                     RegistrationError, SettingError, TopologyMismatchError)
-from .files import OutputError, atomic_path, check_output, check_output_folder, write_atomic, write_json_atomic
+                     RegistrationError, RigError, SettingError, TopologyMismatchError)
+from .files import (OutputError, atomic_path, check_output, check_output_folder, check_outputs, write_atomic,
+                    write_json_atomic)
 from .version import __version__
 
 #: The public names of each layer, by subpackage (imported on first use).
 LAYERS = {
     "geometry": ("Mesh", "read_obj", "write_obj", "obj_text", "mesh_from_polygons", "mesh_from_triangles",
-                 "require_same_topology", "same_mesh", "TriangleSurface", "body_scale", "fix_penetration",
-                 "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report", "readings_of",
-                 "Readings"),
+                 "require_same_topology", "same_mesh", "as_same_mesh", "TriangleSurface", "body_scale",
+                 "fix_penetration", "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report",
+                 "readings_of", "Readings"),
     "fitting": ("register", "Registration", "shape_basis_from_bodies", "makehuman_shape_basis", "SHAPE_BOUNDS",
-                "pose_difference"),
+                "limb_angles"),
     "learning": ("read_model_file", "ModelFile", "SharedDeformationModel", "GarmentFitModel", "Dataset",
-                 "load_dataset", "train_from_dataset", "train_garment_fit_from_dataset", "check_training_settings"),
+                 "load_dataset", "dataset_inputs", "train_from_dataset", "train_garment_fit_from_dataset",
+                 "check_training_settings"),
+    "rigging": ("Skeleton", "read_skeleton", "read_joints", "Motion", "read_bvh", "parse_bvh", "axes_between",
+                "SkinWeights", "skin_weights", "read_weights", "write_weights", "weights_from_dict", "weights_to_dict",
+                "skin", "pose_transforms", "group_transforms", "Rig", "bvh_rotations", "matching_rotations",
+                "bone_frames", "surface_weights", "nearest_weights", "inpainted_weights", "MAX_INFLUENCES"),
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
                  "OFFSET_SHARE", "POSE_LIMITS", "pose_check", "check_result", "result_warnings",
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
-                 "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "all_pairs", "fit_steps", "surface_weights",
-                 "evaluate", "mdc",
-                 "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
-                 "check_after_training", "read_catalogue", "run_batch"),
+                 "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "all_pairs", "fit_steps",
+                 "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
+                 "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
+                 "poses_to_files", "every_split", "transfer_across_rest_poses", "pose_difference"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 
 __all__ = [
     "__version__",
     "GarmentTransferError", "NamedError", "MeshError", "TopologyMismatchError", "ModelError", "DatasetError",
-    "SettingError", "RegistrationError", "OutputError", "Cancelled",
-    "check_output", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
+    "SettingError", "RegistrationError", "RigError", "OutputError", "Cancelled",
+    "check_output", "check_outputs", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
     *_LAYER_OF,
 ]
 

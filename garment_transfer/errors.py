@@ -40,3 +40,7 @@ class Cancelled(GarmentTransferError):
 
 class RegistrationError(MeshError):
     """A body that could not be fitted onto another (another pose, a partial or non-human mesh)."""
+
+
+class RigError(NamedError):
+    """A skeleton, joints, weights or motion file (or a rig in Blender) that cannot be used as given."""

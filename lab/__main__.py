@@ -10,7 +10,9 @@ import sys
 
 from garment_transfer.cli.options import number_option, stderr_progress
 from garment_transfer.errors import GarmentTransferError
-from garment_transfer.files import check_output_folder, json_default
+from garment_transfer.files import check_outputs, json_default
+
+from .paths import data_folders
 
 #: Commands that are whole scripts with their own options: name -> (module, what it does).
 SCRIPTS = {
@@ -29,7 +31,7 @@ def _print(args, result, lines):
 
 
 def cmd_demo(args):
-    check_output_folder(args.out, "--out")
+    check_outputs(folders=[args.out], input_folders=data_folders(), holds_none=True)
     from .demo import run_demo
 
     out = run_demo(args.out, quick=args.quick, progress=stderr_progress("demo", every=0.0),
@@ -46,7 +48,7 @@ def cmd_bench(args):
 
 
 def cmd_report(args):
-    check_output_folder(args.dir, "the report folder")
+    check_outputs(folders=[args.dir], input_folders=data_folders(), holds_none=True, what="the report folder")
     from .report import run_report
 
     command = (f"python -m lab report {args.dir}" + (" --quick" if args.quick else "")

@@ -10,22 +10,29 @@ from __future__ import annotations
 
 import logging
 import re
+import tempfile
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from garment_transfer.geometry.gradients import deformation_gradients
 from garment_transfer.learning.dataset import build_training_fields, load_dataset
 from garment_transfer.learning.garment_training import (
+    FIELD_EPOCHS,
+    PLACEMENT_RESIDUAL,
     nearest_garments,
     placement_tables,
     train_garment_model,
     train_placement_ensemble,
     training_tables,
 )
+from garment_transfer.learning.garment_training import PLACEMENT_EPOCHS as PRODUCT_PLACEMENT_EPOCHS
+from garment_transfer.learning.garment_training import PLACEMENT_MEMBERS as PRODUCT_PLACEMENT_MEMBERS
+from garment_transfer.learning.model_files import ModelFile, read_model_file, save_garment_fit_bundle
 from garment_transfer.learning.placement import LIBRARY_SHARE, MixedPlacement, true_offsets
-from garment_transfer.learning.training import train_model
+from garment_transfer.learning.training import default_threads, train_model
 from garment_transfer.pipeline.metrics import evaluate
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
@@ -45,7 +52,8 @@ class Method:
         A ``transfer_garment`` method, or ``external``: results computed elsewhere (Blender's Surface
         Deform) and handed to ``run_experiment``.
     variant : str, optional
-        For ``model``: the training variant (a key of ``VARIANTS``).
+        For ``model``: the training variant (a key of ``VARIANTS``); ``product``: the model file that ``train``
+        writes by default, read back as ``transfer --model`` reads it (its own field share and placement).
     field : str
         For ``model``: how the model's field for a new garment is read (``SharedDeformationModel.body_field``'s
         ``how``), ``"oracle"``: the held-out garment's own embedded deformation, or ``"half"``: a garment
@@ -58,7 +66,8 @@ class Method:
     anchoring : str
         ``transfer_garment``'s: ``everywhere`` or ``contact``.
     placement : str, optional
-        ``transfer_garment``'s ``placement``: ``"model"`` (the learned placement, trained with the
+        ``transfer_garment``'s ``placement``: ``"file"`` (the ``product`` model file's own), ``"model"`` (the
+        learned placement, trained with the
         fold's garments), ``"nearest"`` (the fold's nearest garments' placement, ``placement.NearestGarments``),
         ``"mixed"`` (the two mixed, ``placement.MixedPlacement`` at ``placement.LIBRARY_SHARE``, as ``train
         --kind garment`` writes it), ``"shrunk"`` (the mix shrunk where its two
@@ -83,10 +92,12 @@ class Method:
 
 #: Training variants: ``train_model`` keyword arguments, or (``garment_model``) those of
 #: ``train_garment_model``.
-VARIANTS = {"ours": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]},
+#: ``product``: the garment fit model and its learned placement as ``train`` writes them by default
+#: (``train_product``).
+VARIANTS = {"shared": {"masked": True}, "paper": {"masked": False}, "hidden": {"hidden": [32]},
             "garment": {"garment_model": True}, "garment_nolabel": {"garment_model": True, "use_label": False},
             "garment_blind": {"garment_model": True, "garment_inputs": False},
-            "placement": {"placement_model": True}}
+            "placement": {"placement_model": True}, "product": {"product": True}}
 #: Passes over the samples of the garment model, whatever ``epochs`` the shared model gets.
 GARMENT_EPOCHS = 6
 #: Passes over the samples of the placement model.
@@ -144,26 +155,84 @@ def train_placement(tables, targets, seed=0, threads=None, **options):
                                     threads=threads, **{**PLACEMENT_OPTIONS, **options})
 
 
+def train_product(dataset, source, targets, garments, tables, path, seed=0, threads=None, epochs=FIELD_EPOCHS,
+                  placement_epochs=PRODUCT_PLACEMENT_EPOCHS, placement_members=PRODUCT_PLACEMENT_MEMBERS):
+    """The model file that ``train`` writes by default, from tables already built, read back as ``transfer
+    --model`` reads it.
+
+    The steps and settings of ``garment_training.train_garment_fit_from_dataset`` (its defaults unless
+    given): the garment fit model, the placement networks learning the departure from the training garments'
+    mean placement, the nearest garments' placement mixed in at ``placement.LIBRARY_SHARE``, one bundle.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    source : str
+    targets, garments : list of str
+        In the order of ``tables``.
+    tables : dict
+        ``garment_training.training_tables`` of these garments and targets (``placement_tables`` are added
+        when missing).
+    path : str or Path
+        The model file to write.
+    seed, threads, epochs, placement_epochs, placement_members
+        ``train --kind garment``'s ``--seed``, ``--threads``, ``--epochs``, ``--placement-epochs`` and
+        ``--placement-members``.
+
+    Returns
+    -------
+    model_file : ModelFile
+        ``read_model_file(path)``.
+    info : dict
+        ``seconds`` (training and writing), ``epochs``, ``samples``, ``losses`` (the field model's),
+        ``placement`` (the placement's ``seconds``, ``samples``, ``epochs``, ``members``, ``final_loss``).
+    """
+    t0 = time.perf_counter()
+    # As train does: the same data, seed and threads give the same model (torch's own default is every core).
+    threads = default_threads() if threads is None else max(1, int(threads))
+    field, field_info = train_garment_model(tables, targets, epochs=int(epochs), seed=seed, threads=threads)
+    if "offset" not in tables:
+        placement_tables(dataset, source, targets, list(garments), tables)
+    placement, placement_info = train_placement_ensemble(tables, targets, int(placement_members), seed=seed,
+                                                         epochs=int(placement_epochs), threads=threads,
+                                                         residual=PLACEMENT_RESIDUAL)
+    library = nearest_garments(tables, targets, list(garments))
+    dataset_info = {"folder": dataset.folder.name, "units": dataset.units, "up_axis": dataset.up_axis}
+    for m in [field, *getattr(placement, "members", [placement])]:
+        m.metadata["dataset"] = dataset_info
+    save_garment_fit_bundle(path, field, placement, dataset=dataset_info, library=library,
+                            library_share=LIBRARY_SHARE)
+    info = dict(field_info, seconds=time.perf_counter() - t0,
+                placement={k: placement_info[k] for k in ("seconds", "samples", "epochs", "members")}
+                | {"final_loss": placement_info["losses"][-1]})
+    return read_model_file(path), info
+
+
 #: Every method the lab compares, by key.
 METHODS = {m.key: m for m in (
-    Method("ours", "Ours: model (masked loss), interpolated field, penetration fix", "model", "ours"),
+    Method("ours", "Ours: the garment fit model and its learned placement, as `train` writes them by default and "
+           "`transfer --model` uses them (half the field, the placement mixed with the nearest garments'), "
+           "interpolated field, penetration fix", "model", "product", placement="file"),
+    Method("shared", "The shared deformation model (masked loss), interpolated field, penetration fix", "model",
+           "shared"),
     Method("paper", "Paper as written: model (unmasked loss), nearest-triangle embedding, the paper's Poisson "
            "energy, no fix", "model", "paper", interpolate=False, fix_penetration=False, energy="edges"),
     Method("direct", "Direct deformation transfer: the body's own gradients, interpolated, penetration fix",
            "direct"),
     Method("surface", "Body-driven fit (like Surface Deform): the garment follows the body alone", "surface"),
     Method("surface_deform", "Blender's Surface Deform modifier bound to the source body (no fix)", "external"),
-    Method("mean_field", "Model's mean of the training fields (no network)", "model", "ours", field="mean_field"),
+    Method("mean_field", "Model's mean of the training fields (no network)", "model", "shared",
+           field="mean_field"),
     Method("hidden_mean_latent", "Model with a 32-unit sigmoid hidden layer, decoder at the mean latent",
            "model", "hidden"),
     Method("hidden_mean_decoded", "Model with a 32-unit sigmoid hidden layer, mean of the decoded fields",
            "model", "hidden", field="mean_decoded"),
     Method("oracle", "The held-out garment's own embedded deformation (the best a body field can do here)",
-           "model", "ours", field="oracle"),
+           "model", "shared", field="oracle"),
     Method("direct_contact", "Direct deformation transfer, anchored only where the garment rests on the body",
            "direct", anchoring="contact"),
     Method("oracle_contact", "The held-out garment's own embedded deformation, contact anchors", "model",
-           "ours", field="oracle", anchoring="contact"),
+           "shared", field="oracle", anchoring="contact"),
     Method("garment", "Garment fit model (garment + target features, label), anchors everywhere", "model",
            "garment"),
     Method("garment_contact", "Garment fit model, anchored only where the garment rests on the body", "model",
@@ -206,9 +275,9 @@ METHODS = {m.key: m for m in (
     Method("garment_oracle_placed_contact", "Garment fit model and the held-out garment's own placement, "
            "contact anchors", "model", "garment", anchoring="contact", placement="oracle"),
     Method("oracle_placed", "The held-out garment's own field and placement, anchors everywhere", "model",
-           "ours", field="oracle", placement="oracle"),
+           "shared", field="oracle", placement="oracle"),
     Method("oracle_placed_contact", "The held-out garment's own field and placement, contact anchors", "model",
-           "ours", field="oracle", anchoring="contact", placement="oracle"),
+           "shared", field="oracle", anchoring="contact", placement="oracle"),
 )}
 
 
@@ -283,6 +352,8 @@ def method_of(key):
 
 def _field_source(method, model, fields, gi, targets):
     """What ``transfer_garment`` reads a model-based method's body field from."""
+    if isinstance(model, ModelFile):
+        return model.model
     if method.field == "half":
         return model.with_field_share(method.field_share)
     if method.field == "mean_latent" or getattr(model, "conditions_on_garment", False):
@@ -298,15 +369,25 @@ def _field_source(method, model, fields, gi, targets):
     return _FixedField(model, own)
 
 
+def _train_product(ds, source, targets, train, tables, model_file, fold, seed, threads, options):
+    """``train_product`` into ``model_file(fold)``, or through a temporary file read back and removed."""
+    if model_file is not None:
+        return train_product(ds, source, targets, train, tables, model_file(fold), seed, threads, **options)
+    with tempfile.TemporaryDirectory(prefix="gt_product_") as work:
+        return train_product(ds, source, targets, train, tables, Path(work) / "product.npz", seed, threads,
+                             **options)
+
+
 def run_experiment(dataset, source, targets, folds, methods, epochs, reference="simulation", seed=0,
                    threads=None, reference_seconds=None, external=None, field_error=False,
-                   on_result=None, on_models=None, progress=None):
+                   on_result=None, on_models=None, progress=None, shared_garments=None, model_file=None,
+                   product_options=None):
     """Train, transfer and evaluate: every method on every held-out garment and target.
 
     Parameters
     ----------
-    dataset : str or Path
-        A dataset folder (``garment_transfer.dataset.load_dataset``).
+    dataset : str or Path or Dataset
+        A dataset folder (``garment_transfer.dataset.load_dataset``), or the dataset itself.
     source : str
         The source body.
     targets : list of str
@@ -331,6 +412,15 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
     on_models : callable(fold, {variant: model}), optional
         Called with each fold's trained models.
     progress : callable(fraction, stage), optional
+    shared_garments : list of str, optional
+        The shared deformation model's variants (those ``train_model`` trains: its training time grows with
+        its garments) train on those of a fold's training garments that are in this list (default: on all of
+        them, as every other variant).
+    model_file : callable(fold) -> path, optional
+        Where the ``product`` variant's model file of each fold is written (default: a temporary folder,
+        removed when the run ends).
+    product_options : dict, optional
+        ``train_product``'s training settings (default: ``train --kind garment``'s).
 
     Returns
     -------
@@ -353,7 +443,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         if progress:
             progress(fraction, stage)
 
-    ds = load_dataset(dataset)
+    ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
     tests = [g for g in ds.garments if any(g in te for _, te in folds)]
     needed = [g for g in ds.garments if any(g in tr for tr, _ in folds)
               or (g in tests and (field_error or any(m.field == "oracle" for m in methods)))]
@@ -372,6 +462,17 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
         models, tables = {}, None
         for v in variants:
             curve = []
+            if VARIANTS[v].get("product"):
+                tables = tables or training_tables(ds, source, targets, list(train), fields=part)
+                model, info = _train_product(ds, source, targets, list(train), tables, model_file, i, seed,
+                                             threads, product_options or {})
+                models[v] = model
+                trainings.append({"fold": i, "test": list(test), "variant": v, "seconds": info["seconds"],
+                                  "epochs": info["epochs"], "samples": info["samples"],
+                                  "final_loss": info["losses"][-1], "placement": info["placement"],
+                                  "garments": len(train), "curve": [[e + 1, None, x] for e, x in
+                                                                    enumerate(info["losses"])]})
+                continue
             if VARIANTS[v].get("placement_model") or VARIANTS[v].get("garment_model"):
                 tables = tables or training_tables(ds, source, targets, list(train), fields=part)
                 if VARIANTS[v].get("placement_model"):
@@ -388,7 +489,8 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                                   "final_loss": info["losses"][-1], "curve": [[e + 1, None, x] for e, x in
                                                                               enumerate(info["losses"])]})
                 continue
-            model, info = train_model(part, epochs=epochs, seed=seed, threads=threads,
+            shared = part if shared_garments is None else fields.select([g for g in train if g in shared_garments])
+            model, info = train_model(shared, epochs=epochs, seed=seed, threads=threads,
                                       progress=curve_recorder(curve), **VARIANTS[v])
             model.metadata["dataset"] = dataset_info
             models[v] = model
@@ -396,7 +498,7 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                     "samples")
             trainings.append({"fold": i, "test": list(test), "variant": v,
                               "masked": VARIANTS[v].get("masked", True), **{k: info[k] for k in kept},
-                              "curve": thin(curve, 100)})
+                              "garments": len(shared.garments), "curve": thin(curve, 100)})
         if any(m.placement in ("nearest", "mixed", "shrunk", "length_mixed") for m in methods):
             tables = tables or training_tables(ds, source, targets, list(train), fields=part)
             if "offset" not in tables:
@@ -458,7 +560,8 @@ def run_experiment(dataset, source, targets, folds, methods, epochs, reference="
                             Q = model.body_field(b)
                     elif m.kind == "direct":
                         Q = body_fields.get(b)
-                    placement = {None: None, "model": models.get("placement"), "nearest": models.get("nearest"),
+                    placement = {None: None, "file": getattr(models.get("product"), "placement", None),
+                                 "model": models.get("placement"), "nearest": models.get("nearest"),
                                  "mixed": models.get("mixed"), "shrunk": models.get("shrunk"),
                                  "length": models.get("length"), "length_mixed": models.get("length_mixed"),
                                  "oracle": oracle_placement}[m.placement]

@@ -115,7 +115,7 @@ def transfer_pair(pair, folder):
     source = read_obj(garment)
     V, V0 = read_obj(out).V, read_obj(plain).V
     row.update(check=report["check"], warnings=report["warnings"], seconds=report["seconds"],
-               registered=report["registered"], pose=report["info"].get("pose_difference"),
+               registered=report["registered"], pose=report["info"].get("limb_angles"),
                mdc=mdc(source.V, V, source.F), mdc_no_pass=mdc(source.V, V0, source.F),
                seconds_no_pass=report2["seconds"] if code2 == 0 else None)
     return row

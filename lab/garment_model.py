@@ -76,9 +76,9 @@ from .experiment import run_experiment
 from .makehuman_drape import failed_drapes
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
 
-DEMO_METHODS = ["direct", "direct_contact", "ours", "garment", "garment_contact", "garment_nolabel_contact",
+DEMO_METHODS = ["direct", "direct_contact", "shared", "garment", "garment_contact", "garment_nolabel_contact",
                 "garment_blind_contact", "oracle_contact"]
-MH_METHODS = ["direct", "direct_contact", "ours", "garment_contact", "garment_blind_contact", "oracle_contact",
+MH_METHODS = ["direct", "direct_contact", "shared", "garment_contact", "garment_blind_contact", "oracle_contact",
               "direct_placed", "garment_placed", "garment_half_placed", "direct_oracle_placed", "garment_oracle_placed",
               "direct_nearest_placed", "direct_mixed_placed", "garment_half_nearest_placed",
               "garment_half_mixed_placed", "direct_shrunk_placed", "garment_half_shrunk_placed",

@@ -6,7 +6,7 @@ transfer the held-out garment to every target, and compare with the garment fitt
 (the fixtures' ground truth). Variants, all on the same folds:
 
 * ``direct``: the body's own deformation gradients (no learning; the paper's fig. 2 baseline).
-* ``ours``: masked loss, the decoder at the mean latent of the training garments on the target.
+* ``shared``: masked loss, the decoder at the mean latent of the training garments on the target.
 * ``mean_field``: the mean of the training fields themselves (no network).
 * ``paper``: the paper's loss over every body triangle, decoder at the mean latent.
 * ``hidden_mean_latent`` / ``hidden_mean_decoded``: a sigmoid hidden layer on each side, where
@@ -37,18 +37,19 @@ import time
 
 import numpy as np
 
-from garment_transfer.files import write_json_atomic, write_text_atomic
+from garment_transfer.errors import GarmentTransferError
+from garment_transfer.files import check_outputs, write_json_atomic, write_text_atomic
 from garment_transfer.learning.dataset import load_dataset
 
 from .experiment import METHODS as ALL_METHODS
 from .experiment import run_experiment
 from .paths import MAKEHUMAN_SOURCE as SOURCE
-from .paths import MAKEHUMAN_TARGETS, makehuman_folder
+from .paths import MAKEHUMAN_TARGETS, data_folders, makehuman_folder
 
 TARGETS = list(MAKEHUMAN_TARGETS)
 DM_TO_MM = 100.0
 
-METHODS = ["direct", "ours", "mean_field", "paper", "hidden_mean_latent", "hidden_mean_decoded", "oracle"]
+METHODS = ["direct", "shared", "mean_field", "paper", "hidden_mean_latent", "hidden_mean_decoded", "oracle"]
 
 
 def run(folder, epochs, threads, seed, garments, log):
@@ -67,7 +68,7 @@ def run(folder, epochs, threads, seed, garments, log):
              "penetration": r["penetration_ratio"], "field_rms": r.get("field_rms"),
              "transfer_s": r["seconds_reused"]}
             for r in res["rows"] if r["method"] != "fitted"]
-    trainings = [{"heldout": t["test"][0], "variant": {"ours": "masked", "paper": "unmasked"}.get(t["variant"],
+    trainings = [{"heldout": t["test"][0], "variant": {"shared": "masked", "paper": "unmasked"}.get(t["variant"],
                                                                                                  t["variant"]),
                   "seconds": t["seconds"], "final_loss": t["final_loss"],
                   "final_masked_loss": t["final_masked_loss"]} for t in res["trainings"]]
@@ -112,7 +113,7 @@ def markdown(res, args, command, seconds):
         L.append(f"| {m} | " + " | ".join(f"{mean_of(rows, m, 'vertex_error_mm', target=t):.2f}"
                                           for t in TARGETS) + " |")
     L.append("\n## Vertex error (mm) per held-out garment (mean over targets)\n")
-    main = ["direct", "ours", "mean_field", "paper", "oracle"]
+    main = ["direct", "shared", "mean_field", "paper", "oracle"]
     L.append("| garment | " + " | ".join(main) + " |")
     L.append("|---|" + "---|" * len(main))
     for g in res["garments"]:
@@ -142,6 +143,12 @@ def main(argv=None):
     folder = makehuman_folder()
     if folder is None:
         raise SystemExit("MakeHuman fixtures not found (../shared/data/makehuman)")
+    try:
+        # Before the study, not after it: never into the fixtures, never a missing folder.
+        check_outputs([(p, o) for p, o in ((args.out, "--out"), (args.json, "--json")) if p],
+                      input_folders=data_folders())
+    except GarmentTransferError as exc:
+        raise SystemExit(f"error: {exc}") from None
     command = "nice .venv/bin/python -m lab heldout " + " ".join(argv if argv is not None else sys.argv[1:])
     t0 = time.perf_counter()
     res = run(folder, args.epochs, args.threads, args.seed,

@@ -26,6 +26,12 @@ def makehuman_folder():
     return None
 
 
+def data_folders():
+    """The datasets the lab's commands read (the demo data, the MakeHuman fixtures where present): its
+    outputs must not land in them, nor be a folder that holds them (``files.check_outputs``)."""
+    return [DEMO_DATA] + [f for f in [makehuman_folder()] if f is not None]
+
+
 #: Millimetres per unit of a dataset's ``units`` (its manifest), for figures in millimetres.
 MM_PER_UNIT = {"metres": 1000.0, "meters": 1000.0, "m": 1000.0, "decimetres": 100.0, "decimeters": 100.0,
                "dm": 100.0, "centimetres": 10.0, "centimeters": 10.0, "cm": 10.0, "millimetres": 1.0,

@@ -1,4 +1,4 @@
-"""Benchmark report: ours against the paper, the baselines and simulation, side by side.
+"""Benchmark report: the shared deformation model against the paper, the baselines and simulation, side by side.
 
 ``python -m lab report DIR [--quick]`` writes ``DIR/report.md``, ``DIR/report.json``
 and plots (PNG). Every figure comes from the run that writes it; the only numbers typed in are the
@@ -9,8 +9,10 @@ Sections:
 
 * **Quality**, on every test garment of the demo data (the reference on each target body is the garment
   draped there by Blender's cloth solver) and, leave-one-garment-out, on every MakeHuman fixture garment
-  (the reference is the garment fitted on each body). Methods: ours (model, masked loss, interpolated
-  field, penetration fix), the paper as written (nearest-triangle embedding, unmasked loss, no fix),
+  (the reference is the garment fitted on each body). Methods: the shared deformation model with our changes
+  (``shared``: masked loss, interpolated field, penetration fix; the product's own method, the garment fit
+  model with its placement, is measured by the demo, ``python -m lab demo``), the paper as written
+  (nearest-triangle embedding, unmasked loss, no fix),
   direct deformation transfer (the body's own gradients), Blender's Surface Deform modifier (bound to
   the source body, evaluated on the target shape; ``lab/blender/surface_deform_baseline.py`` in a
   subprocess) and the reference itself (simulation or fitted garment). Figures: ``metrics.evaluate``.
@@ -72,8 +74,9 @@ PAPER_TABLE1 = {
 PAPER_TRAINING = {"triangles": 37744, "garments": 15, "epochs": 1000, "latent": 30, "seconds": 35 * 60}
 PAPER_MACHINE = "laptop Intel Core i7-8750H 2.2 GHz, 16 GB RAM, RTX 2070 Max-Q"
 
-#: Methods in report order.
-METHODS = ["ours", "paper", "direct", "surface_deform"]
+#: Methods in report order; the first is the model the report measures against the others.
+METHODS = ["shared", "paper", "direct", "surface_deform"]
+MODEL = METHODS[0]
 #: Figures summarised per method (lower is better for all).
 FIGURES = ["mdc", "penetration_ratio", "max_penetration_depth", "drape_error", "drape_error_relative",
            "vertex_error_mean", "seconds"]
@@ -215,7 +218,7 @@ def quality(folder, source, targets, folds, epochs, reference_kind, sim_seconds=
     source : str
     targets : list of str
     folds : list of (list of str, list of str)
-        (training garments, test garments): one model pair (ours, the paper's) is trained per fold.
+        (training garments, test garments): one model pair (the shared model, the paper's) is trained per fold.
     epochs : int
     reference_kind : str
         Method name of the reference rows: ``simulation`` or ``fitted``.
@@ -286,7 +289,7 @@ def summarise(result) -> dict:
 
 
 def worse_than_ours(result, summary) -> list:
-    """Where a baseline's mean beats ours, with the share of pairs where it does.
+    """Where a baseline's mean beats the shared model's (``MODEL``), with the share of pairs where it does.
 
     The reference itself is left out of the drape and vertex errors (it is what they measure against).
 
@@ -296,7 +299,7 @@ def worse_than_ours(result, summary) -> list:
         ``method``, ``figure``, ``ours``, ``theirs``, ``share_of_pairs`` (pairs where the baseline is
         lower than ours).
     """
-    ours = summary.get("ours")
+    ours = summary.get(MODEL)
     if not ours:
         return []
     by = {}
@@ -304,7 +307,7 @@ def worse_than_ours(result, summary) -> list:
         by[(r["fold"], r["garment"], r["target"], r["method"])] = r
     out = []
     for m, s in summary.items():
-        if m == "ours":
+        if m == MODEL:
             continue
         for f in FIGURES:
             if m == result["reference"] and f in ("drape_error", "drape_error_relative", "vertex_error_mean"):
@@ -312,9 +315,9 @@ def worse_than_ours(result, summary) -> list:
             a, b = ours.get(f), s.get(f)
             if a is None or b is None or not b < a:
                 continue
-            pairs = [(by[k[:3] + ("ours",)][f], r[f]) for k, r in by.items()
-                     if k[3] == m and k[:3] + ("ours",) in by and r.get(f) is not None
-                     and by[k[:3] + ("ours",)].get(f) is not None]
+            pairs = [(by[k[:3] + (MODEL,)][f], r[f]) for k, r in by.items()
+                     if k[3] == m and k[:3] + (MODEL,) in by and r.get(f) is not None
+                     and by[k[:3] + (MODEL,)].get(f) is not None]
             share = float(np.mean([t < o for o, t in pairs])) if pairs else None
             out.append({"method": m, "figure": f, "ours": a, "theirs": b, "share_of_pairs": share})
     return out
@@ -637,8 +640,8 @@ def _rounded(x, digits=5):
 # --------------------------------------------------------------------------------------------------
 # Plots
 
-_COLOURS = {"ours": "#1b7837", "paper": "#762a83", "direct": "#2166ac", "surface_deform": "#e08214",
-            "simulation": "#7f7f7f", "fitted": "#7f7f7f"}
+_COLOURS = {"ours": "#1b7837", "shared": "#1b7837", "paper": "#762a83", "direct": "#2166ac",
+            "surface_deform": "#e08214", "simulation": "#7f7f7f", "fitted": "#7f7f7f"}
 
 
 def write_plots(report, out) -> list:
@@ -671,7 +674,7 @@ def _plot_quality(plt, report):
     fig, axes = plt.subplots(len(sets), len(panels), figsize=(13, 3.3 * len(sets)), squeeze=False)
     rng = np.random.default_rng(0)
     for row, (key, res) in enumerate(sets):
-        methods = [m for m in ["ours", "paper", "direct", "surface_deform", res["reference"]]
+        methods = [m for m in [_model_key(res)] + METHODS[1:] + [res["reference"]]
                    if any(r["method"] == m for r in res["rows"])]
         for col, (fig_key, label, scale) in enumerate(panels):
             ax = axes[row, col]
@@ -822,6 +825,12 @@ def _intersections_md(res, unit, scale):
     return lines
 
 
+def _model_key(res):
+    """The shared model's method key in a quality result: ``MODEL``, or ``ours`` in a section kept by ``--only``
+    from a report.json written when the report called the shared model "ours"."""
+    return MODEL if MODEL in (res.get("summary") or {}) else "ours"
+
+
 def _quality_md(key, res):
     title = {"demo": "Demo data: procedural mannequins, garments draped by Blender's cloth solver",
              "makehuman": "MakeHuman fixtures: leave one garment out"}[key]
@@ -832,22 +841,23 @@ def _quality_md(key, res):
     unit = "mm" if mm else "file units"
     scale = mm or 1.0
     ref = res["reference"]
+    model = _model_key(res)
     tests = sorted({g for f in res["folds"] for g in f["test"]})
     if key == "demo":
-        tr = [t for t in res["trainings"] if t["variant"] == "ours"][0]
+        tr = [t for t in res["trainings"] if t["variant"] == model][0]
         lines += [f"Source body `{res['source']}`, targets {', '.join(f'`{t}`' for t in res['targets'])}; "
                   f"trained on {len(res['folds'][0]['train'])} garments ({res['epochs']} epochs, "
-                  f"{tr['seconds']:.1f} s for ours), tested on {len(tests)} garments the model never saw: "
+                  f"{tr['seconds']:.1f} s for the shared model), tested on {len(tests)} garments the model never saw: "
                   f"{', '.join(tests)}. Reference: the garment draped on each target by Blender's cloth "
                   f"solver; its time: {res.get('simulation_time_source', 'not recorded')}.", ""]
     else:
-        secs = [t["seconds"] for t in res["trainings"] if t["variant"] == "ours"]
+        secs = [t["seconds"] for t in res["trainings"] if t["variant"] == model]
         lines += [f"Source body `{res['source']}`, targets {', '.join(f'`{t}`' for t in res['targets'])}. "
                   f"For each of the {len(tests)} garments: train on the "
                   f"{len(res['folds'][0]['train'])} others ({res['epochs']} epochs, {np.mean(secs):.1f} s "
-                  "per model for ours), transfer the held-out one. Reference: the garment fitted on each "
+                  "per model for the shared model), transfer the held-out one. Reference: the garment fitted on each "
                   "body by MakeHuman (no simulation time).", ""]
-    lines += [f"Means over {res['summary'].get('ours', {}).get('pairs', 0)} (garment, target) pairs. "
+    lines += [f"Means over {res['summary'].get(model, {}).get('pairs', 0)} (garment, target) pairs. "
               "MDC: against the source garment (lower = design kept). Penetration: share of vertices inside "
               "the target body, and the deepest. Drape: surface distance to the reference after the same "
               "low-pass filter, and relative to the untransferred garment (1 = did not move toward the "
@@ -858,7 +868,7 @@ def _quality_md(key, res):
               f"| method | MDC | penetration | max depth ({unit}) | drape error ({unit}) | drape rel. | "
               f"vertex error ({unit}) | time (s) |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for m in METHODS + [ref]:
+    for m in [model] + METHODS[1:] + [ref]:
         s = res["summary"].get(m)
         if not s:
             lines.append(f"| {m} | not run | | | | | | |")
@@ -883,11 +893,11 @@ def _quality_md(key, res):
     elif sd.get("failures"):
         lines += ["", "Surface Deform refused: " + "; ".join(f"{g}: {e}" for g, e in sd["failures"].items())]
     if key == "demo":
-        lines += ["", "Per test garment (ours and the simulation: means over the targets), beside the "
+        lines += ["", "Per test garment (the shared model and the simulation: means over the targets), beside the "
                   "paper's table 1 for the garment of the same name (**published figures**, the paper's "
                   "own garments and bodies, one target, i7-8750H laptop):", "",
-                  "| garment | triangles | MDC ours | MDC paper as written | MDC simulation | "
-                  "time ours (s) | paper: triangles | paper: MDC | paper: MDC simulation | paper: time (s) |",
+                  "| garment | triangles | MDC shared | MDC paper as written | MDC simulation | "
+                  "time shared (s) | paper: triangles | paper: MDC | paper: MDC simulation | paper: time (s) |",
                   "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for g in tests:
             def mean(method, f, g=g):
@@ -899,19 +909,20 @@ def _quality_md(key, res):
             p = PAPER_TABLE1.get(g)
             pp = (f"{p['triangles']} | {p['mdc']:.4f} | {p['mdc_simulation']:.4f} | {p['seconds']:.3f}"
                   if p else "- | - | - | -")
-            lines.append(f"| {g} | {tri} | {_f(mean('ours', 'mdc'), '.4f')} | "
+            lines.append(f"| {g} | {tri} | {_f(mean(model, 'mdc'), '.4f')} | "
                          f"{_f(mean('paper', 'mdc'), '.4f')} | {_f(mean(ref, 'mdc'), '.4f')} | "
-                         f"{_f(mean('ours', 'seconds'), '.3f')} | {pp} |")
+                         f"{_f(mean(model, 'seconds'), '.3f')} | {pp} |")
     worse = res.get("worse_than_ours") or []
-    lines += ["", "Where a baseline does better than ours on average:" if worse else
-              "No baseline beats ours on average on any figure here.", ""]
+    lines += ["", "Where a baseline does better than the shared model on average:" if worse else
+              "No baseline beats the shared model on average on any figure here.", ""]
     for w in worse:
         f = w["figure"]
         sc = scale if f in _LENGTHS else (100.0 if f == "penetration_ratio" else 1.0)
         u = f" {unit}" if f in _LENGTHS else ("%" if f == "penetration_ratio" else "")
         share = ("" if w["share_of_pairs"] is None
-                 else f" (lower than ours on {w['share_of_pairs']:.0%} of pairs)")
-        lines.append(f"- `{w['method']}`, {f}: {w['theirs'] * sc:.4g}{u} against ours {w['ours'] * sc:.4g}{u}"
+                 else f" (lower than the shared model on {w['share_of_pairs']:.0%} of pairs)")
+        lines.append(f"- `{w['method']}`, {f}: {w['theirs'] * sc:.4g}{u} against the shared model's "
+                     f"{w['ours'] * sc:.4g}{u}"
                      f"{share}")
     return lines + [""]
 
@@ -1008,7 +1019,7 @@ def format_report(report) -> str:
     for key, res in report["quality"].items():
         if "skipped" in res:
             continue
-        for variant in ("ours", "paper"):
+        for variant in (_model_key(res), "paper"):
             ts = [t for t in res["trainings"] if t["variant"] == variant]
             if ts:
                 lines.append(f"- {key}, {variant} ({'masked' if ts[0]['masked'] else 'unmasked'} loss): "

@@ -2,10 +2,10 @@
 
 import bpy
 
-from . import drape, evaluate, outfit, shape_keys, train, transfer
+from . import drape, evaluate, models, outfit, rigging, shape_keys, train, transfer
 
-CLASSES = (transfer.CLASSES + outfit.CLASSES + shape_keys.CLASSES + train.CLASSES + drape.CLASSES
-           + evaluate.CLASSES)
+CLASSES = (transfer.CLASSES + models.CLASSES + outfit.CLASSES + shape_keys.CLASSES + train.CLASSES + drape.CLASSES
+           + evaluate.CLASSES + rigging.CLASSES)
 
 
 def register():

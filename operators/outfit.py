@@ -14,6 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
+from .rigging import body_armature, rest_position, rig_to_body
 from .transfer import chosen_model, model_text, result_name
 
 
@@ -167,13 +168,25 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
+        armature = body_armature(settings.target_body) if settings.rig_result else None
         try:
-            with window_progress(context) as progress:
+            # Rigged layers are made on the body's rest pose, so that their Armature modifiers pose them.
+            with window_progress(context) as progress, rest_position(armature):
                 results, outcome, design = transfer_outfit_objects(
                     context, settings.source_body, settings.target_body, outfit_garments(settings),
                     offsets=outfit_offsets(settings), method=settings.method, model_path=settings.model_path,
                     target_label=settings.target_label, field_share=settings.field_share,
                     evaluated=settings.use_evaluated, progress=progress)
+            if armature is not None:
+                try:
+                    for result in results:
+                        rig_to_body(context, result, settings.target_body, max_influences=settings.max_influences)
+                except BaseException:
+                    for result in results:
+                        me = result.data
+                        bpy.data.objects.remove(result)
+                        bpy.data.meshes.remove(me)
+                    raise
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 from bpy.props import BoolProperty, FloatProperty, StringProperty
 
-from . import convert
+from . import convert, rigging
 from .reporting import ModalSteps, poll_objects, report_failure
 
 #: Variables of these types read two targets; the others one (CONTEXT_PROP reads none).
@@ -235,6 +235,24 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
         raise
 
 
+def bone_weights(context, body, body_mesh, cloth):
+    """With an armature on the body: the garment's weights of its deforming bones (matched where the cloth lies
+    on the skin, inpainted elsewhere, ``rigging.rig_to_body``'s rule), as ((g,k) array, names); else None."""
+    from ..garment_transfer import inpainted_weights
+
+    armature = rigging.body_armature(body)
+    if armature is None:
+        return None
+    body_weights = rigging.vertex_group_weights(body, rigging.deform_bones(armature))
+    if not body_weights.influences().any():
+        return None
+    weights, _ = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
+                                   max_influences=context.scene.garment_transfer.max_influences, name=cloth.name)
+    used = weights.influences() > 0
+    keep = [j for j in range(len(weights.groups)) if weights.W[:, j].nnz] if used.any() else []
+    return weights.dense()[:, keep], [weights.groups[j] for j in keep]
+
+
 def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0.0,
               weights_from_body=False, keep_outside=False, offset=None):
     """Read the objects, transfer one key per step, then make the object: a generator.
@@ -267,9 +285,11 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
         elif not len(body.vertex_groups):
             note = f"{body.name} has no vertex groups to take weights from"
         else:
-            W, group_names = body_weights(body)
-            weights = (surface_weights(body_mesh.V, body_mesh.F, W, cloth.V), group_names)
-            note = f"took {len(group_names)} vertex groups from {body.name}"
+            weights = bone_weights(context, body, body_mesh, cloth)
+            if weights is None:
+                W, group_names = body_weights(body)
+                weights = (surface_weights(body_mesh.V, body_mesh.F, W, cloth.V), group_names)
+            note = f"took {len(weights[1])} vertex groups from {body.name}"
     steps = core_steps(body_mesh, shapes, cloth, pairs=all_pairs(shapes) if correctives else (),
                        margin=margin, offset=offset)
     while True:

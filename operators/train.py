@@ -17,6 +17,7 @@ import time
 
 import bpy
 
+from .models import refresh_found_model
 from .reporting import ModalSteps, report_failure
 
 TORCH_PIN = "torch==2.13.0"
@@ -71,13 +72,15 @@ class TrainingRun:
 
 def training_output(settings):
     """The model file to write, and the training numbers, checked: a missing or read-only folder must
-    not cost a whole training (nor an install of torch). Returns the path."""
-    from ..garment_transfer import check_output, check_training_settings
+    not cost a whole training (nor an install of torch), and the file must not land on the dataset the
+    training reads (the core's one check of outputs against inputs). Returns the path."""
+    from ..garment_transfer import check_outputs, check_training_settings, dataset_inputs
 
     out = bpy.path.abspath(settings.train_output)
     if not out.lower().endswith(".npz") and not os.path.isdir(out):
         out += ".npz"
-    check_output(out, (), "Save Model As")
+    files, folders = dataset_inputs(bpy.path.abspath(settings.dataset_path))
+    check_outputs([out], inputs=files, input_folders=folders, what="Save Model As")
     check_training_settings(epochs=settings.train_epochs, latent=settings.train_latent)
     return out
 
@@ -208,8 +211,10 @@ class GARMENT_TRANSFER_OT_train(ModalSteps, bpy.types.Operator):
     def _finish(self, context, info):
         settings = context.scene.garment_transfer
         settings.train_progress = 100.0
+        settings.last_trained_model = self._plan["out"]
         settings.model_path = self._plan["out"]
         settings.method = 'MODEL'
+        refresh_found_model(settings, context)
         if self._plan.get("kind") == "garment":
             parts = [f"{name} {part['epochs']} passes, loss {part['final_loss']:.4g}"
                      for name, part in (("field", info.get("field")), ("placement", info.get("placement")))

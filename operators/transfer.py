@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import bpy
@@ -10,6 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
+from .rigging import body_armature, rest_position, rig_to_body
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -104,8 +106,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     (``shape_key_basis``; their names in ``outcome.shape_keys``); with ``body_model_path`` (MakeHuman's
     ``targets.npz``) MakeHuman's sliders are, in place of the shape keys (``outcome.body_model`` True).
     ``field_share``: for a garment fit model file (None: the core's default); its learned placement is
-    used when the file holds one, and
-    ``outcome.model_text`` says which model was used.
+    used when the file holds one; ``outcome.model_text`` says which model was used, ``outcome.method_text``
+    which method made the result and what it gains (``method_text``).
 
     Returns
     -------
@@ -157,6 +159,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     outcome.shape_keys = key_names
     outcome.body_model = body_model
     outcome.model_text = model_text(model)
+    outcome.method_text = method_text(method, model)
     outcome.V = outcome.V @ frame
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
                                        depsgraph, evaluated, scene=context.scene,
@@ -193,6 +196,30 @@ SHOWN_SLIDERS = 5
 def model_text(model):
     """One line for the panel: which model was used ("" without one)."""
     return "" if model is None else "Model: " + model.describe()
+
+
+#: What each method gains, in a few words: measured on the demo's test garments, which no model saw, against
+#: Blender's cloth simulation of each on the pear-shaped body (``bash tools/run.sh demo``'s report;
+#: docs/garment-model.md, "What it gains").
+GAINS = {
+    "garment": "0.62x Direct's distance to a cloth simulation, design kept",
+    "garment_alone": "0.83x Direct's distance to a cloth simulation",
+    "shared": "0.86x Direct's distance to a cloth simulation, more design change",
+    "DIRECT": "the body's own deformation, no model; a garment fit model comes closer to a simulation",
+    "SURFACE": "follows the body's surface alone, folds not rebuilt (a baseline)",
+}
+
+
+def method_text(method, model):
+    """One line for the panel: which method made the result, and what it gains."""
+    if model is None:
+        return f"{method.capitalize()}: {GAINS[method]}"
+    name = os.path.basename(model.path)
+    if model.kind == "shared":
+        return f"Shared deformation model ({name}): {GAINS['shared']}"
+    if model.placement is not None:
+        return f"Garment fit + placement ({name}, field share {model.field_share:g}): {GAINS['garment']}"
+    return f"Garment fit model ({name}, field share {model.field_share:g}, no placement): {GAINS['garment_alone']}"
 
 
 def registration_text(context, outcome):
@@ -240,8 +267,11 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
+        armature = body_armature(settings.target_body) if settings.rig_result else None
+        rigged = None
         try:
-            with window_progress(context) as progress:
+            # A rigged result is made on the body's rest pose, so that its Armature modifier poses it.
+            with window_progress(context) as progress, rest_position(armature):
                 result, outcome, metrics = transfer_objects(
                     context, settings.source_body, settings.target_body, settings.garment,
                     method=settings.method, model_path=settings.model_path,
@@ -250,6 +280,15 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
                     progress=progress, keep_registered=settings.keep_registered_body,
                     use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path)
+            if armature is not None:
+                try:
+                    rigged = rig_to_body(context, result, settings.target_body,
+                                         max_influences=settings.max_influences)[1]
+                except BaseException:
+                    me = result.data
+                    bpy.data.objects.remove(result)
+                    bpy.data.meshes.remove(me)
+                    raise
         except Exception as exc:
             return report_failure(self, exc)
         elapsed = time.perf_counter() - start
@@ -259,12 +298,12 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         context.view_layer.objects.active = result
         settings.last_metrics = format_metrics(metrics)
         settings.last_registration = registration_text(context, outcome)
-        settings.last_model = outcome.model_text
+        settings.last_model = outcome.method_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
         from ..garment_transfer import result_warnings
 
-        for warning in result_warnings(metrics, result.name):
+        for warning in result_warnings(metrics, result.name) + (rigged or {}).get("warnings", []):
             self.report({'WARNING'}, warning)
         return {'FINISHED'}
 

@@ -14,8 +14,11 @@ Every (garment, target) pair goes through the add-on's own operator (bpy.ops.gar
 and is written to DIR/<garment>_on_<target>.obj (with a catalogue: DIR/<garment>/<target>.obj, the
 core batch's layout), in the input files' axes and units. A file that cannot
 be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
-exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Every file is written whole or not
-at all. Ctrl+C stops the run: what was written stays, summary.json lists it, and the exit code is 130.
+exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Before Blender reads anything, every
+output (each result, the summary, --blend) is checked against every file the run reads, with the core's
+check (an output that is an input, or a catalogue's results folder holding one, is a bad argument). Every
+file is written whole or not at all. Ctrl+C stops the run: what was written stays, summary.json lists it,
+and the exit code is 130.
 """
 
 from __future__ import annotations
@@ -142,25 +145,22 @@ def parse_args(argv):
         parser.error("--scale must be a finite number > 0")
     if args.offset is not None and (not math.isfinite(args.offset) or args.offset < 0):
         parser.error(f"--offset {args.offset}: must be a finite distance >= 0")
-    if args.out.exists() and not args.out.is_dir():
-        parser.error(f"--out {args.out}: is a file; give a folder for the results")
-    inputs = [args.source_body, *(args.target_body or []), *(args.garment or []), args.model, args.catalogue]
-    for path in [args.out / "summary.json"] + ([args.blend] if args.blend else []):
-        problem = output_problem(path, inputs)
-        if problem:
-            parser.error(problem)
     return args
 
 
-def output_problem(path, inputs):
-    """The core's objection to writing ``path`` (one line), or None."""
+def output_problem(args, jobs, reads):
+    """The core's objection to this run's outputs (one line), or None: ``files.check_outputs``, the check
+    every command of the core makes, of every result, the summary and ``--blend`` against every file the
+    run reads (``reads``: files and folders, from ``plan``), before anything is imported or written."""
     from garment_transfer.errors import GarmentTransferError
-    from garment_transfer.files import check_output
+    from garment_transfer.files import check_outputs
 
-    if not path.parent.exists():
-        return None    # the results folder is made at the start of the run
+    results = [job.output(args.out, name) for job in jobs for name, _, _ in job.targets]
+    files = results + [args.out / "summary.json"] + ([(args.blend, "--blend")] if args.blend else [])
     try:
-        check_output(path, inputs, "--out")
+        # With a catalogue, results go to sub-folders named by its garments: the folder must hold no input.
+        check_outputs(files, [args.out], inputs=reads[0], input_folders=reads[1],
+                      holds_none=args.catalogue is not None)
     except GarmentTransferError as exc:
         return str(exc)
     return None
@@ -197,14 +197,15 @@ class Job:
 
 
 def plan(args):
-    """The jobs of a run: one per garment."""
+    """The jobs of a run (one per garment), and what the run reads: ``(files, folders)``."""
     if args.catalogue is None:
         paths = [args.source_body, *args.target_body, *args.garment]
         labels = dict(zip(map(str, paths), unique_labels(paths)))
         targets = [(labels[str(p)], p, args.target_label[i] if args.target_label else p.stem)
                    for i, p in enumerate(args.target_body)]
-        return [Job(labels[str(g)], g, labels[str(args.source_body)], args.source_body, targets,
+        jobs = [Job(labels[str(g)], g, labels[str(args.source_body)], args.source_body, targets,
                     args.method, args.model, args.offset, not args.no_fix) for g in args.garment]
+        return jobs, ([*paths, args.model], [])
     batch = core_batch()
     options = {"method": args.method} if args.method_given else {}
     if args.model is not None:
@@ -227,7 +228,8 @@ def plan(args):
                         [(t.name, Path(t.body), t.label or t.name) for t in j.targets], s.method,
                         None if s.model is None else Path(s.model), s.offset, s.fix_penetration, True,
                         s.field_share))
-    return jobs
+    files, folders = cat.inputs()
+    return jobs, ([*files, args.model], folders)
 
 
 def script_argv(argv):
@@ -327,15 +329,15 @@ def export_obj(obj, path, args):
                               export_normals=False, export_uv=True, export_triangulated_mesh=False)
 
 
-def run(args, log, records=None):
+def run(args, log, records=None, jobs=None):
     """Do the whole batch; return one record per (garment, target) pair, or per unreadable file.
 
     ``records``, when given, receives the records as they are made (all done so far when the run is
-    interrupted).
+    interrupted). ``jobs``: ``plan(args)``'s, when already made.
     """
     import bpy
 
-    jobs = plan(args)
+    jobs = plan(args)[0] if jobs is None else jobs
     bpy.ops.wm.read_homefile(use_empty=True)
     ensure_operators()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -452,6 +454,17 @@ def main(argv=None):
     def log(text):
         print(f"batch_transfer: {text}", file=sys.stderr, flush=True)
 
+    try:
+        jobs, reads = plan(args)
+    except InputError as exc:
+        log(f"FAILED {exc}")
+        return 1
+    problem = output_problem(args, jobs, reads)
+    if problem:
+        # A bad --out or --blend is a bad argument (exit 2), found before Blender reads or writes anything.
+        print(f"batch_transfer.py: error: {problem}", file=sys.stderr, flush=True)
+        return 2
+
     global _interrupted
     _interrupted = False
     records = []
@@ -462,7 +475,7 @@ def main(argv=None):
     previous = (signal.signal(signal.SIGINT, _on_sigint)
                 if threading.current_thread() is threading.main_thread() else None)
     try:
-        run(args, log, records)
+        run(args, log, records, jobs)
     except InputError as exc:
         log(f"FAILED {exc}")
         return 1

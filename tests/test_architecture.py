@@ -26,8 +26,9 @@ LAYERS = {
     "geometry": {""},
     "fitting": {"", "geometry"},
     "learning": {"", "geometry"},
-    "pipeline": {"", "geometry", "fitting", "learning"},
-    "cli": {"", "geometry", "fitting", "learning", "pipeline"},
+    "rigging": {"", "geometry"},
+    "pipeline": {"", "geometry", "fitting", "learning", "rigging"},
+    "cli": {"", "geometry", "fitting", "learning", "rigging", "pipeline"},
 }
 
 
@@ -184,7 +185,7 @@ def test_public_api_lists_only_what_exists():
 
     missing = [n for n in garment_transfer.__all__ if not hasattr(garment_transfer, n)]
     assert not missing and len(set(garment_transfer.__all__)) == len(garment_transfer.__all__)
-    for sub in ("geometry", "fitting", "learning", "pipeline", "cli"):
+    for sub in ("geometry", "fitting", "learning", "rigging", "pipeline", "cli"):
         module = __import__(f"garment_transfer.{sub}", fromlist=["__all__"])
         assert module.__doc__ and len(module.__doc__.split()) > 30, f"garment_transfer.{sub} says what it is"
         assert all(hasattr(module, n) for n in module.__all__), sub

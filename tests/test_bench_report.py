@@ -39,13 +39,13 @@ def test_quick_report(tmp_path):
     for res in ran:
         assert {"rows", "summary", "trainings", "worse_than_ours", "surface_deform", "folds"} <= set(res)
         methods = {r["method"] for r in res["rows"]}
-        assert {"ours", "paper", "direct", res["reference"]} <= methods
+        assert {"shared", "paper", "direct", res["reference"]} <= methods
         assert methods <= set(METHODS) | {res["reference"]}
         for m, s in res["summary"].items():
             assert {"pairs", "mdc", "penetration_ratio", "max_penetration_depth", "drape_error",
                     "drape_error_relative", "vertex_error_mean", "seconds"} <= set(s), m
-        assert res["summary"]["ours"]["penetration_ratio"] == 0.0
-        assert {t["variant"] for t in res["trainings"]} == {"ours", "paper"}
+        assert res["summary"]["shared"]["penetration_ratio"] == 0.0
+        assert {t["variant"] for t in res["trainings"]} == {"shared", "paper"}
         assert all(t["curve"] for t in res["trainings"])
     if ran:
         assert (out / "quality.png").is_file()
@@ -67,8 +67,8 @@ def test_quick_report(tmp_path):
     md = (out / "report.md").read_text()
     if ran:
         assert "Intersections, checked exactly" in md
-        ours = [r for res in ran for r in res["rows"] if r["method"] == "ours"]
-        assert ours and all(r["garment_edges_through_body"] == r["body_edges_through_garment"] == 0 for r in ours)
+        shared = [r for res in ran for r in res["rows"] if r["method"] == "shared"]
+        assert shared and all(r["garment_edges_through_body"] == r["body_edges_through_garment"] == 0 for r in shared)
     for heading in ("## Quality", "## Outfits of several layers", "## Speed and scale", "### Peak memory",
                     "## Training"):
         assert heading in md

@@ -223,6 +223,91 @@ def test_reversed_winding_bodies_give_the_same_transfer_and_evaluation(scene, tm
         evaluate(garment, inside, target)["penetration_ratio"] > 0.5
 
 
+def flipped_obj(src, dst):
+    """The OBJ file ``src`` with every face written the other way round, as another exporter may write it."""
+    lines = []
+    for line in src.read_text().splitlines(keepends=True):
+        if line.startswith("f "):
+            line = "f " + " ".join(reversed(line.split()[1:])) + "\n"
+        lines.append(line)
+    dst.write_text("".join(lines))
+    return dst
+
+
+def test_a_body_written_with_the_other_winding_is_the_same_body(scene, tmp_path, capsys):
+    import json
+
+    flipped = {k: flipped_obj(scene[k], tmp_path / f"{k}_flipped.obj") for k in ("source", "target")}
+    coat = tmp_path / "coat.obj"
+    write_obj(coat, mesh_from_triangles(*band(BODY, grow=1.09)))
+    runs = {"right": (scene["source"], scene["target"]), "target turned": (scene["source"], flipped["target"]),
+            "source turned": (flipped["source"], scene["target"])}
+    results, outfits = {}, {}
+    for name, (source, target) in runs.items():
+        bodies = ("--source-body", source, "--target-body", target)
+        code, text, err = run_cli(capsys, "transfer", *bodies, "--garment", scene["garment"], "--out",
+                                  tmp_path / f"{name}.obj", "--json")
+        assert code == 0, err
+        info = json.loads(text)
+        # The same mesh: the exact transfer, no registration (which would only approximate it).
+        assert info["registered"] is False and info["penetrating_vertices"] == 0
+        assert info["info"].get("target_faces_turned", False) == (name != "right")
+        results[name] = read_obj(tmp_path / f"{name}.obj").V
+        code, _, err = run_cli(capsys, "transfer", *bodies, "--garment", scene["garment"], "--garment", coat,
+                               "--out", tmp_path / f"{name} in.obj", "--out", tmp_path / f"{name} out.obj")
+        assert code == 0, err
+        outfits[name] = [read_obj(tmp_path / f"{name} {k}.obj").V for k in ("in", "out")]
+    np.testing.assert_array_equal(results["target turned"], results["right"])
+    np.testing.assert_array_equal(outfits["target turned"][1], outfits["right"][1])
+    # With the source's own faces turned, ties between triangles at an edge can bind a point to the other one.
+    garment = read_obj(scene["garment"])
+    edge = np.linalg.norm(garment.V[garment.F[:, 0]] - garment.V[garment.F[:, 1]], axis=1).mean()
+    assert np.abs(results["source turned"] - results["right"]).max() < 0.02 * edge
+    # evaluate --source-body and shapes take it as the same mesh too.
+    figures = []
+    for target in (scene["target"], flipped["target"]):
+        code, text, err = run_cli(capsys, "evaluate", "--source", scene["garment"], "--result",
+                                  tmp_path / "right.obj", "--target-body", target, "--source-body", scene["source"],
+                                  "--json")
+        assert code == 0, err
+        figures.append(json.loads(text))
+    assert figures[0]["drape_error"] == figures[1]["drape_error"] is not None
+    code, _, err = run_cli(capsys, "shapes", "--source-body", scene["source"], "--target-body", flipped["target"],
+                           "--garment", scene["garment"], "--out", tmp_path / "shapes")
+    assert code == 0, err
+    assert (tmp_path / "shapes" / "garment_on_target_flipped.obj").is_file()
+
+
+def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch):
+    from garment_transfer.errors import TopologyMismatchError
+    from garment_transfer.geometry.mesh import turned_around
+    from garment_transfer.geometry.proximity import as_same_mesh
+    from garment_transfer.pipeline import any_body
+    from garment_transfer.pipeline.outfit import transfer_outfit
+
+    source, target, garment = (read_obj(scene[k], name=k) for k in ("source", "target", "garment"))
+    # A mirrored object in Blender: its world positions mirrored, its faces turned back to point outward.
+    mirrored = turned_around(target.with_vertices(target.V * [-1.0, 1.0, 1.0]), name="mirrored")
+    assert as_same_mesh(source, mirrored) is None
+    assert as_same_mesh(source, turned_around(target)) is not None
+    for call in (lambda: transfer_garment(source, mirrored, garment),
+                 lambda: transfer_outfit(source, mirrored, [garment])):
+        with pytest.raises(TopologyMismatchError, match="mirrored: has the faces of source turned around"):
+            call()
+
+    class Registered(Exception):
+        pass
+
+    def register(*args, **kwargs):
+        raise Registered
+
+    # One garment: the mirror image is another body to register onto; the turned target is not.
+    monkeypatch.setattr(any_body, "register", register)
+    with pytest.raises(Registered):
+        any_body.transfer_to_any_body(source, mirrored, garment)
+    any_body.transfer_to_any_body(source, turned_around(target), garment)
+
+
 # 3. OBJ reading: any whitespace, a BOM; every byte but the coordinates survives; cut-off files.
 
 PLAIN = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 2 2\nf 1 2 3 4\nf 1 3 5\n"

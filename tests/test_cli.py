@@ -85,7 +85,8 @@ def test_help_on_every_command():
 def test_train_then_transfer_with_the_model(tmp_path, makehuman_pair):
     root = require_makehuman()
     model = tmp_path / "model.npz"
-    p = run("train", "--dataset", root, "--source", "female_average", "--targets", "female_pear,male_slim",
+    p = run("train", "--kind", "shared", "--dataset", root, "--source", "female_average", "--targets",
+            "female_pear,male_slim",
             "--garments", "male_casualsuit02,male_casualsuit04", "--epochs", "5", "--out", model, "--json")
     assert p.returncode == 0, p.stderr
     summary = json.loads(p.stdout)
@@ -119,7 +120,8 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
 
     ds = make_tiny_dataset(tmp_path / "ds")
     model = tmp_path / "garment.npz"
-    p = run("train", "--kind", "garment", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
+    # The garment fit model is train's default kind.
+    p = run("train", "--dataset", ds, "--source", "src", "--targets", "similar,pear",
             "--garments", "band,skirt", "--placement-epochs", "10", "--out", model, "--json")
     assert p.returncode == 0, p.stderr
     summary = json.loads(p.stdout)
@@ -219,8 +221,8 @@ def test_train_with_held_out_garments_checks_the_written_model_against_direct_tr
     assert check["targets_summary"]["similar"]["direct"]["vertex_error_mean"] < 1e-6
     assert check["targets_summary"]["pear"]["direct"]["vertex_error_mean"] > 1e-3
     # As text: one line per target.
-    p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20", "--hold-out",
-            "top,band", "--out", tmp_path / "shared.npz")
+    p = run("train", "--kind", "shared", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20",
+            "--hold-out", "top,band", "--out", tmp_path / "shared.npz")
     assert p.returncode == 0, p.stderr
     assert "held out of training: top, band" in p.stdout
     assert sum(line.startswith("  pear: vertex error ") for line in p.stdout.splitlines()) == 1
@@ -239,8 +241,8 @@ def test_train_with_held_out_garments_checks_the_written_model_against_direct_tr
     broken = tmp_path / "broken.npz"
     top = read_obj(ds / "garments" / "top" / "pear.obj")
     write_obj(ds / "garments" / "top" / "pear.obj", mesh_from_triangles(top.V, top.F[:-1]))
-    p = run("train", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20", "--hold-out", "top",
-            "--out", broken)
+    p = run("train", "--kind", "shared", "--dataset", ds, "--source", "src", "--targets", "pear", "--epochs", "20",
+            "--hold-out", "top", "--out", broken)
     assert p.returncode == 1 and broken.is_file(), p.stderr
     assert f"{broken} was written, but its check on the held-out garments failed: " in p.stderr
     assert "pear.obj" in p.stderr and "every file of one garment must have the same vertices" in p.stderr
@@ -282,11 +284,15 @@ def test_wrong_or_damaged_model_files_are_refused_naming_them(tmp_path):
     p = run("train", "--kind", "garment", "--latent", "4", "--dataset", ds, "--source", "src", "--targets", "pear",
             "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--latent is not for train --kind garment" in p.stderr
-    p = run("train", "--placement-members", "3", "--dataset", ds, "--source", "src", "--targets", "pear",
-            "--out", tmp_path / "m.npz")
+    # The garment fit model is the default kind: the shared kind's options without --kind say how to get it.
+    p = run("train", "--unmasked", "--dataset", ds, "--source", "src", "--targets", "pear", "--out", tmp_path / "m.npz")
+    assert p.returncode == 2
+    assert "--unmasked is not for train --kind garment (the default): add --kind shared" in p.stderr
+    p = run("train", "--kind", "shared", "--placement-members", "3", "--dataset", ds, "--source", "src",
+            "--targets", "pear", "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--placement-members is not for train --kind shared" in p.stderr
-    p = run("train", "--placement-absolute", "--dataset", ds, "--source", "src", "--targets", "pear",
-            "--out", tmp_path / "m.npz")
+    p = run("train", "--kind", "shared", "--placement-absolute", "--dataset", ds, "--source", "src", "--targets",
+            "pear", "--out", tmp_path / "m.npz")
     assert p.returncode == 2 and "--placement-absolute is not for train --kind shared" in p.stderr
     p = run("train", "--kind", "garment", "--placement-members", "0", "--dataset", ds, "--source", "src",
             "--targets", "pear", "--out", tmp_path / "m.npz")

@@ -55,3 +55,24 @@ def test_quick_demo_reports_outfits_without_crossings(quick_demo):
     report = (out / "report.md").read_text()
     assert "## Outfits of several layers" in report
     assert f"Crossings left: 0 of {2 * len(OUTFITS)} layers in {len(OUTFITS)} outfit transfers." in report
+
+
+def test_quick_demo_ours_is_the_model_file_as_transfer_uses_it(quick_demo):
+    # "ours" is what the product recommends: the garment fit model file that train writes by default, read back
+    # and used as transfer --model uses it (half its field, the placement mixed with the nearest garments').
+    from garment_transfer import load_dataset, read_model_file, read_obj, transfer_garment
+    from lab.paths import DEMO_DATA
+
+    out, summary = quick_demo
+    model = read_model_file(out / "model_ours.npz")
+    assert model.kind == "garment" and model.has_placement and model.field_share == 0.5
+    assert model.summary()["nearest_garments"] == 0.5
+    assert sorted(model.targets) == sorted(summary["targets"])
+    assert summary["training"]["ours"]["garments"] == len(summary["train_garments"])
+    g, t = summary["test_garments"][0], summary["targets"][0]
+    ds = load_dataset(DEMO_DATA)
+    garment = ds.garment(g, summary["source"])
+    V = transfer_garment(ds.body(summary["source"]), ds.body(t), garment, method="model", target=t,
+                         **model.transfer_arguments()).V
+    written = read_obj(out / "meshes" / f"{g}__{t}__ours.obj").V
+    assert abs(V - written).max() < 1e-6

@@ -24,13 +24,16 @@ ROWS = {
                                     "test_obj_corruption.py::test_damaged_obj_is_read_right_or_refused"],
     "a file cut off": ["test_careless_inputs.py::test_a_cut_off_garment_is_refused_on_the_command_line",
                        "test_obj_corruption.py::test_cut_at_a_line_break_inside_the_faces_is_the_one_undetectable_cut"],
-    "source and target bodies of different topology": [
+    "source and target bodies of different meshes where one mesh is needed": [
         "test_transfer.py::test_bodies_of_different_topology_are_refused",
         "test_careless_inputs.py::test_evaluate_with_a_body_of_another_topology",
-        "test_careless_inputs.py::test_one_body_mirrored_and_the_other_not_is_named"],
+        "test_careless_inputs.py::test_one_body_mirrored_and_the_other_not_is_named",
+        "test_careless_inputs.py::test_a_mirror_image_by_vertex_order_is_not_the_same_mesh"],
     "a body whose faces point inward": [
         "test_careless_inputs.py::test_orientation_of_a_body_with_reversed_winding",
         "test_careless_inputs.py::test_reversed_winding_bodies_give_the_same_transfer_and_evaluation",
+        "test_careless_inputs.py::test_a_body_written_with_the_other_winding_is_the_same_body",
+        "test_registration.py::test_bodies_with_inward_faces_are_fitted_as_the_same_bodies_facing_outward",
         "blender/test_careless_blender.py::test_negative_scale_parent_keeps_the_garment_outside_the_body"],
     "a garment far from the source body": ["test_transfer.py::test_garment_far_from_the_body_is_refused"],
     "a garment not around its body": [
@@ -55,7 +58,11 @@ ROWS = {
                                              "test_model.py::test_unknown_target_lists_the_known_ones",
                                              "test_model.py::test_object_arrays_are_refused",
                                              "test_model.py::test_other_bad_files"],
-    "`--out` that is an input": [
+    "an output (`--out`, `--log`, `--blend`, a model file, a results folder) that is an input": [
+        "test_nothing_lost.py::test_an_output_pointed_at_an_input_is_refused_before_any_work",
+        "test_nothing_lost.py::test_a_batch_results_folder_that_holds_an_input_is_refused",
+        "test_nothing_lost.py::test_missing_file_in_the_way_and_read_only_places_are_refused_before_any_work",
+        "test_nothing_lost.py::test_the_blender_batch_script_refuses_outputs_on_its_inputs_before_blender_starts",
         "test_careless_inputs.py::test_out_equal_to_an_input_is_refused",
         "test_careless_inputs.py::test_out_reaching_an_input_through_a_symlink_or_hard_link_is_refused",
         "test_careless_inputs.py::test_out_that_is_not_a_regular_file_is_refused",

@@ -549,3 +549,29 @@ def test_arap_solve_matches_a_direct_solve(source):
         rhs = 2 * alpha * fit.arap_rhs(R) + ws[:, None] * C + B.T @ (wt[:, None] * P) + eps * X
         want = spla.spsolve(A.tocsc(), rhs)
         assert np.abs(got - want).max() < 1e-9 * np.abs(want).max()
+
+
+def test_bodies_with_inward_faces_are_fitted_as_the_same_bodies_facing_outward(source, pear_remeshed, monkeypatch):
+    # The fit compares normals: a source or target written with the other winding must give it the very same
+    # surfaces (it failed before: "registration failed ... same pose?" for a turned source body).
+    from garment_transfer.geometry.mesh import turned_around
+    from garment_transfer.geometry.proximity import orientation
+
+    class Fitted(Exception):
+        pass
+
+    seen = []
+
+    def fit(start, F, T, G, **kwargs):
+        seen.append((start, F, T, G))
+        raise Fitted
+
+    monkeypatch.setattr(registration, "nonrigid_fit", fit)
+    for s, t in ((source, pear_remeshed), (turned_around(source), pear_remeshed),
+                 (source, turned_around(pear_remeshed)), (turned_around(source), turned_around(pear_remeshed))):
+        with pytest.raises(Fitted):
+            register(s, t, cache=False)
+    assert orientation(source.V, source.F) == orientation(pear_remeshed.V, pear_remeshed.F) == 1
+    for other in seen[1:]:
+        for a, b in zip(seen[0], other):
+            np.testing.assert_array_equal(a, b)

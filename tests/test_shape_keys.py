@@ -15,7 +15,7 @@ from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.pipeline.shape_keys import body_at, fit_shape_keys, keep_outside, transfer_to_shapes
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
-from garment_transfer.pipeline.weights import surface_weights
+from garment_transfer import surface_weights
 from lab.paths import makehuman_folder
 
 ROOT = Path(__file__).resolve().parents[1]

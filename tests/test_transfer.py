@@ -146,10 +146,10 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
     pear = read_obj(root / "bodies" / "female_pear.obj")
     near = source.with_vertices(arms_down(source.V, np.radians(10)), name="arms_10")
     for body, most in ((pear, 3.0), (near, transfer.POSE_LIMITS["upper arm"])):
-        pose = transfer_garment(source, body, garment, resolve_crossings=False).info["pose_difference"]
+        pose = transfer_garment(source, body, garment, resolve_crossings=False).info["limb_angles"]
         assert 0.0 < pose["degrees"] < most
     unchecked = transfer_garment(source, posed, garment, resolve_crossings=False, check_pose=False)
-    assert unchecked.V.shape == garment.V.shape and "pose_difference" not in unchecked.info
+    assert unchecked.V.shape == garment.V.shape and "limb_angles" not in unchecked.info
     # A garment that leaves the arms bare (the suit's trousers alone) does not care where they point.
     legs = [p for p in garment.polygons() if garment.V[p, 1].max() < 0.0]
     assert len(legs) > 0.2 * garment.n_faces
@@ -157,6 +157,6 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
     index = np.full(garment.n_vertices, -1)
     index[used] = np.arange(used.size)
     trousers = mesh_from_polygons(garment.V[used], [index[p] for p in legs], name="trousers")
-    pose = transfer_garment(source, posed, trousers, resolve_crossings=False).info["pose_difference"]
+    pose = transfer_garment(source, posed, trousers, resolve_crossings=False).info["limb_angles"]
     assert pose["band"] is None or "arm" not in pose["band"]
 

@@ -8,6 +8,8 @@ import sys
 
 import bpy
 
+from ..operators.models import model_file_path
+
 METRIC_LABELS = (
     ("mdc", "Design change (MDC)", "{:.4f}"),
     ("penetration_ratio", "Vertices inside body", "{:.1%}"),
@@ -55,8 +57,16 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
 
         col = layout.column()
         col.prop(settings, "method", expand=True)
+        if settings.found_model and (settings.method != 'MODEL'
+                                     or model_file_path(settings.model_path) != settings.found_model):
+            # The model trained for this source body, offered where the method is chosen.
+            row = col.row()
+            row.label(text=settings.found_model_text, icon='CHECKMARK')
+            row.operator("garment_transfer.find_model", text="Use")
         if settings.method == 'MODEL':
-            col.prop(settings, "model_path")
+            row = col.row(align=True)
+            row.prop(settings, "model_path")
+            row.operator("garment_transfer.find_model", text="", icon='VIEWZOOM')
             if settings.model_status:
                 col.label(text=settings.model_status,
                           icon='INFO' if settings.model_targets else 'ERROR')
@@ -78,7 +88,7 @@ class VIEW3D_PT_garment_transfer(GarmentPanel, bpy.types.Panel):
         if settings.last_registration:
             layout.label(text=settings.last_registration, icon='MOD_MESHDEFORM')
         if settings.last_model:
-            layout.label(text=settings.last_model, icon='NETWORK_DRIVE')
+            layout.label(text=settings.last_model, icon='INFO')
         layout.operator("garment_transfer.fit_shape_keys", icon='SHAPEKEY_DATA')
 
 
@@ -131,6 +141,26 @@ class VIEW3D_PT_garment_transfer_outfit(GarmentPanel, bpy.types.Panel):
             layout.label(text=f"Last: {settings.last_outfit}", icon='CHECKMARK')
             if settings.last_outfit_model:
                 layout.label(text=settings.last_outfit_model, icon='NETWORK_DRIVE')
+
+
+class VIEW3D_PT_garment_transfer_motion(GarmentPanel, bpy.types.Panel):
+    bl_label = "Motion"
+    bl_parent_id = "VIEW3D_PT_garment_transfer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.garment_transfer
+        layout.prop(settings, "rig_result")
+        layout.prop(settings, "max_influences")
+        layout.prop(settings, "result")
+        layout.operator("garment_transfer.rig_garment", icon='ARMATURE_DATA')
+        layout.operator("garment_transfer.fit_pose", icon='POSE_HLT')
+        op = layout.operator("garment_transfer.bake_pose_fit", icon='REC')
+        op.frame_start = context.scene.frame_start
+        op.frame_end = context.scene.frame_end
 
 
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):
@@ -227,6 +257,7 @@ CLASSES = (
     GARMENT_TRANSFER_UL_outfit_layers,
     VIEW3D_PT_garment_transfer,
     VIEW3D_PT_garment_transfer_outfit,
+    VIEW3D_PT_garment_transfer_motion,
     VIEW3D_PT_garment_transfer_evaluation,
     VIEW3D_PT_garment_transfer_training,
     VIEW3D_PT_garment_transfer_drape,

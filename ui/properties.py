@@ -47,6 +47,23 @@ def _model_path_changed(self, _context):
     refresh_model_info(self)
 
 
+def _offer_model(settings, context):
+    """Look for the source body's model file again; with the Model method and no file chosen yet, choose it."""
+    from ..operators.models import refresh_found_model, use_found_model
+
+    if refresh_found_model(settings, context) and settings.method == 'MODEL' and not settings.model_path:
+        use_found_model(settings)
+
+
+def _source_body_changed(self, context):
+    _offer_model(self, context)
+
+
+def _method_changed(self, context):
+    if self.method == 'MODEL' and not self.model_path:
+        _offer_model(self, context)
+
+
 class GarmentTransferTarget(bpy.types.PropertyGroup):
     """A target body label of the loaded model (``name`` is the label)."""
 
@@ -69,7 +86,7 @@ class GarmentTransferLayer(bpy.types.PropertyGroup):
 
 class GarmentTransferSettings(bpy.types.PropertyGroup):
     source_body: PointerProperty(
-        name="Source Body", type=bpy.types.Object, poll=is_mesh,
+        name="Source Body", type=bpy.types.Object, poll=is_mesh, update=_source_body_changed,
         description="The body the garment was made (simulated) on")
     target_body: PointerProperty(
         name="Target Body", type=bpy.types.Object, poll=is_mesh,
@@ -92,7 +109,7 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
             ('SURFACE', "Surface", "Baseline: the garment follows the body surface only, like "
                                    "Blender's Surface Deform (folds are not rebuilt)"),
         ),
-        default='DIRECT')
+        default='DIRECT', update=_method_changed)
     model_path: StringProperty(
         name="Model File", subtype='FILE_PATH', update=_model_path_changed,
         description="A model file (.npz) trained on this source body (python -m garment_transfer train; "
@@ -108,7 +125,14 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="Garment fit model: how much of its predicted field is used, from the body's own (0, as "
                     "Direct) to the model's (1). With the learned placement, half kept the design (MDC) at "
                     "Direct's and its vertex error at 0.63x Direct's on unseen test garments")
-    last_model: StringProperty(name="Last Model")
+    found_model: StringProperty(
+        name="Found Model", description="The model file trained for the source body, found where the user keeps "
+                                        "one (the last one trained here, or beside the .blend file)")
+    found_model_text: StringProperty(name="Found Model Text")
+    last_trained_model: StringProperty(name="Last Trained Model", subtype='FILE_PATH',
+                                       description="The model file trained last in this scene")
+    last_model: StringProperty(
+        name="Last Method", description="Which method made the last result, and what it gains")
     last_outfit_model: StringProperty(name="Last Outfit Model")
     target_label: StringProperty(
         name="Target", description="Which of the model's target bodies the target body is")
@@ -173,11 +197,12 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="Where to write the trained model (.npz)")
     train_kind: EnumProperty(
         name="Model",
-        items=[('SHARED', "Shared Deformation", "The paper's shared deformation model: one field per target body"),
-               ('GARMENT', "Garment Fit + Placement",
+        items=[('GARMENT', "Garment Fit + Placement",
                 "The garment fit model and its learned placement in one file: a field and a hang of each "
-                "garment's own (better on unseen garments on the training bodies; docs/garment-model.md)")],
-        default='SHARED')
+                "garment's own (on unseen garments 0.6x Direct's distance to a cloth simulation, the design "
+                "kept; docs/garment-model.md)"),
+               ('SHARED', "Shared Deformation", "The paper's shared deformation model: one field per target body")],
+        default='GARMENT')
     train_epochs: IntProperty(name="Epochs", default=300, min=1, soft_max=5000)
     train_latent: IntProperty(name="Latent Size", default=30, min=1, soft_max=256,
                               description="Size of the shared deformation space")
@@ -190,6 +215,15 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     train_check: StringProperty(
         name="Last Check",
         description="The last trained model measured on its held-out garments (JSON; empty: none held out)")
+
+    rig_result: BoolProperty(
+        name="Rig Result", default=True,
+        description="When the target body has an Armature modifier, transfer on its rest pose and give the "
+                    "result the body's bones as vertex groups (matched where the cloth lies on the skin, filled "
+                    "smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside")
+    max_influences: IntProperty(
+        name="Bones per Vertex", default=4, min=1, max=16,
+        description="The most bones that move one garment vertex (game engines take 4 or 8)")
 
     drape_frames: IntProperty(
         name="Frames", default=30, min=1, soft_max=400,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import signal
 import sys
 import time
@@ -13,8 +12,9 @@ from pathlib import Path
 
 from ..errors import GarmentTransferError
 from ..pipeline import batch as core_batch
-from ..pipeline.batch import read_catalogue, run_batch
+from ..pipeline.batch import check_batch_outputs, run_batch
 from .options import number_option, share_option
+from .paths import batch_catalogue, batch_log
 
 # The core batch's own log: this command sends it to the log file.
 log = logging.getLogger(core_batch.__name__)
@@ -55,27 +55,6 @@ def add_batch_arguments(p):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the counts and the summary's paths as JSON")
     p.set_defaults(func=batch_main)
-
-
-def _settings(args):
-    s = {}
-    if args.method:
-        s["method"] = args.method
-    if args.model:
-        s["model"] = os.path.abspath(args.model)
-    if args.offset is not None:
-        s["offset"] = args.offset
-    if args.field_share is not None:
-        s["field_share"] = args.field_share
-    if args.no_fix:
-        s["fix_penetration"] = False
-    if args.no_interpolate:
-        s["interpolate"] = False
-    return s
-
-
-def _split(text):
-    return None if text is None else [x for x in text.split(",") if x]
 
 
 class _Bar:
@@ -137,13 +116,14 @@ def _sigterm(_signum, _frame):
 
 
 def batch_main(args):
-    catalogue = read_catalogue(args.catalogue, source=args.source, targets=_split(args.targets),
-                               garments=_split(args.garments), settings=_settings(args))
+    catalogue = batch_catalogue(args)
     if args.workers is not None and args.workers < 1:
         raise GarmentTransferError("--workers must be at least 1")
+    # main() checked these before; a direct call gets the same check before anything is made.
+    check_batch_outputs(catalogue, args.out, log=batch_log(args))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(args.log or out / "batch.log", encoding="utf-8")
+    handler = logging.FileHandler(batch_log(args), encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
     handler.setLevel(logging.INFO)
     log.addHandler(handler)

@@ -10,11 +10,11 @@ Built on ``geometry`` only.
 from .alignment import Similarity, align, units_scale
 from .body_model import BodyModelBasis, makehuman_shape_basis
 from .cache import cache_folder
-from .limbs import Limbs, find_limbs, pose_difference
+from .limbs import Limbs, find_limbs, limb_angles
 from .nonrigid import nonrigid_fit
 from .registration import Registration, register
 from .shape_basis import SHAPE_BOUNDS, fit_shape, shape_basis_from_bodies
 
 __all__ = ["Registration", "register", "Similarity", "align", "units_scale", "nonrigid_fit", "SHAPE_BOUNDS",
            "shape_basis_from_bodies", "fit_shape", "BodyModelBasis", "makehuman_shape_basis", "cache_folder",
-           "Limbs", "find_limbs", "pose_difference"]
+           "Limbs", "find_limbs", "limb_angles"]

@@ -2,7 +2,7 @@
 
 The transfer moves a garment by the body's change of shape. A change of pose (an arm lowered, a leg lifted)
 is not a change of shape: deformation gradients that turn a whole limb bend the cloth at the joint, and a
-registration that fits one pose onto another follows the limb only in part. ``pose_difference`` measures it,
+registration that fits one pose onto another follows the limb only in part. ``limb_angles`` measures it,
 so that a target in another pose is refused with the figure rather than dressed badly.
 
 How, for a body with no skeleton: its four limb ends are the extremes of its surface along its two longest
@@ -131,7 +131,7 @@ def _angles(names, d0, d1):
     return {"degrees": float(angle[k]), "band": names[k], "bands": {n: float(x) for n, x in zip(names, angle)}}
 
 
-def pose_difference(source_V, F, other_V, limbs: Limbs | None = None):
+def limb_angles(source_V, F, other_V, limbs: Limbs | None = None):
     """How far the limbs of two shapes of one body mesh point apart.
 
     Parameters

@@ -54,7 +54,7 @@ import numpy as np
 
 from ..errors import MeshError, RegistrationError
 from ..geometry.mesh import Mesh, triangle_normals
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, facing_outward
 from .alignment import ASPECT_FACTOR, Similarity, align, closest_in_order, surface_samples
 from .cache import cache_folder, cache_key, load_cached, save_cached
 from .nonrigid import SCHEDULE, nonrigid_fit
@@ -283,6 +283,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     for role, m in (("source body", source), ("target body", target)):
         if m.n_triangles < 4:
             raise MeshError(m.name, f"the {role} has {m.n_triangles} triangles; a body is needed")
+    # The fit compares normals: a body written with the other winding (its faces pointing inward) is fitted
+    # as the same body facing outward, which is decided by the sign of the volume it encloses.
+    source, target = facing_outward(source), facing_outward(target)
     settings = {"schedule": [list(s) for s in schedule]}
     if shape_basis is not None:
         shape_basis = check_shape_basis(shape_basis, source.n_vertices)

@@ -16,25 +16,28 @@ from .mesh import (
                    Mesh,
                    connected_pieces,
                    faces_hash,
+                   faces_turned,
                    mesh_from_polygons,
                    mesh_from_triangles,
                    require_same_topology,
                    same_mesh,
                    triangle_normals,
                    triangulate,
+                   turned_around,
                    vertex_areas,
                    vertex_normals,
 )
 from .obj import obj_text, read_obj, write_obj
 from .penetration import fix_penetration, vertex_adjacency
 from .poisson import PoissonSolver
-from .proximity import TriangleSurface, closest_on_triangles
+from .proximity import TriangleSurface, as_same_mesh, closest_on_triangles, facing_outward
 from .readings import Readings, readings_of
 from .self_check import SelfCheck
 
 __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
-           "connected_pieces", "triangle_normals", "vertex_normals", "vertex_areas", "faces_hash", "read_obj",
-           "write_obj", "obj_text", "TriangleSurface", "closest_on_triangles", "deformation_gradients", "body_scale",
+           "faces_turned", "turned_around", "as_same_mesh", "facing_outward", "connected_pieces", "triangle_normals",
+           "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text", "TriangleSurface",
+           "closest_on_triangles", "deformation_gradients", "body_scale",
            "body_to_cloth", "cloth_to_body", "embed", "unembed", "Binding", "bind", "carry", "follow_nearest_vertex",
            "PoissonSolver", "fix_penetration", "vertex_adjacency", "crossings", "self_intersections",
            "minimum_distance", "intersection_report", "separate", "Readings", "readings_of", "SelfCheck"]

@@ -294,7 +294,7 @@ def require_same_topology(a: Mesh, b: Mesh):
     if (a.face_start.shape != b.face_start.shape or a.face_vertices.shape != b.face_vertices.shape
             or not np.array_equal(a.face_vertices, b.face_vertices)
             or not np.array_equal(a.face_start, b.face_start)):
-        if _reversed_faces(a, b):
+        if faces_turned(a, b):
             raise TopologyMismatchError(
                 b.name, f"has the faces of {a.name} turned around (one of them is mirrored: a negative "
                         "scale); mirror both or neither")
@@ -302,15 +302,44 @@ def require_same_topology(a: Mesh, b: Mesh):
             b.name, f"has other faces than {a.name}; the two must be the same mesh in different shapes")
 
 
-def _reversed_faces(a: Mesh, b: Mesh) -> bool:
-    if not np.array_equal(a.face_start, b.face_start) or a.face_vertices.shape != b.face_vertices.shape:
+def _turned_order(face_start):
+    """Where each corner of ``face_vertices`` comes from when every polygon is turned the other way round
+    (its first corner kept): (k,) int64."""
+    sizes = np.diff(face_start)
+    start = np.repeat(face_start[:-1], sizes)
+    local = np.arange(face_start[-1]) - start
+    return start + np.where(local == 0, 0, np.repeat(sizes, sizes) - local)
+
+
+def _from_lowest_corner(face_vertices, face_start):
+    """``face_vertices`` with every polygon rotated to start at its lowest vertex index (the order kept)."""
+    sizes = np.diff(face_start)
+    start = np.repeat(face_start[:-1], sizes)
+    lowest = np.minimum.reduceat(face_vertices, face_start[:-1])
+    first = np.flatnonzero(face_vertices == np.repeat(lowest, sizes))
+    # The first corner of each polygon holding its lowest index (a polygon repeats no vertex).
+    shift = np.full(sizes.shape[0], -1)
+    owner = np.searchsorted(face_start, first, side="right") - 1
+    shift[owner[::-1]] = (first - face_start[owner])[::-1]
+    local = np.arange(face_start[-1]) - start
+    return face_vertices[start + (local + np.repeat(shift, sizes)) % np.repeat(sizes, sizes)]
+
+
+def faces_turned(a: Mesh, b: Mesh) -> bool:
+    """Whether ``b`` has ``a``'s vertex count and polygons, each turned the other way round (starting at
+    any corner: OBJ writers differ)."""
+    if (a.n_vertices != b.n_vertices or not np.array_equal(a.face_start, b.face_start)
+            or a.face_vertices.shape != b.face_vertices.shape):
         return False
-    fs = a.face_start
-    sizes = np.diff(fs)
-    start = np.repeat(fs[:-1], sizes)
-    local = np.arange(fs[-1]) - start
-    turned = np.where(local == 0, 0, np.repeat(sizes, sizes) - local)
-    return bool(np.array_equal(a.face_vertices[start + turned], b.face_vertices))
+    turned = a.face_vertices[_turned_order(a.face_start)]
+    return bool(np.array_equal(_from_lowest_corner(turned, a.face_start),
+                               _from_lowest_corner(b.face_vertices, b.face_start)))
+
+
+def turned_around(mesh: Mesh, name=None) -> Mesh:
+    """The same vertices with every polygon and triangle turned the other way round (normals reversed)."""
+    return Mesh(mesh.V, np.ascontiguousarray(mesh.F[:, ::-1]), mesh.face_vertices[_turned_order(mesh.face_start)],
+                mesh.face_start, mesh.tri_to_face, name or mesh.name, None)
 
 
 def faces_hash(mesh: Mesh) -> str:

@@ -44,7 +44,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import triangle_normals
+from .mesh import Mesh, faces_turned, same_mesh, triangle_normals, turned_around
 
 #: Threads for the numpy part of a query (per-point work on the found triangles); libigl's tree
 #: search runs on all cores by itself.
@@ -146,6 +146,35 @@ def orientation(V, F) -> int:
     vol = signed_volume(V, F)
     area = float(triangle_normals(np.asarray(V, dtype=np.float64), F)[1].sum())
     return _orientation(vol, area)
+
+
+def facing_outward(mesh: Mesh) -> Mesh:
+    """``mesh`` itself when its faces point outward (``orientation``), else the mesh turned around."""
+    return mesh if orientation(mesh.V, mesh.F) == 1 else turned_around(mesh)
+
+
+def as_same_mesh(a: Mesh, b: Mesh):
+    """``b`` as a shape of ``a``'s mesh, or None when it is another mesh.
+
+    ``b`` itself when the two are one mesh (``same_mesh``). When ``b`` has ``a``'s polygons each turned
+    the other way round (an OBJ written with the other winding), ``b``'s vertices with ``a``'s faces,
+    provided that its shape read with ``a``'s faces encloses a volume of the sign ``a``'s does: the vertex
+    order then keeps left and right, and the winding alone differs. Otherwise, ``b`` is ``a``'s mirror
+    image by its vertex order (one of two objects mirrored in Blender): None, as for another mesh.
+
+    Parameters
+    ----------
+    a, b : Mesh
+
+    Returns
+    -------
+    Mesh or None
+    """
+    if same_mesh(a, b):
+        return b
+    if not faces_turned(a, b) or orientation(b.V, a.F) != orientation(a.V, a.F):
+        return None
+    return a.with_vertices(b.V, name=b.name)
 
 
 def _orientation(volume, area) -> int:

@@ -194,6 +194,22 @@ def load_dataset(folder) -> Dataset:
                    None if up is None else str(up), manifest)
 
 
+def dataset_inputs(folder):
+    """What reading a dataset folder reads, named without reading it: for the outputs' check
+    (``files.check_outputs``) before any work.
+
+    Returns
+    -------
+    files : list of str
+        ``<folder>/manifest.json``.
+    folders : list of str
+        ``<folder>/bodies`` and ``<folder>/garments``: every file in them may be read.
+    """
+    folder = os.fspath(folder)
+    return ([os.path.join(folder, MANIFEST)],
+            [os.path.join(folder, "bodies"), os.path.join(folder, "garments")])
+
+
 def _listed(manifest, key, found, mpath, where, pattern):
     """The manifest's list for key (checked against the folder), else what the folder holds."""
     if key not in manifest:

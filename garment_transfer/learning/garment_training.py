@@ -14,10 +14,11 @@ import time
 import numpy as np
 
 from ..errors import Cancelled, DatasetError
-from ..files import check_output
+from ..files import check_outputs
 from ..geometry.binding import bind
+from ..geometry.embedding import body_scale
 from ..geometry.mesh import faces_hash
-from .dataset import build_training_fields, load_dataset
+from .dataset import build_training_fields, dataset_inputs, load_dataset
 from .garment_model import (
     FORMAT,
     FORMAT_VERSION,
@@ -42,9 +43,11 @@ from .placement import (
     PlacementEnsemble,
     PlacementModel,
     body_offset_features,
-    garment_context,
+    bound_counts,
+    garment_contexts,
     mean_offsets,
     similarity_features,
+    smooth_on_body,
     true_offsets,
 )
 from .placement import FORMAT as PFORMAT
@@ -210,15 +213,17 @@ def placement_tables(dataset, source, targets, garments, tables, length=None, co
     G, K, M = len(garments), len(targets), body.n_triangles
     offset = np.zeros((G, K, M, 3), np.float32)
     bound = np.zeros((G, M), np.float32)
+    length = SMOOTHING_SHARE * body_scale(body.V) if length is None else float(length)
     for g, name in enumerate(garments):
         garment = ds.garment(name, source)
         binding = bind(garment.V, body.V, body.F)
-        for k, t in enumerate(targets):
-            _, y, w = true_offsets(binding, body, bodies[k], ds.garment(name, t).V, length)
-            offset[g, k] = y
-            bound[g] = w
+        # true_offsets' smoothing, once for every target: its matrix depends on the garment's binding alone.
+        raw = [true_offsets(binding, body, bodies[k], ds.garment(name, t).V, 0.0)[1] for k, t in enumerate(targets)]
+        bound[g] = bound_counts(binding, M)
+        y = smooth_on_body(np.concatenate(raw, axis=1), bound[g], body.V, body.F, length)
+        offset[g] = y.reshape(M, K, 3).transpose(1, 0, 2)
     shares = tuple(CONTEXT_SHARES if context_shares is None else context_shares)
-    tables["garment_context"] = np.stack([garment_context(body.V, body.F, X, shares) for X in tables["garment_X"]]
+    tables["garment_context"] = np.stack(garment_contexts(body.V, body.F, tables["garment_X"], shares)
                                          ).astype(np.float32)
     tables["context_shares"] = list(shares)
     tables["offset"] = offset
@@ -549,8 +554,9 @@ def train_garment_fit_from_dataset(dataset_dir, source, targets, garments=None, 
         if int(n) != n or n < 1:
             raise ValueError(f"{what} must be a whole number >= 1, got {n}")
     if out is not None:
-
-        check_output(out, (), "the model file")
+        # Before the long work, and never onto what the training reads.
+        files, folders = dataset_inputs(dataset_dir)
+        check_outputs([out], inputs=files, input_folders=folders, what="the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     garments = list(ds.garments) if garments is None else list(garments)

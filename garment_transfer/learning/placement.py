@@ -155,13 +155,34 @@ def garment_context(body_V, body_F, garment_X, shares=CONTEXT_SHARES):
     -------
     (M, 3 * len(shares)) float64
     """
+    return garment_contexts(body_V, body_F, [garment_X], shares)[0]
+
+
+def garment_contexts(body_V, body_F, garment_Xs, shares=CONTEXT_SHARES):
+    """``garment_context`` of several garments on one body: the smoothing's matrix depends on the body and
+    the length alone, so each length is factored once for them all.
+
+    Parameters
+    ----------
+    body_V : (nb,3) float
+    body_F : (M,3) int
+    garment_Xs : sequence of (M,12) float
+    shares : sequence of float
+
+    Returns
+    -------
+    list of (M, 3 * len(shares)) float64
+    """
     V = np.asarray(body_V, dtype=np.float64)
+    Xs = [np.asarray(X, dtype=np.float64)[:, :CONTEXT_COLUMNS] for X in garment_Xs]
+    if not shares or not Xs:
+        return [np.zeros((X.shape[0], 0)) for X in Xs]
     area = triangle_normals(V, body_F)[1]
     scale = body_scale(V)
-    X = np.asarray(garment_X, dtype=np.float64)[:, :CONTEXT_COLUMNS]
-    if not shares:
-        return np.zeros((X.shape[0], 0))
-    return np.concatenate([smooth_on_body(X, area, V, body_F, s * scale) for s in shares], axis=1)
+    stacked = np.concatenate(Xs, axis=1)
+    smoothed = [smooth_on_body(stacked, area, V, body_F, s * scale) for s in shares]
+    c = CONTEXT_COLUMNS
+    return [np.concatenate([S[:, g * c:(g + 1) * c] for S in smoothed], axis=1) for g in range(len(Xs))]
 
 
 #: The last few garments' contexts, by content: the placement networks and the nearest garments' placement of

@@ -31,10 +31,10 @@ import time
 import numpy as np
 
 from ..errors import Cancelled, DatasetError, SettingError
-from ..files import check_output
+from ..files import check_outputs
 from ..geometry.mesh import faces_hash
 from ..version import __version__
-from .dataset import build_training_fields, load_dataset
+from .dataset import build_training_fields, dataset_inputs, load_dataset
 from .model import FORMAT, FORMAT_VERSION, SharedDeformationModel
 
 log = logging.getLogger(__name__)
@@ -358,8 +358,6 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         JSON-serialisable: seconds, epochs, final_loss, final_masked_loss, best_validation_loss,
         stopped_early, threads, optimizer, lr, active_triangles, samples, loss_history.
     """
-    import torch
-
     if optimizer not in OPTIMIZERS:
         raise ValueError(f"optimizer must be one of {', '.join(OPTIMIZERS)}, got {optimizer!r}")
     if latent < 1 or epochs < 0:
@@ -375,12 +373,48 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         raise DatasetError(fields.source, "no training garment covers any body triangle")
     scale = normalisation_scale(dev, fields.covered if masked else None)
     X_np, onehot_np = _samples(dev, active, scale)
-    mask_np = np.repeat(np.repeat(fields.covered[:, active], 9, axis=1), K, axis=0) if masked else None
-    D = X_np.shape[1]
+    t0 = time.perf_counter()
+    arrays, run = _fit_network(fields, X_np, onehot_np, active, scale, latent=latent, epochs=epochs, seed=seed,
+                               masked=masked, hidden=hidden, optimizer=optimizer, lr=lr, holdout=holdout,
+                               patience=patience, eval_every=eval_every, threads=threads, progress=progress,
+                               progress_span=progress_span)
+    seconds = time.perf_counter() - t0
+    settings = {"garments": list(fields.garments), "epochs": int(epochs), "epochs_run": run["epochs"],
+                "optimizer": optimizer, "lr": lr, "seed": int(seed), "masked": bool(masked),
+                "hidden": [int(h) for h in hidden], "threads": threads, "seconds": round(seconds, 3),
+                "holdout": [] if holdout is None else list(holdout.garments), "patience": int(patience),
+                "cover_distance": getattr(fields, "cover_distance", None)}
+    model = _shared_model(fields, arrays, active, scale, latent, len(hidden), settings, run["losses"], X_np)
+    losses = run["losses"]
+    info = {"seconds": round(seconds, 3), "epochs": run["epochs"], "final_loss": losses["final"],
+            "final_masked_loss": losses["final_masked"], "best_validation_loss": losses["best_validation"],
+            "best_validation_epoch": losses["best_validation_epoch"], "stopped_early": run["early"],
+            "threads": threads, "optimizer": optimizer, "lr": lr, "masked": bool(masked),
+            "latent": int(latent), "garments": list(fields.garments), "targets": list(fields.targets),
+            "active_triangles": int(active.sum()), "body_triangles": int(M), "samples": int(G * K),
+            "loss_history": run["history"]}
+    log.info("trained in %.1f s, %d epochs, loss %.4g", seconds, run["epochs"], losses["final"])
+    return model, info
 
+
+def _fit_network(fields, X_np, onehot_np, active, scale, *, latent, epochs, seed, masked, hidden, optimizer, lr,
+                 holdout, patience, eval_every, threads, progress, progress_span):
+    """The autoencoder fitted to the samples with torch (``train_model``'s settings).
+
+    Returns
+    -------
+    arrays : dict
+        The network's weights as numpy arrays (``DeformationNet.export``).
+    run : dict
+        ``epochs`` run, ``early`` (stopped early), ``history`` ([epoch, loss] pairs) and ``losses`` (final,
+        final_masked, best_validation, best_validation_epoch).
+    """
+    import torch
+
+    K = fields.deviation.shape[1]
+    D = X_np.shape[1]
     old_threads = torch.get_num_threads()
     torch.set_num_threads(threads)
-    t0 = time.perf_counter()
     try:
         gen = torch.Generator().manual_seed(int(seed))
         X = torch.from_numpy(X_np)
@@ -395,6 +429,7 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         input_scale = 1.0 / math.sqrt(D)
         coords = X @ basis * input_scale
         if masked:
+            mask_np = np.repeat(np.repeat(fields.covered[:, active], 9, axis=1), K, axis=0)
             mask = torch.from_numpy(mask_np.astype(np.float32))
             n_mask = float(mask.sum())
             out_bias = (X * mask).sum(0) / mask.sum(0).clamp(min=1.0)
@@ -441,8 +476,16 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
         arrays = net.export(basis)
     finally:
         torch.set_num_threads(old_threads)
-    seconds = time.perf_counter() - t0
+    losses = {"final": final, "final_masked": final_masked,
+              "best_validation": None if best["state"] is None else best["loss"],
+              "best_validation_epoch": None if best["state"] is None else best["epoch"]}
+    return arrays, {"epochs": stopped["epochs"], "early": stopped["early"], "history": history, "losses": losses}
 
+
+def _shared_model(fields, arrays, active, scale, latent, n_hidden, settings, losses, X_np):
+    """The trained network's arrays and the model's metadata as one ``SharedDeformationModel``, with the
+    training garments' latent codes per target and their mean (the code of a new garment)."""
+    G, K = fields.deviation.shape[:2]
     body = fields.body
     arrays["active"] = active
     arrays["body_deviation"] = fields.body_deviation.astype(np.float32)
@@ -453,41 +496,24 @@ def train_model(fields, latent=30, epochs=1000, seed=0, masked=True, hidden=(), 
     arrays["source_V"] = np.asarray(body.V, dtype=np.float64)
     arrays["source_face_vertices"] = np.asarray(body.face_vertices, dtype=np.int64)
     arrays["source_face_start"] = np.asarray(body.face_start, dtype=np.int64)
-    settings = {"garments": list(fields.garments), "epochs": int(epochs), "epochs_run": stopped["epochs"],
-                "optimizer": optimizer, "lr": lr, "seed": int(seed), "masked": bool(masked),
-                "hidden": [int(h) for h in hidden], "threads": threads, "seconds": round(seconds, 3),
-                "holdout": [] if holdout is None else list(holdout.garments), "patience": int(patience),
-                "cover_distance": getattr(fields, "cover_distance", None)}
-    losses = {"final": final, "final_masked": final_masked,
-              "best_validation": None if best["state"] is None else best["loss"],
-              "best_validation_epoch": None if best["state"] is None else best["epoch"]}
     metadata = {
         "format": FORMAT, "format_version": FORMAT_VERSION,
         "source": {"name": fields.source, "n_vertices": body.n_vertices, "n_faces": body.n_faces,
                    "n_triangles": body.n_triangles, "faces_hash": faces_hash(body)},
         "targets": list(fields.targets), "latent": int(latent),
-        "encoder_layers": len(hidden) + 1, "decoder_layers": len(hidden) + 1,
+        "encoder_layers": n_hidden + 1, "decoder_layers": n_hidden + 1,
         "normalisation": {"kind": "deviation_from_identity_over_rms", "scale": [float(s) for s in scale]},
         "uncovered": "body_deformation_gradient",
         "units": fields.units, "up_axis": fields.up_axis,
         "training": settings, "losses": losses,
+        "created_with": f"garment_transfer {__version__}",
     }
-
-    metadata["created_with"] = f"garment_transfer {__version__}"
     model = SharedDeformationModel(arrays, metadata, name="trained model")
     for k, t in enumerate(fields.targets):
         z = model.encode(X_np[k::K].astype(np.float64), t)
         arrays["train_latents"][:, k] = z
         arrays["latent_mean"][k] = z.mean(axis=0)
-    info = {"seconds": round(seconds, 3), "epochs": stopped["epochs"], "final_loss": final,
-            "final_masked_loss": final_masked, "best_validation_loss": losses["best_validation"],
-            "best_validation_epoch": losses["best_validation_epoch"], "stopped_early": stopped["early"],
-            "threads": threads, "optimizer": optimizer, "lr": lr, "masked": bool(masked),
-            "latent": int(latent), "garments": list(fields.garments), "targets": list(fields.targets),
-            "active_triangles": int(active.sum()), "body_triangles": int(M), "samples": int(G * K),
-            "loss_history": history}
-    log.info("trained in %.1f s, %d epochs, loss %.4g", seconds, stopped["epochs"], final)
-    return model, info
+    return model
 
 
 def _optimise(optimizer, net, objective, epochs, lr, on_epoch):
@@ -613,9 +639,10 @@ def train_from_dataset(dataset_dir, source, targets, garments=None, epochs=1000,
         raise TypeError(f"unknown training options: {', '.join(sorted(unknown))}")
     check_training_settings(epochs=epochs, latent=latent)
     if out is not None:
-        # Before the long work: a missing or read-only folder must not cost a whole training.
-
-        check_output(out, (), "the model file")
+        # Before the long work: a missing or read-only folder must not cost a whole training, and the
+        # model file must not land on what the training reads.
+        files, folders = dataset_inputs(dataset_dir)
+        check_outputs([out], inputs=files, input_folders=folders, what="the model file")
     t0 = time.perf_counter()
     ds = load_dataset(dataset_dir)
     if isinstance(targets, str):

@@ -1,11 +1,12 @@
 """The pipeline: a garment on the source body made into the same garment on a target body, and what is
 built on that. ``transfer`` (prepare a garment once, transfer it to each target), ``any_body`` (a target of
 another mesh: registered first), ``outfit`` (layers, each outside the ones under it), ``shape_keys`` (one garment
-fitted to every shape of a body), ``weights`` (skinning weights from the body), ``metrics`` (MDC, penetration,
-drape and vertex error, crossings: ``evaluate``), ``result_check`` (the promise measured on a result as written:
-no crossing under any triangulation, against the body given), ``model_check`` (a trained model on held-out
-garments), and ``batch`` (a catalogue of garments on many targets, resumable, on a process pool or Dask).
-Built on ``geometry``, ``fitting`` and ``learning``.
+fitted to every shape of a body), ``pose_fit`` (a garment fitted to its body posed), ``rest_pose`` (a target in
+another rest pose: the source posed into it first), ``metrics`` (MDC, penetration, drape and vertex error,
+crossings: ``evaluate``), ``result_check`` (the promise measured on a result as written: no crossing under any
+triangulation, against the body given), ``model_check`` (a trained model on held-out garments), and ``batch`` (a
+catalogue of garments on many targets, resumable, on a process pool or Dask). Built on ``geometry``, ``fitting``,
+``learning`` and ``rigging``.
 """
 
 from .any_body import transfer_to_any_body
@@ -13,17 +14,20 @@ from .batch import BatchSummary, Catalogue, read_catalogue, run_batch
 from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit
+from .pose_fit import every_split, fit_to_pose, poses_to_files, self_contact
+from .rest_pose import pose_difference, transfer_across_rest_poses
+from .result_check import check_result, result_warnings
 from .shape_keys import (KEEP_OUTSIDE_SHARE, ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps, shapes_to_files,
                          transfer_to_shapes)
-from .result_check import check_result, result_warnings
 from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
-from .weights import surface_weights
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
            "POSE_LIMITS", "check_result", "result_warnings",
            "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "OutfitError", "OutfitResult", "transfer_outfit",
-           "ShapeKeyFit", "fit_shape_keys",
-           "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps", "surface_weights", "evaluate", "mdc",
+           "ShapeKeyFit", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps",
+           "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
-           "check_after_training", "check_lines", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]
+           "check_after_training", "check_lines", "fit_to_pose", "poses_to_files", "every_split", "self_contact",
+           "transfer_across_rest_poses", "pose_difference",
+           "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]

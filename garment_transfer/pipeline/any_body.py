@@ -7,7 +7,8 @@ import time
 from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
-from ..geometry.mesh import Mesh, same_mesh
+from ..geometry.mesh import Mesh
+from ..geometry.proximity import as_same_mesh
 from .transfer import OFFSET_SHARE, check_offset, fit_to_body, pose_check, prepare_garment, transfer_garment
 
 
@@ -47,10 +48,16 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     result : TransferResult
         In the target's frame; ``info["registration"]`` holds the fit's figures when one was made.
     registration : Registration or None
-        None when the two bodies are one mesh.
+        None when the two bodies are one mesh (also when the target is the source's mesh with every face
+        turned the other way round, an OBJ of the other winding: ``proximity.as_same_mesh``;
+        ``info["target_faces_turned"]`` then says so).
     """
-    if same_mesh(source_body, target_body):
-        return transfer_garment(source_body, target_body, garment, progress=progress, **options), None
+    same = as_same_mesh(source_body, target_body)
+    if same is not None:
+        result = transfer_garment(source_body, same, garment, progress=progress, **options)
+        if same is not target_body:
+            result.info["target_faces_turned"] = True
+        return result, None
 
     def sub(lo, hi):
         if progress is None:
@@ -79,7 +86,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     result = transfer_garment(source_body, fitted, garment, progress=sub(0.6, 0.9), fix_penetration=False,
                               prepared=prepared, check_pose=False, **options)
     if pose is not None:
-        result.info["pose_difference"] = pose
+        result.info["limb_angles"] = pose
     if made:
         for stage, seconds in prepared.seconds.items():
             result.seconds[stage] = result.seconds.get(stage, 0.0) + seconds

@@ -39,8 +39,9 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from ..errors import DatasetError, GarmentTransferError
+from ..files import check_outputs
 from ..geometry.obj import obj_text, read_obj
-from ..learning.dataset import load_dataset
+from ..learning.dataset import dataset_inputs, load_dataset
 from ..learning.model_files import read_model_file
 from ..version import __version__
 from .metrics import evaluate
@@ -178,6 +179,40 @@ class Catalogue:
         """``(garment, target)`` names of every pair, in catalogue order."""
         return [(j.name, t.name) for j in self.jobs for t in j.targets]
 
+    def inputs(self):
+        """Everything a run of the catalogue reads: ``(files, folders)``.
+
+        The catalogue file and every file it names (garments, bodies, references, models); for a
+        dataset folder, what reading it reads (``dataset.dataset_inputs``) and the files.
+        """
+        files, folders = ([], []) if not os.path.isdir(self.origin) else dataset_inputs(self.origin)
+        if not folders:
+            files.append(self.origin)
+        for j in self.jobs:
+            files += [j.file, j.source_file, j.settings.model]
+            files += [p for t in j.targets for p in (t.body, t.reference)]
+        return list(dict.fromkeys(p for p in files if p is not None)), folders
+
+
+def batch_paths(catalogue: Catalogue, out, log=None) -> dict:
+    """What a run of ``catalogue`` into ``out`` reads and writes, as ``files.check_outputs``'s arguments.
+
+    ``out`` must be no input, lie in no input folder and hold no input (its sub-folders are named by the
+    catalogue's garments: a garment named ``bodies`` must not land on a dataset's bodies), and no result,
+    record, summary or the log (``log``, appended to) may be an input.
+    """
+    files, folders = catalogue.inputs()
+    out = Path(os.fspath(out))
+    outputs = [p for g, t in catalogue.pairs() for p in result_paths(out, g, t)]
+    outputs += [out / "summary.json", out / "summary.csv"] + ([] if log is None else [(log, "--log")])
+    return dict(files=outputs, folders=[out], inputs=files, input_folders=folders, holds_none=True)
+
+
+def check_batch_outputs(catalogue: Catalogue, out, log=None):
+    """Raise ``files.OutputError`` unless a run of ``catalogue`` into ``out`` harms none of its inputs
+    (``batch_paths``); checked before any work by ``run_batch`` and the command."""
+    check_outputs(**batch_paths(catalogue, out, log))
+
 
 def read_catalogue(path, *, source=None, targets=None, garments=None, settings=None) -> Catalogue:
     """Read and check a catalogue: a ``.json`` or ``.toml`` file, or a dataset folder.
@@ -287,6 +322,10 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
         fail("bodies", "a table of body name = OBJ path is needed (every body: source and targets)")
     bodies = {}
     for name, p in bodies_raw.items():
+        if name in ("source", "targets", "labels") and not (isinstance(p, str) and p.lower().endswith(".obj")):
+            # TOML: a key written after [bodies] belongs to that table.
+            fail(f"bodies.{name}", f"{name!r} is a top-level key: in TOML, write source, targets and labels "
+                                   "above the first [table]; after [bodies] they belong to it")
         _check_name(name, f"bodies.{name}", fail)
         bodies[name] = _path(p, base, f"bodies.{name}", fail)
     top_labels = _labels(data.get("labels"), bodies, "labels", fail)
@@ -1021,12 +1060,19 @@ def run_batch(catalogue: Catalogue, out, *, workers=None, scheduler=None, dask=F
     BatchSummary
         Also written to ``<out>/summary.json`` and ``<out>/summary.csv``.
 
+    Raises
+    ------
+    files.OutputError
+        Before any work, when ``out`` or a file the run would write harms an input
+        (``check_batch_outputs``), or cannot be written.
+
     Notes
     -----
     Ctrl+C (KeyboardInterrupt) or a progress callback returning True stops the run: queued
     garments are dropped, running ones stop after their current pair, temporary files are removed,
     and the summary lists what was done (``interrupted`` True; pairs not reached are ``not run``).
     """
+    check_batch_outputs(catalogue, out)
     out = Path(os.fspath(out)).absolute()
     out.mkdir(parents=True, exist_ok=True)
     removed = remove_partial_files(out)

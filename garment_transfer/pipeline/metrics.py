@@ -10,7 +10,7 @@ from ..geometry.binding import bind, carry
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, edge_lengths_mean, require_same_topology, triangle_normals
 from ..geometry.penetration import penetration, vertex_adjacency
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, as_same_mesh
 from ..geometry.readings import readings_of
 from .result_check import check_result
 
@@ -164,7 +164,8 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
         require_same_topology(source, reference)
         ref_V, ref_F, kind = reference.V, F, "reference"
     elif source_body is not None:
-        require_same_topology(source_body, target_body)
+        # A target of the source's mesh written with the other winding is that mesh (as_same_mesh).
+        require_same_topology(source_body, as_same_mesh(source_body, target_body) or target_body)
         ref_V = carry(bind(source.V, source_body.V, source_body.F), target_body.V, source_body.F)
         ref_F, kind = F, "body_fit"
     out["drape_reference"] = kind

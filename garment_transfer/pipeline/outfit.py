@@ -37,7 +37,7 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
 from ..geometry.mesh import Mesh, edge_lengths_mean
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, as_same_mesh
 from .transfer import OFFSET_SHARE, transfer_garment
 
 #: A layer is in an impossible order when more than this share of its vertices near a lower layer
@@ -419,6 +419,8 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     garments = list(garments)
     if not garments:
         raise ValueError("an outfit needs at least one garment")
+    # A target of the source's mesh written with the other winding is that mesh.
+    target_body = as_same_mesh(source_body, target_body) or target_body
     names = [g.name for g in garments]
     if len(set(names)) != len(names):
         raise OutfitError(names[0], "the layers must be different garments (a name is repeated)")

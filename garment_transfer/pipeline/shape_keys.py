@@ -20,17 +20,19 @@ value 1, but only close to the transfer at a mix of keys: where two keys both mo
 from __future__ import annotations
 
 import itertools
+import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import Cancelled, MeshError
-from ..files import write_json_atomic
+from ..files import check_outputs, write_json_atomic
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, as_same_mesh
 from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
@@ -327,10 +329,31 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0):
     return V
 
 
+def shapes_outputs(target_body_paths, garment_path, out_dir):
+    """The files ``shapes_to_files`` writes: ``{target name: <out_dir>/<garment>_on_<target>.obj}`` and
+    ``<out_dir>/shapes.json``.
+
+    Raises
+    ------
+    MeshError
+        Two target files of one name (each names its output).
+    """
+    out_dir, g = Path(os.fspath(out_dir)), Path(os.fspath(garment_path)).stem
+    outs, paths = {}, {}
+    for path in target_body_paths:
+        name = Path(os.fspath(path)).stem
+        if name in outs:
+            raise MeshError(str(path), f"has the same name as {paths[name]}; each target shape needs "
+                                       "its own file name (it names the output)")
+        outs[name], paths[name] = out_dir / f"{g}_on_{name}.obj", str(path)
+    return outs, out_dir / "shapes.json"
+
+
 def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, **options):
     """OBJ files in, OBJ files out: the garment on every target shape, with one preparation.
 
-    Every input is read and every transfer made before anything is written; each file is written
+    The outputs are checked against the inputs before anything is read (``files.check_outputs``); every
+    input is read and every transfer made before anything is written; each file is written
     atomically, then ``shapes.json`` (the summary).
 
     Parameters
@@ -349,29 +372,24 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
     dict
         The summary written to ``shapes.json``.
     """
-    import os
-    from pathlib import Path
-
+    outs, summary_path = shapes_outputs(target_body_paths, garment_path, out_dir)
+    check_outputs([*outs.values(), summary_path], [out_dir],
+                  inputs=[source_body_path, *target_body_paths, garment_path])
     source = read_obj(source_body_path)
     garment = read_obj(garment_path)
     shapes, paths = {}, {}
     for path in target_body_paths:
         name = Path(path).stem
-        if name in shapes:
-            raise MeshError(str(path), f"has the same name as {paths[name]}; each target shape needs "
-                                       "its own file name (it names the output)")
         body = read_obj(path)
-        require_same_topology(source, body)
+        # A shape written with the other winding is still a shape of the source's mesh.
+        require_same_topology(source, as_same_mesh(source, body) or body)
         shapes[name], paths[name] = body.V, str(path)
     fit = fit_shape_keys(source, shapes, garment, with_basis=False, **options)
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise MeshError(str(out_dir), "is a file; --out must be a folder")
     out_dir.mkdir(parents=True, exist_ok=True)
-    g = Path(garment_path).stem
     rows, warnings = [], []
     for name, V in fit.keys.items():
-        out = out_dir / f"{g}_on_{name}.obj"
+        out = outs[name]
         write_obj(out, garment, V, header=f"Garment Transfer: {os.path.basename(garment_path)} on "
                                           f"{os.path.basename(paths[name])} (one of {len(shapes)} shapes)")
         # The figures of the file as written, against that shape as given.
@@ -384,6 +402,6 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
                      "seconds": info["seconds"]})
     summary = {"source_body": str(source_body_path), "garment": str(garment_path),
                "vertices": garment.n_vertices, "faces": garment.n_faces, "shapes": rows, "warnings": warnings,
-               "seconds": fit.seconds, "summary": str(out_dir / "shapes.json")}
-    write_json_atomic(out_dir / "shapes.json", summary)
+               "seconds": fit.seconds, "summary": str(summary_path)}
+    write_json_atomic(summary_path, summary)
     return summary

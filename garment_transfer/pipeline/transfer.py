@@ -37,7 +37,7 @@ from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topol
 from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
-from ..fitting.limbs import find_limbs, pose_difference
+from ..fitting.limbs import find_limbs, limb_angles
 from ..learning.placement import anchor_offsets
 from .field_mapping import model_field
 
@@ -58,7 +58,7 @@ FAR_SHARE = 0.2               # a garment whose median distance to the body exce
 INSIDE_DEPTH_SHARE = 0.005
 INSIDE_SHARE = 0.01
 #: The largest angle each part of a limb the garment lies on may point away from the source's
-#: (``limbs.pose_difference``), by part. Measured with ``python -m lab.file_check --poses`` on MakeHuman
+#: (``limbs.limb_angles``), by part. Measured with ``python -m lab.file_check --poses`` on MakeHuman
 #: female_average with both arms turned down about the shoulders (four suits, the same mesh and re-meshed to
 #: 47,500 triangles, registered): up to 25 degrees (measured 26.3 on the upper arm; 20 degrees: 21.1, 22.2
 #: through a registration) every result is clean and MDC with the pass is 0.84 to 1.12 times the transfer's
@@ -441,7 +441,7 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
 
 
 def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dict:
-    """The pose difference between the source body and another shape of its mesh (``limbs.pose_difference``),
+    """The pose difference between the source body and another shape of its mesh (``limbs.limb_angles``),
     refused where a part of a limb the garment covers turns further than ``POSE_LIMITS`` allows.
 
     Parameters
@@ -469,7 +469,7 @@ def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dic
         Naming the target, the part of the limb, its angle and the limit.
     """
     limbs = find_limbs(source_body.V, source_body.F) if limbs is None else limbs
-    d = pose_difference(source_body.V, source_body.F, body_V, limbs)
+    d = limb_angles(source_body.V, source_body.F, body_V, limbs)
     held = [b for k, b in enumerate(limbs.names) if covered is None or covered[limbs.near[k]].any()
             or covered[limbs.far[k]].any()] if limbs is not None else []
     if d["degrees"] is None or not held:
@@ -523,7 +523,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         offsets per source body triangle, in the triangle's frame on the target: ``placement.true_offsets``).
     check_pose : bool
         Refuse a target whose limbs point further from the source's than ``POSE_LIMITS`` allows
-        (``pose_check``; the angle is ``info["pose_difference"]``).
+        (``pose_check``; the angle is ``info["limb_angles"]``).
 
     Returns
     -------
@@ -580,7 +580,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
             "interpolate": bool(interpolate), "fix_penetration": bool(fix_penetration),
             "anchoring": prepared.anchoring, "placement": placement is not None}
     if pose is not None:
-        info["pose_difference"] = pose
+        info["limb_angles"] = pose
     if prepared.solver is not None:
         info["solver"] = prepared.solver.method
     V, inside, obstacle = fit_to_body(V, prepared, target_body, offset, fix_penetration=fix_penetration,

@@ -138,7 +138,7 @@ def test_batch_outputs_are_checked_before_the_run(tmp_path, ball_files):
     taken = tmp_path / "taken"
     taken.write_text("mine\n")
     before = {p: (p.read_bytes(), os.stat(p).st_mode) for p in tmp_path.iterdir() if p.is_file()}
-    for extra, problem in ((["--out", taken], "is a file; give a folder"),
+    for extra, problem in ((["--out", taken], "is a file, not a folder"),
                            (["--out", tmp_path / "o", "--blend", garment], "is the input"),
                            (["--out", tmp_path / "o", "--offset", "nan"], "finite distance")):
         proc = run_batch(tmp_path, "--source-body", source, "--target-body", target, "--garment", garment,

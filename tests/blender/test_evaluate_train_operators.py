@@ -71,6 +71,7 @@ def test_train_writes_a_model_the_transfer_then_uses(dressed, tmp_path):
     settings.dataset_source = "female_average"
     settings.train_output = str(tmp_path / "out" / "shared")
     (tmp_path / "out").mkdir()
+    settings.train_kind = 'SHARED'
     settings.train_epochs = 20
     settings.train_latent = 2
     assert bpy.ops.garment_transfer.train() == {'FINISHED'}
@@ -88,14 +89,15 @@ def test_train_the_garment_fit_model_with_its_placement(dressed, tmp_path, exten
                                                   garments=("female_casualsuit01", "male_casualsuit04")))
     settings.dataset_source = "female_average"
     settings.train_output = str(tmp_path / "garment")
-    settings.train_kind = 'GARMENT'
+    assert settings.train_kind == 'GARMENT'       # the default
     assert bpy.ops.garment_transfer.train() == {'FINISHED'}
     assert settings.method == 'MODEL' and settings.model_path.endswith("garment.npz")
+    # The last model trained is the one offered for this source body from now on.
+    assert settings.last_trained_model == settings.found_model == str(tmp_path / "garment.npz")
     read = extension.garment_transfer.read_model_file(tmp_path / "garment.npz")
     assert read.kind == "garment" and read.has_placement and read.targets == ["female_pear"]
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
-    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
-                                   "with the nearest garments' at share 0.5")
+    assert settings.last_model.startswith("Garment fit + placement (garment.npz, field share 0.5): ")
 
 
 def test_train_with_held_out_garments_checks_the_model_on_them(dressed, tmp_path, extension):
@@ -106,6 +108,7 @@ def test_train_with_held_out_garments_checks_the_model_on_them(dressed, tmp_path
     settings.dataset_path = str(ds)
     settings.dataset_source = "female_average"
     settings.train_output = str(tmp_path / "shared.npz")
+    settings.train_kind = 'SHARED'
     settings.train_epochs = 20
     settings.train_latent = 2
     settings.train_hold_out = "male_casualsuit04"
@@ -155,6 +158,7 @@ def test_cancelled_training_writes_nothing(dressed, tmp_path, extension):
     settings.dataset_path = str(make_tiny_dataset(dressed.makehuman, tmp_path / "ds",
                                                   garments=("female_casualsuit01",)))
     settings.train_output = str(tmp_path / "never.npz")
+    settings.train_kind = 'SHARED'
     settings.train_epochs = 5000
     run = train.TrainingRun(train.training_call(train.training_plan(settings)))
     steps = run.steps()
@@ -193,3 +197,27 @@ def test_without_torch_the_panel_and_train_say_how_to_install_it(dressed, tmp_pa
     assert scene_state() == before and settings.method == 'DIRECT'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+
+
+def test_the_model_file_is_refused_in_the_dataset_it_reads_before_training(dressed, tmp_path, extension):
+    # The core's one check of outputs against inputs, before any training (and without torch): never in the
+    # dataset's bodies/ or garments/, however the path is spelled. (Save Model As ends in .npz: ".npz" is
+    # added to a name without it, so a body's own file name cannot be reached.)
+    train = extension.operators.train
+    settings = dressed.settings
+    ds = make_tiny_dataset(dressed.makehuman, tmp_path / "ds", garments=("female_casualsuit01",))
+    settings.dataset_path = str(ds)
+    (tmp_path / "alias").symlink_to(ds / "garments")
+    (tmp_path / "sub").mkdir()
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    for out, problem in ((ds / "bodies" / "female_pear.obj", "lies inside the input folder"),
+                         (ds / "bodies", "is the input folder"),
+                         (tmp_path / "alias" / "model.npz", "lies inside the input folder"),
+                         (tmp_path / "sub" / ".." / "ds" / "garments" / "female_casualsuit01" / "m.npz",
+                          "lies inside the input folder")):
+        settings.train_output = str(out)
+        with pytest.raises(extension.garment_transfer.OutputError, match=problem):
+            train.training_plan(settings)
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+    settings.train_output = str(ds / "model.npz")      # beside bodies/ and garments/: fine
+    assert train.training_plan(settings)["out"] == str(ds / "model.npz")

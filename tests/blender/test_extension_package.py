@@ -148,6 +148,7 @@ def test_zip_holds_the_add_on_and_the_bundled_wheels_for_each_python(built_zip):
                    "scripts", "wheels"}, top
     assert not any("__pycache__" in n or n.endswith(".obj") or n.endswith(".npz") for n in names)
     assert not any("numpy" in n or "torch" in n for n in names)
+    assert not any("extension_loader" in n for n in names)      # the checkout's loader is a tool, not the product
     # Nothing of the development set-up either.
     assert not any(".venv" in n or ".egg-info" in n or n.startswith(("build/", "dist/")) for n in names)
     # The repository's manifest stays without the build's wheels.

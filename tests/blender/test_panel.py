@@ -57,6 +57,7 @@ def test_panels_draw_existing_properties_and_operators(extension, method):
 
 def test_training_panel_shows_epochs_and_latent_for_the_shared_kind_only(extension):
     settings = bpy.context.scene.garment_transfer
+    assert settings.train_kind == 'GARMENT'       # the garment fit model is the default
     drawn = {}
     for kind in ("SHARED", "GARMENT"):
         settings.train_kind = kind

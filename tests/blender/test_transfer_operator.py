@@ -181,8 +181,9 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
     assert settings.model_kind == 'GARMENT' and settings.target_label == "female_pear"
     assert settings.field_share == 0.5
     result = transfer_result()
-    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 0.5, learned placement mixed "
-                                   "with the nearest garments' at share 0.5")
+    # One line: which method made the result, and what it gains.
+    assert settings.last_model == ("Garment fit + placement (garment.npz, field share 0.5): 0.62x Direct's distance "
+                                   "to a cloth simulation, design kept")
 
     # The same as the core with the file's models, in the model's frame (a Y-up dataset).
     convert = extension.operators.convert
@@ -197,12 +198,11 @@ def test_garment_fit_model_file_with_its_placement(dressed, tmp_path, extension)
 
     settings.field_share = 1.0
     whole = transfer_result()
-    assert settings.last_model == ("Model: garment fit model (garment.npz), field share 1, learned placement mixed "
-                                   "with the nearest garments' at share 0.5")
+    assert settings.last_model.startswith("Garment fit + placement (garment.npz, field share 1): ")
     assert np.abs(world_vertices(whole) - world_vertices(result)).max() > 1e-4
     settings.method = 'DIRECT'
     transfer_result()
-    assert settings.last_model == ""
+    assert settings.last_model.startswith("Direct: the body's own deformation, no model")
 
     # A placement model alone is refused, naming the file, and nothing in the scene changes.
     placement_alone = tmp_path / "placement_alone.npz"

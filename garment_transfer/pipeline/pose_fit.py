@@ -1,0 +1,301 @@
+"""A garment fitted to a posed body: the transfer from the rest body to the same mesh posed, kept outside it.
+
+Skinning moves a garment with the character, but linear blend skinning folds cloth into the skin at the bends
+(elbows, knees, hips) and tears or squashes its design. The transfer itself carries a garment from the rest body
+to the posed one, which is the same mesh in another shape: the body's own deformation gradients, read at each
+garment vertex, turn and stretch the cloth as the skin under it turns, and the Poisson solve keeps the folds
+(``transfer.transfer_garment``, prepared once per garment: every pose after the first is a solve).
+
+Then the crossing pass (``clearance.separate``) removes every garment edge through the body and body edge through
+the garment, with one exception: where the posed body crosses itself (an arm into the torso, a heel into the
+thigh, a hand into the hip; skinned bodies do) no garment between the two surfaces can be outside both, so the
+body's triangles there, and ``CONTACT_RINGS`` rings of triangles around them, are left out of the pass. The
+crossings left there are reported apart (``crossings_at_contact``), as are the body's own crossings.
+
+Every count is made under every split of the quads and n-gons, of the garment and of the body (``every_split``):
+a reader of the written file may split a quad along either diagonal.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from ..files import check_outputs, write_json_atomic
+from ..geometry import clearance
+from ..geometry.intersections import crossings, self_intersections
+from ..geometry.mesh import Mesh, require_same_topology
+from ..geometry.obj import read_obj, write_obj
+from ..geometry.proximity import TriangleSurface
+from .shape_keys import shapes_outputs
+from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
+
+log = logging.getLogger(__name__)
+
+#: Rings of body triangles around the body's own crossings left out of the crossing pass (about 2 cm on the
+#: MakeHuman body).
+CONTACT_RINGS = 2
+#: Two body parts pressed closer than this many cloth offsets (and farther apart at rest) are contact too: no
+#: cloth fits between them.
+CONTACT_GAP = 4.0
+#: Crossing passes at most, each from the last one's result (a pass counts only near what it moved; the count
+#: over the whole garment after it may find crossings it left).
+PASSES = 3
+
+
+def every_split(mesh: Mesh):
+    """Every triangle of any split of the mesh's polygons: both diagonals of a quad, every fan of an n-gon.
+
+    Parameters
+    ----------
+    mesh : Mesh
+
+    Returns
+    -------
+    F : (k,3) int64
+        The triangles the mesh is read as (``mesh.F``), then those of the other splits (a quad adds its two
+        other triangles), each once.
+    """
+    fs, fv = mesh.face_start, mesh.face_vertices
+    sizes = np.diff(fs)
+    extra = []
+    for k in np.unique(sizes[sizes > 3]):
+        faces = np.flatnonzero(sizes == k)
+        P = fv[fs[faces][:, None] + np.arange(k)]
+        for apex in range(k):
+            for j in range(1, k - 1):
+                a, b = (apex + j) % k, (apex + j + 1) % k
+                extra.append(P[:, [apex, a, b]])
+    if not extra:
+        return mesh.F
+    F = np.concatenate([mesh.F] + extra)
+    _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
+    return F[np.sort(first)]
+
+
+def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
+    """Body vertices where the body crosses itself or closes on itself, and ``rings`` rings around them.
+
+    Parameters
+    ----------
+    V : (n,3) float
+        The posed body.
+    F : (m,3) int
+    rings : int
+    rest_V : (n,3) float, optional
+        The body at rest: with ``gap``, two vertices that came closer than ``gap`` and were more than twice
+        ``gap`` farther apart at rest (two body parts pressed together) are contact too.
+    gap : float
+
+    Returns
+    -------
+    contact : (n,) bool
+    pairs : int
+        The body's own edge-triangle crossings.
+    """
+    count, edges, triangles = self_intersections(V, F)
+    contact = np.zeros(V.shape[0], dtype=bool)
+    contact[edges.reshape(-1)] = True
+    contact[np.asarray(F)[triangles].reshape(-1)] = True
+    if rest_V is not None and gap > 0:
+        close = cKDTree(V).query_pairs(gap, output_type="ndarray")
+        if close.size:
+            apart = np.linalg.norm(rest_V[close[:, 0]] - rest_V[close[:, 1]], axis=1) > 3.0 * gap
+            contact[close[apart].reshape(-1)] = True
+    if contact.any() and rings:
+        i = np.asarray(F).reshape(-1)
+        j = np.roll(np.asarray(F), 1, axis=1).reshape(-1)
+        A = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(V.shape[0],) * 2)
+        A = A + A.T
+        for _ in range(rings):
+            contact |= (A @ contact.astype(np.float64)) > 0
+    return contact, count
+
+
+def crossing_counts(V, F, body_V, body_F):
+    """Garment edges through the body and body edges through the garment (each edge once)."""
+    c = crossings(V, F, body_V, body_F)
+    return c["a_edges_through_b"], c["b_edges_through_a"]
+
+
+def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGarment | None = None,
+                offset=None, resolve_crossings=True, contact_rings=CONTACT_RINGS, name=None) -> TransferResult:
+    """Fit a garment dressed on the rest body to the same body posed.
+
+    Parameters
+    ----------
+    rest_body : Mesh
+        The body in its rest pose, the garment dressed on it.
+    posed_V : (n,3) float
+        The body's vertices in the pose (``rest_body``'s vertex order).
+    garment : Mesh
+        On the rest body (its rest result: a transfer's output).
+    prepared : PreparedGarment, optional
+        ``prepare_garment(rest_body, garment)``, made once for every pose.
+    offset : float, optional
+        Distance kept from the body (as ``transfer_garment``).
+    resolve_crossings : bool
+        Run the crossing pass (away from the body's own contact).
+    contact_rings : int
+        Rings around the body's own crossings left out of the pass.
+    name : str, optional
+        The pose's name, for messages.
+
+    Returns
+    -------
+    TransferResult
+        ``info`` adds ``crossings_outside_contact`` and ``crossings_at_contact`` (garment edges through the
+        body plus body edges through the garment, under every split of both), ``body_self_crossings``,
+        ``contact_vertices`` and ``warnings``.
+    """
+    name = name or "pose"
+    posed = rest_body.with_vertices(posed_V, name=name)
+    require_same_topology(rest_body, posed)
+    if prepared is None:
+        prepared = prepare_garment(rest_body, garment)
+    # The pose is the point here, not a difference to refuse (transfer.pose_check): the pass below clears it.
+    result = transfer_garment(rest_body, posed, garment, prepared=prepared, offset=offset,
+                              resolve_crossings=False, check_pose=False)
+    t = time.perf_counter()
+    result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
+                                                             resolve_crossings=resolve_crossings,
+                                                             contact_rings=contact_rings, name=name)
+    result.seconds["crossings"] = time.perf_counter() - t
+    result.seconds["total"] += result.seconds["crossings"]
+    return result
+
+
+def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
+                     contact_rings=CONTACT_RINGS, name="pose"):
+    """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
+
+    Parameters
+    ----------
+    V : (g,3) float
+        The garment on the posed body (after the penetration fix).
+    garment : Mesh
+        Its faces (the polygons, for every split).
+    body : Mesh
+        The posed body.
+    info : dict
+        A transfer's ``info`` (``offset`` is read); the counts and ``warnings`` are added to it.
+    rest_V : (n,3) float, optional
+        The body at rest (same mesh): with it, body parts pressed together are contact too.
+    resolve_crossings : bool
+        Only count (False).
+    contact_rings : int
+    name : str
+
+    Returns
+    -------
+    V : (g,3) float64
+    inside : int
+        Garment vertices inside the posed body.
+    """
+    offset = float(info["offset"])
+    contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    body_F = every_split(body)
+    free_F = body_F[~contact[body_F].any(axis=1)]
+    garment_F = every_split(garment)
+    V = np.asarray(V, dtype=np.float64)
+    outside = sum(crossing_counts(V, garment_F, body.V, free_F))
+    info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
+    info.setdefault("warnings", [])
+    if resolve_crossings and outside:
+        # The pass sees the body without its own contact: there the garment cannot be outside both surfaces.
+        surface = TriangleSurface(body.V, free_F)
+        info["crossing_pass"] = []
+        for _ in range(PASSES):
+            W, sep = clearance.separate(V, garment_F, body.V, free_F, offset, surface=surface, keep_offset=False)
+            after = sum(crossing_counts(W, garment_F, body.V, free_F))
+            info["crossing_pass"].append({"before": int(outside), "after": int(after), "rounds": sep["rounds"],
+                                          "moved_vertices": sep["moved_vertices"]})
+            if after >= outside:
+                break
+            V, outside = W, after
+            if not outside:
+                break
+    info["crossings_outside_contact"] = int(outside)
+    at_contact = body_F[contact[body_F].any(axis=1)]
+    info["crossings_at_contact"] = int(sum(crossing_counts(V, garment_F, body.V, at_contact))
+                                       if at_contact.size else 0)
+    inside = int((TriangleSurface(body.V, body.F).signed_distance(V)[0] < 0).sum())
+    if outside:
+        info["warnings"].append(f"{outside} garment-body crossings are left in {name} away from where the body "
+                                "crosses itself")
+    if info["crossings_at_contact"]:
+        info["warnings"].append(f"{info['crossings_at_contact']} garment-body crossings in {name} where the body "
+                                f"crosses itself or closes on itself ({body_self} crossings of its own): no "
+                                "garment can be outside both surfaces there")
+    return V, inside
+
+
+def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None):
+    """OBJ files in, OBJ files out: the garment fitted to every pose of its body, prepared once.
+
+    Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``.
+
+    Parameters
+    ----------
+    rest_body_path : path
+    posed_body_paths : list of path
+        The rest body's mesh posed (same vertices and faces).
+    garment_path : path
+        The garment on the rest body.
+    out_dir : path
+        Made if missing; receives ``<garment>_on_<pose>.obj`` and ``poses.json``.
+    offset : float, optional
+    progress : callable, optional
+        ``progress(fraction, pose)``.
+
+    Returns
+    -------
+    dict
+        The summary written to ``poses.json`` (with ``warnings``).
+    """
+    outs, summary_path = shapes_outputs(posed_body_paths, garment_path, out_dir)
+    summary_path = summary_path.with_name("poses.json")
+    check_outputs([*outs.values(), summary_path], [out_dir],
+                  inputs=[rest_body_path, *posed_body_paths, garment_path])
+    rest = read_obj(rest_body_path)
+    garment = read_obj(garment_path)
+    poses, paths = {}, {}
+    for path in posed_body_paths:
+        name = Path(path).stem
+        body = read_obj(path)
+        require_same_topology(rest, body)
+        poses[name], paths[name] = body.V, str(path)
+    t = time.perf_counter()
+    prepared = prepare_garment(rest, garment)
+    seconds = {"prepare": time.perf_counter() - t}
+    results = {}
+    for i, (name, V) in enumerate(poses.items()):
+        if progress is not None:
+            progress(i / len(poses), name)
+        results[name] = fit_to_pose(rest, V, garment, prepared=prepared, offset=offset, name=name)
+    seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    rows, warnings = [], []
+    for name, result in results.items():
+        out = outs[name]
+        write_obj(out, garment, result.V, inputs=[rest_body_path, *posed_body_paths],
+                  header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
+        info = result.info
+        rows.append({"target": name, "target_body": paths[name], "out": str(out),
+                     "penetrating_vertices": result.penetrating_vertices,
+                     "crossings_outside_contact": info["crossings_outside_contact"],
+                     "crossings_at_contact": info["crossings_at_contact"],
+                     "body_self_crossings": info["body_self_crossings"], "offset": info["offset"],
+                     "seconds": result.seconds})
+        warnings += info["warnings"]
+    seconds["total"] = time.perf_counter() - t
+    summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
+               "faces": garment.n_faces, "poses": True, "shapes": rows, "seconds": seconds,
+               "summary": str(summary_path), "warnings": warnings}
+    write_json_atomic(summary_path, summary)
+    return summary

@@ -1,0 +1,98 @@
+"""A target body in another rest pose than the source: the source and its garment posed first, then the shape.
+
+The transfer carries a change of shape; a change of pose (arms lower, legs apart) is not a shape the body's
+gradients and the binding carry well, and cloth ends up through the skin. When both bodies have a skeleton with
+the same bone names (MakeHuman's, MPFB's), the source body is posed into the target's rest pose by its own rig
+(``rigging.matching_rotations``: each bone turned onto the target's), its garment fitted to that pose
+(``pose_fit.fit_to_pose``), and the garment then transferred from the posed source to the target as usual.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..geometry.mesh import Mesh
+from ..rigging.posing import Rig, matching_rotations
+from .any_body import transfer_to_any_body
+from .pose_fit import clear_posed_body, fit_to_pose
+
+#: Bones that carry at least this share of the body's weights say how far two rest poses differ ...
+MIN_WEIGHT_SHARE = 0.01
+#: ... and two rest poses whose such bones turn less than this (degrees) are one: the transfer carries it as a
+#: change of shape. MakeHuman's bodies differ by up to 22 degrees in shape alone (the spine of a male body from
+#: the female average); each of its shared poses turns a limb by 24 to 140 degrees.
+SAME_POSE_DEGREES = 25.0
+
+
+def pose_difference(source_rig: Rig, target_joints, target_frames=None):
+    """How far the target's rest pose is from the source's: each bone's turn, in degrees.
+
+    Returns
+    -------
+    rotations : (b,3,3) float64
+        Each bone's local rotation that poses the source like the target.
+    degrees : dict of str to float
+        The turn of each bone that carries at least ``MIN_WEIGHT_SHARE`` of the body's weights.
+    """
+    R, angles = matching_rotations(source_rig.skeleton, source_rig.joints, target_joints, target_frames)
+    weights = source_rig.weights.normalised()
+    share = np.asarray(weights.W.sum(axis=0)).ravel() / max(weights.n_vertices, 1)
+    carrying = {g for g, s in zip(weights.groups, share) if s >= MIN_WEIGHT_SHARE}
+    return R, {b: float(a) for b, a in zip(source_rig.skeleton.names, angles) if b in carrying}
+
+
+def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Mesh, source_rig: Rig,
+                               target_joints, target_frames=None, **options):
+    """Transfer a garment to a target body whose rest pose differs from the source's.
+
+    Parameters
+    ----------
+    source_body, target_body, garment : Mesh
+    source_rig : Rig
+        The source body's skeleton, joints and weights.
+    target_joints : dict of str to (3,) float
+        The target's joints (the same skeleton's joint names), in the target's rest pose.
+    target_frames : (b,3,3) float, optional
+        The target's bone frames in its rest pose (an armature's bones): they fix how far each bone turned
+        about itself, which the joints cannot (``rigging.matching_rotations``).
+    **options
+        Passed to ``transfer_to_any_body``.
+
+    Returns
+    -------
+    result : TransferResult
+        ``info["rest_pose"]``: ``largest_turn`` (degrees, and its bone), ``posed`` (whether the source was
+        posed), ``pose_fit`` (the fit's crossing counts).
+    registration : Registration or None
+    """
+    t = time.perf_counter()
+    R, turns = pose_difference(source_rig, target_joints, target_frames)
+    bone = max(turns, key=turns.get)
+    info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES}
+    rest_V = source_body.V
+    if info["posed"]:
+        posed_V = source_rig.pose(source_body.V, source_rig.transforms(R))
+        fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
+        info["pose_fit"] = {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
+                                                     "body_self_crossings")}
+        source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
+        garment = garment.with_vertices(fit.V)
+    seconds = time.perf_counter() - t
+    if not info["posed"]:
+        result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
+    else:
+        result, registration = transfer_to_any_body(source_body, target_body, garment,
+                                                    **dict(options, resolve_crossings=False))
+        if options.get("resolve_crossings", True) and options.get("fix_penetration", True):
+            # The target stands in a pose: where its body crosses or closes on itself no cloth can clear it.
+            t = time.perf_counter()
+            result.V, result.penetrating_vertices = clear_posed_body(
+                result.V, garment, target_body, result.info,
+                rest_V=rest_V if registration is None else None, name=target_body.name)
+            seconds += time.perf_counter() - t
+    result.info["rest_pose"] = info
+    result.seconds["rest_pose"] = seconds
+    result.seconds["total"] += seconds
+    return result, registration

@@ -1,0 +1,197 @@
+"""A body posed by its skeleton: BVH rotations applied with the body's own joints, and a skeleton posed to
+match another's rest pose.
+
+A BVH file's joints are the skeleton's bones; their rotations are relative to rest frames aligned with the
+file's axes, so they apply to any body of the skeleton with that body's own joint positions as the bones'
+offsets (``bvh_rotations``, ``skinning.pose_transforms``). ``matching_rotations`` finds the rotations that take
+one body's skeleton into another's pose (bones with the same names, each bone's frame from its joints and roll
+plane).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RigError
+from .bvh import Motion, axes_between
+from .skeleton import Skeleton, bone_frames
+from .skinning import SkinWeights, deforming, group_transforms, pose_transforms, skin
+
+
+@dataclass
+class Rig:
+    """A skeleton placed on one body, with the body's weights.
+
+    Attributes
+    ----------
+    skeleton : Skeleton
+    joints : dict of str to (3,) float64
+        The joints on this body.
+    weights : SkinWeights
+        The body's weights (only the groups that are bones are used to pose it).
+    """
+
+    skeleton: Skeleton
+    joints: dict
+    weights: SkinWeights
+
+    def rest(self):
+        """(heads, tails), each (b,3) float64."""
+        return self.skeleton.rest(self.joints)
+
+    def transforms(self, rotations, root_position=None):
+        """(b,3,4) skinning transforms for local rotations (b,3,3) (``skinning.pose_transforms``)."""
+        return pose_transforms(self.skeleton, self.rest()[0], rotations, root_position)
+
+    def pose(self, V, T, weights: SkinWeights | None = None):
+        """Vertices ``V`` (n,3) skinned by transforms ``T`` (b,3,4) with ``weights`` (default the body's).
+
+        Returns
+        -------
+        (n,3) float64
+        """
+        w = deforming(weights if weights is not None else self.weights, self.skeleton)
+        return skin(V, w, group_transforms(w, self.skeleton, T))
+
+    def posed_frames(self, T):
+        """(b,3,3) the bones' frames (``bone_frames``) turned by the transforms ``T`` (b,3,4): an armature's
+        bones in the pose."""
+        return np.einsum("bij,bjk->bik", T[:, :, :3], bone_frames(self.skeleton, self.joints))
+
+    def posed_joints(self, T):
+        """Every joint moved by the bones that own it (as a head first, else as a tail), with the
+        transforms ``T`` (b,3,4); the skeleton on the posed body."""
+        heads, tails = self.rest()
+        out = {}
+        for ends, points in ((self.skeleton.tails, tails), (self.skeleton.heads, heads)):
+            for b, joint in enumerate(ends):
+                out[joint] = T[b, :, :3] @ points[b] + T[b, :, 3]
+        for joint, p in self.joints.items():
+            out.setdefault(joint, np.asarray(p, dtype=np.float64))
+        return out
+
+
+def bvh_rotations(motion: Motion, skeleton: Skeleton, frame=0, file_up="Z", body_up="Y"):
+    """Each bone's local rotation at a frame of a BVH file, in the body's axes.
+
+    Parameters
+    ----------
+    motion : Motion
+        Its joints named as the skeleton's bones, each with the skeleton's parent; bones the file lacks stay
+        at rest.
+    skeleton : Skeleton
+    frame : int
+    file_up, body_up : {"Y", "Z"}
+        The up axes of the file and of the body (MakeHuman: Z and Y).
+
+    Returns
+    -------
+    R : (b,3,3) float64
+    """
+    index = {name: i for i, name in enumerate(skeleton.names)}
+    unknown = [j for j in motion.names if j not in index]
+    if unknown:
+        raise RigError(motion.name, f"has joints that are not bones of {skeleton.name}: {', '.join(unknown[:5])}")
+    for j, name in enumerate(motion.names):
+        parent = motion.names[motion.parents[j]] if motion.parents[j] >= 0 else None
+        own = skeleton.parents[index[name]]
+        if parent != (skeleton.names[own] if own >= 0 else None):
+            raise RigError(motion.name, f"joint {name} hangs from {parent}; in {skeleton.name} its parent is "
+                                        f"{skeleton.names[own] if own >= 0 else 'none'}")
+    M = axes_between(file_up, body_up)
+    R = np.tile(np.eye(3), (skeleton.n_bones, 1, 1))
+    local = motion.rotations(frame)
+    R[[index[j] for j in motion.names]] = np.einsum("ij,njk,lk->nil", M, local, M)
+    return R
+
+
+def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=None):
+    """The local rotations that pose a body's skeleton (``joints``) into another's pose (``target_joints``).
+
+    Each bone takes the turn ``G_b`` that best carries what it moves rigidly (its tail and its children's heads,
+    from its head) onto the target's (Kabsch). Where those all lie on the bone's line, it takes its parent's
+    turn followed by the smallest turn that points the bone along the target's (a root: the turn of its frame,
+    ``bone_frames``, onto the target's, ``G_b = F_target F_own^T``). Its rotation relative to its parent is
+    ``G_parent^T G_b``. Bones of no length follow their parent. A pose made by ``pose_transforms`` is found
+    again exactly, joints and turns, wherever a bone carries points off its line.
+
+    Joints alone do not say how far a bone turned about itself (a forearm's twist moves no joint). The target's
+    bone frames say it: with ``target_frames`` (an armature's bones, posed), ``G_b = F_target F_own^T`` for
+    every bone, exactly the pose's turns when the target is this skeleton posed (``Rig.posed_frames``).
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    joints, target_joints : dict of str to (3,) float
+        The joints on the body to pose and on the body whose pose it takes (the same skeleton's joints).
+    target_frames : (b,3,3) float, optional
+        The target's bone frames (columns X, Y along the bone, Z), when known.
+
+    Returns
+    -------
+    R : (b,3,3) float64
+    angles : (b,) float64
+        Each bone's global turn, in degrees (how far the two poses differ there).
+    """
+    own = bone_frames(skeleton, joints)
+    if target_frames is not None:
+        G = np.einsum("bij,bkj->bik", np.asarray(target_frames, dtype=np.float64), own)
+        R = np.array([G[b] if p < 0 else G[p].T @ G[b] for b, p in enumerate(skeleton.parents)])
+        cos = np.clip((np.einsum("bii->b", G) - 1.0) / 2.0, -1.0, 1.0)
+        return R, np.degrees(np.arccos(cos))
+    target = bone_frames(skeleton, target_joints)
+    heads, tails = skeleton.rest(joints)
+    heads_t, tails_t = skeleton.rest(target_joints)
+    length = np.linalg.norm(tails - heads, axis=1)
+    scale = max(float(np.ptp(heads, axis=0).max()), 1e-300)
+    G = np.einsum("bij,bkj->bik", target, own)
+    children = [[] for _ in range(skeleton.n_bones)]
+    for b, parent in enumerate(skeleton.parents):
+        if parent >= 0:
+            children[parent].append(b)
+    R = np.empty_like(G)
+    for b, parent in enumerate(skeleton.parents):
+        if length[b] <= 0:
+            G[b] = G[parent] if parent >= 0 else np.eye(3)
+        else:
+            # A bone whose points all lie on its line is turned as little as it can be from its parent's turn
+            # (its frame's, for a root): a plane through a child's joints would turn with the child's bend.
+            own_turn = G[b] if parent < 0 else _swing(G[parent] @ (tails[b] - heads[b]),
+                                                      tails_t[b] - heads_t[b]) @ G[parent]
+            a = np.vstack([tails[b], heads[children[b]]]) - heads[b]
+            c = np.vstack([tails_t[b], heads_t[children[b]]]) - heads_t[b]
+            G[b] = _turn(a, c, own_turn, 1e-3 * scale)
+        R[b] = G[b] if parent < 0 else G[parent].T @ G[b]
+    cos = np.clip((np.einsum("bii->b", G) - 1.0) / 2.0, -1.0, 1.0)
+    return R, np.degrees(np.arccos(cos))
+
+
+def _swing(a, b):
+    """The smallest rotation (3,3) that turns the direction of ``a`` (3,) onto that of ``b`` (3,)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1.0 + 1e-12:
+        # Half a turn: about any axis across ``a``.
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
+def _turn(a, b, fallback, tiny):
+    """The rotation that best takes vectors ``a`` (k,3) to ``b`` (k,3) (Kabsch), or ``fallback`` (3,3) when
+    the vectors longer than ``tiny`` lie on one line (a turn about that line is then not fixed by them)."""
+    keep = (np.linalg.norm(a, axis=1) > tiny) & (np.linalg.norm(b, axis=1) > tiny)
+    a, b = a[keep], b[keep]
+    if a.shape[0] < 2:
+        return fallback
+    ua = a / np.linalg.norm(a, axis=1, keepdims=True)
+    if np.linalg.svd(ua, compute_uv=False)[1] < 0.05:
+        return fallback
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T

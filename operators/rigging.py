@@ -1,0 +1,423 @@
+"""Garments that move with the character: weights and an Armature modifier from the body's armature, a fit to
+the current pose, and a fit baked over a frame range.
+
+- **Rig**: a result (transfer, outfit, size shape keys) gets the body's bones as vertex groups, with weights
+  matched where the cloth lies on the skin and inpainted elsewhere (the core's ``inpainted_weights``), at most
+  a few per vertex, an Armature modifier on the body's armature, and a Shrinkwrap (Outside) after it, so that
+  playback is live and the skin stays under the cloth. Weights are computed with the armature in its rest
+  position (the body and the cloth as modelled).
+- **Fit to Pose**: the garment fitted to the body as posed at the current frame (the core's ``fit_to_pose``):
+  a new object ``<garment>_fitted_<frame>``.
+- **Bake Pose Fit**: the same for every frame of a range, one preparation: a new object ``<garment>_baked``
+  with a shape key per frame, keyed so that each shows at its own frame. Playback of the bake is exact where
+  the live rig is approximate.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import bpy
+import numpy as np
+from bpy.props import IntProperty
+from mathutils import Matrix
+
+from . import convert
+from .reporting import ModalSteps, poll_objects, report_failure
+
+#: Names of the modifiers a rigged result gets.
+ARMATURE_MODIFIER = "Armature"
+KEEP_OUTSIDE_MODIFIER = "Keep Outside Body"
+
+
+def body_armature(body):
+    """The armature object of the body's first Armature modifier that has one, or None."""
+    for mod in body.modifiers:
+        if mod.type == 'ARMATURE' and mod.object is not None:
+            return mod.object
+    return None
+
+
+@contextlib.contextmanager
+def rest_position(*armatures):
+    """The armatures in their rest position for the block (``pose_position`` REST), then as they were."""
+    armatures = [a for a in armatures if a is not None]
+    before = [a.data.pose_position for a in armatures]
+    try:
+        for a in armatures:
+            a.data.pose_position = 'REST'
+        if armatures:
+            bpy.context.view_layer.update()
+        yield
+    finally:
+        for a, state in zip(armatures, before):
+            a.data.pose_position = state
+        if armatures:
+            bpy.context.view_layer.update()
+
+
+def deform_bones(armature):
+    """Names of the armature's deforming bones."""
+    return [b.name for b in armature.data.bones if b.use_deform]
+
+
+def vertex_group_weights(obj, names):
+    """The object's vertex groups called ``names`` as a core SkinWeights (groups it lacks come out empty)."""
+    from ..garment_transfer import weights_from_dict
+
+    index = {g.index: g.name for g in obj.vertex_groups if g.name in set(names)}
+    pairs = {name: [] for name in names}
+    for v in obj.data.vertices:
+        for g in v.groups:
+            name = index.get(g.group)
+            if name is not None and g.weight > 0:
+                pairs[name].append((v.index, g.weight))
+    return weights_from_dict(pairs, len(obj.data.vertices), f"{obj.name}'s vertex groups")
+
+
+def write_vertex_groups(obj, weights):
+    """Every group of ``weights`` (core SkinWeights) as a vertex group of ``obj`` (made, or replaced)."""
+    from ..garment_transfer import weights_to_dict
+
+    for name, pairs in weights_to_dict(weights, digits=9).items():
+        if not pairs:
+            continue
+        rows = np.array([p[0] for p in pairs], dtype=np.int64)
+        vals = np.array([p[1] for p in pairs], dtype=np.float64)
+        group = obj.vertex_groups.get(name)
+        if group is not None:
+            obj.vertex_groups.remove(group)
+        group = obj.vertex_groups.new(name=name)
+        # One call per distinct weight: vertex groups take a list of vertices and one weight.
+        order = np.argsort(vals, kind="stable")
+        values, starts = np.unique(vals[order], return_index=True)
+        for k, value in enumerate(values):
+            stop = starts[k + 1] if k + 1 < len(starts) else len(order)
+            group.add(rows[order[starts[k]:stop]].tolist(), float(value), 'REPLACE')
+
+
+def add_armature_modifier(obj, armature):
+    """An Armature modifier on ``armature`` at the top of the stack (deform first, refine after)."""
+    mod = obj.modifiers.new(name=ARMATURE_MODIFIER, type='ARMATURE')
+    mod.object = armature
+    mod.use_vertex_groups = True
+    mod.use_bone_envelopes = False
+    obj.modifiers.move(len(obj.modifiers) - 1, 0)
+    return mod
+
+
+def add_keep_outside(obj, body, offset):
+    """A Shrinkwrap (Outside) on the body, last in the stack: the live correction of playback."""
+    mod = obj.modifiers.new(name=KEEP_OUTSIDE_MODIFIER, type='SHRINKWRAP')
+    mod.target = body
+    mod.wrap_method = 'NEAREST_SURFACEPOINT'
+    mod.wrap_mode = 'OUTSIDE'
+    mod.offset = offset
+    return mod
+
+
+def rig_to_body(context, obj, body, *, max_influences=4, keep_outside=True):
+    """Give ``obj`` (a garment on ``body``, as modelled: the armature at rest) the body's bones as vertex
+    groups, weighted by the core's ``inpainted_weights``, an Armature modifier and the live correction.
+
+    Returns
+    -------
+    armature : bpy.types.Object
+    info : dict
+        The weight transfer's figures (``matched``, ``inpainted``, ``warnings``).
+    """
+    from ..garment_transfer import OFFSET_SHARE, RigError, body_scale, inpainted_weights
+
+    armature = body_armature(body)
+    if armature is None:
+        raise RigError(body.name, "has no Armature modifier with an armature to take bones from")
+    bones = deform_bones(armature)
+    body_weights = vertex_group_weights(body, bones)
+    if not body_weights.influences().any():
+        raise RigError(body.name, f"has no vertex groups named as the bones of {armature.name}")
+    with rest_position(armature):
+        depsgraph = context.evaluated_depsgraph_get()
+        body_mesh = convert.core_mesh_from_object(body, depsgraph, False, "body")
+        cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
+    weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
+                                      max_influences=max_influences, name=obj.name)
+    write_vertex_groups(obj, weights)
+    for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == KEEP_OUTSIDE_MODIFIER]:
+        obj.modifiers.remove(mod)
+    add_armature_modifier(obj, armature)
+    if keep_outside:
+        # A little less than the transfer's offset: it catches the skin through the cloth, not the folds.
+        add_keep_outside(obj, body, 0.5 * OFFSET_SHARE * body_scale(body_mesh.V))
+    obj.data.update()
+    return armature, info
+
+
+def rest_and_posed(context, obj, body):
+    """The garment's and the body's rest meshes and the body's posed positions at the current frame (world)."""
+    armature = body_armature(body)
+    depsgraph = context.evaluated_depsgraph_get()
+    posed = convert.core_mesh_from_object(body, depsgraph, True, "body")
+    with rest_position(armature):
+        depsgraph = context.evaluated_depsgraph_get()
+        rest = convert.core_mesh_from_object(body, depsgraph, True, "body")
+    cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
+    return rest, posed, cloth
+
+
+def fitted_name(obj, frame):
+    return f"{obj.name}_fitted_{frame}"
+
+
+def fit_current_pose(context, obj, body):
+    """The garment fitted to the body's pose at the current frame: a new object (the inputs unchanged).
+
+    Returns
+    -------
+    result : bpy.types.Object
+    outcome : TransferResult
+    """
+    from ..garment_transfer import MeshError, fit_to_pose, require_same_topology
+
+    if body_armature(body) is None:
+        raise MeshError(body.name, "has no Armature modifier: there is no pose to fit to")
+    rest, posed, cloth = rest_and_posed(context, obj, body)
+    require_same_topology(rest, posed)
+    frame = context.scene.frame_current
+    outcome = fit_to_pose(rest, posed.V, cloth, name=f"frame {frame}")
+    result = convert.new_result_object(obj, outcome.V, fitted_name(obj, frame), context.evaluated_depsgraph_get(),
+                                       False, scene=context.scene, view_layer=context.view_layer)
+    for mod in [m for m in result.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]:
+        result.modifiers.remove(mod)
+    return result, outcome
+
+
+def bake_steps(context, obj, body, start, end):
+    """Fit the garment to every frame from ``start`` to ``end``: a generator of fractions done; its value
+    (``StopIteration.value``) is ``(frames, positions, warnings, seconds)``. The scene's frame is put back."""
+    from ..garment_transfer import MeshError, fit_to_pose, prepare_garment
+
+    if body_armature(body) is None:
+        raise MeshError(body.name, "has no Armature modifier: there is no motion to bake")
+    if end < start:
+        raise MeshError(obj.name, f"the frame range {start} to {end} is empty")
+    scene = context.scene
+    frame_before = scene.frame_current
+    frames = list(range(start, end + 1))
+    t = time.perf_counter()
+    try:
+        rest, _, cloth = rest_and_posed(context, obj, body)
+        prepared = prepare_garment(rest, cloth)
+        positions, warnings = [], []
+        for i, frame in enumerate(frames):
+            scene.frame_set(frame)
+            posed = convert.core_mesh_from_object(body, context.evaluated_depsgraph_get(), True, "body")
+            outcome = fit_to_pose(rest, posed.V, cloth, prepared=prepared, name=f"frame {frame}")
+            positions.append(outcome.V)
+            warnings += outcome.info["warnings"]
+            yield (i + 1) / len(frames)
+    finally:
+        scene.frame_set(frame_before)
+    return frames, positions, warnings, time.perf_counter() - t
+
+
+def baked_object(context, obj, frames, positions):
+    """A new object ``<garment>_baked``: a shape key per frame, each at 1 on its frame and 0 on the frames
+    beside it (constant interpolation between keys is not needed: neighbours blend linearly)."""
+    result = convert.new_result_object(obj, positions[0], f"{obj.name}_baked", context.evaluated_depsgraph_get(),
+                                       False, scene=context.scene, view_layer=context.view_layer)
+    try:
+        for mod in [m for m in result.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]:
+            result.modifiers.remove(mod)
+        result.shape_key_add(name="Basis", from_mix=False)
+        for frame, V in zip(frames, positions):
+            kb = result.shape_key_add(name=f"frame {frame}", from_mix=False)
+            local = convert.local_from_world(V, result.matrix_world, obj.name)
+            kb.data.foreach_set("co", local.astype(np.float32).ravel())
+            for f, value in ((frame - 1, 0.0), (frame, 1.0), (frame + 1, 0.0)):
+                kb.value = value
+                kb.keyframe_insert("value", frame=f)
+        result.data.update()
+        return result
+    except BaseException:
+        me = result.data
+        bpy.data.objects.remove(result)
+        bpy.data.meshes.remove(me)
+        raise
+
+
+def make_armature(context, name, skeleton, joints_world):
+    """An armature object from a core Skeleton placed by joints in world space: a bone per skeleton bone from
+    its head joint to its tail joint, rolled so that its Z axis is the skeleton's (the roll plane's,
+    ``bone_frames``); linked to the scene, at the world origin.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    joints_world : dict of str to (3,) float
+
+    Returns
+    -------
+    bpy.types.Object
+    """
+    from ..garment_transfer import bone_frames
+
+    heads, tails = skeleton.rest(joints_world)
+    frames = bone_frames(skeleton, joints_world)
+    data = bpy.data.armatures.new(name)
+    obj = bpy.data.objects.new(name, data)
+    context.scene.collection.objects.link(obj)
+    previous = context.view_layer.objects.active
+    context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode='EDIT')
+    try:
+        shortest = 1e-4 * max(float(np.ptp(heads, axis=0).max()), 1e-9)
+        bones = []
+        for b, bone_name in enumerate(skeleton.names):
+            bone = data.edit_bones.new(bone_name)
+            bone.head = heads[b]
+            # Blender drops a bone of no length: such a bone gets a tiny one along its frame.
+            tail = tails[b] if np.linalg.norm(tails[b] - heads[b]) > shortest else heads[b] + shortest * frames[b][:, 1]
+            bone.tail = tail
+            bone.align_roll(frames[b][:, 2])
+            if skeleton.parents[b] >= 0:
+                bone.parent = bones[skeleton.parents[b]]
+            bones.append(bone)
+    finally:
+        bpy.ops.object.mode_set(mode='OBJECT')
+        context.view_layer.objects.active = previous
+    return obj
+
+
+def pose_armature(armature, skeleton, transforms):
+    """Pose an armature made by ``make_armature`` (at the world origin) by the core's skinning transforms
+    (``pose_transforms``, (b,3,4), world space): each pose bone's basis is ``Rest^-1 T_parent^-1 T Rest``."""
+    def full(T):
+        out = np.eye(4)
+        out[:3, :] = T
+        return out
+
+    T = [full(t) for t in np.asarray(transforms, dtype=np.float64)]
+    for b, name in enumerate(skeleton.names):
+        bone = armature.data.bones[name]
+        rest = convert.matrix_array(bone.matrix_local)
+        parent = skeleton.parents[b]
+        relative = T[b] if parent < 0 else np.linalg.solve(T[parent], T[b])
+        basis = np.linalg.solve(rest, relative @ rest)
+        armature.pose.bones[name].matrix_basis = Matrix(basis.tolist())
+
+
+def _poll_rigged(cls, context):
+    return poll_objects(cls, context, lambda s: (("the target body", s.target_body), ("a result", s.result)))
+
+
+class GARMENT_TRANSFER_OT_rig_garment(bpy.types.Operator):
+    """Give the result the target body's bones as vertex groups (matched where the cloth lies on the skin,
+    filled smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside: it follows the
+    character"""
+
+    bl_idname = "garment_transfer.rig_garment"
+    bl_label = "Rig to Body"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_rigged(cls, context)
+
+    def execute(self, context):
+        settings = context.scene.garment_transfer
+        try:
+            armature, info = rig_to_body(context, settings.result, settings.target_body,
+                                         max_influences=settings.max_influences)
+        except Exception as exc:
+            return report_failure(self, exc)
+        self.report({'INFO'}, f"{settings.result.name}: rigged to {armature.name} ({info['matched']} vertices "
+                              f"matched the body, {info['inpainted']} inpainted, at most "
+                              f"{settings.max_influences} bones each)")
+        for warning in info["warnings"]:
+            self.report({'WARNING'}, warning)
+        return {'FINISHED'}
+
+
+class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
+    """Fit the result to the target body's pose at the current frame, keeping its folds and the body inside:
+    a new object <result>_fitted_<frame>"""
+
+    bl_idname = "garment_transfer.fit_pose"
+    bl_label = "Fit to Pose"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_rigged(cls, context)
+
+    def execute(self, context):
+        settings = context.scene.garment_transfer
+        start = time.perf_counter()
+        try:
+            result, outcome = fit_current_pose(context, settings.result, settings.target_body)
+        except Exception as exc:
+            return report_failure(self, exc)
+        info = outcome.info
+        self.report({'INFO'}, f"{result.name}: {info['crossings_outside_contact']} crossings with the body, "
+                              f"{info['crossings_at_contact']} where it crosses itself; "
+                              f"{time.perf_counter() - start:.2f} s")
+        for warning in info["warnings"]:
+            self.report({'WARNING'}, warning)
+        return {'FINISHED'}
+
+
+class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
+    """Fit the result to the target body's pose at every frame of a range: a new object <result>_baked with
+    a shape key per frame, keyed to play back exactly"""
+
+    bl_idname = "garment_transfer.bake_pose_fit"
+    bl_label = "Bake Pose Fit"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    frame_start: IntProperty(name="Start", default=1, description="First frame to bake")
+    frame_end: IntProperty(name="End", default=0, description="Last frame to bake (0: the scene's end)")
+
+    status_text = "Baking the pose fit"
+    cancel_text = "Pose fit bake cancelled; nothing was made"
+    timer_seconds = 0.01
+    _steps = None
+
+    @classmethod
+    def poll(cls, context):
+        return _poll_rigged(cls, context)
+
+    def _start(self, context):
+        settings = context.scene.garment_transfer
+        end = self.frame_end or context.scene.frame_end
+        self._began = time.perf_counter()
+        self._steps = bake_steps(context, settings.result, settings.target_body, self.frame_start, end)
+
+    def _finish(self, context, outcome):
+        frames, positions, warnings, seconds = outcome
+        settings = context.scene.garment_transfer
+        try:
+            result = baked_object(context, settings.result, frames, positions)
+        except Exception as exc:
+            return report_failure(self, exc)
+        self.report({'INFO'}, f"{result.name}: {len(frames)} frames fitted in {seconds:.1f} s "
+                              f"({seconds / len(frames):.2f} s a frame)")
+        if warnings:
+            self.report({'WARNING'}, f"{len(warnings)} frames left crossings; the first: {warnings[0]}")
+        return {'FINISHED'}
+
+    def execute(self, context):
+        try:
+            self._start(context)
+            while True:
+                try:
+                    next(self._steps)
+                except StopIteration as stop:
+                    outcome = stop.value
+                    break
+        except Exception as exc:
+            return report_failure(self, exc)
+        return self._finish(context, outcome)
+
+
+CLASSES = (GARMENT_TRANSFER_OT_rig_garment, GARMENT_TRANSFER_OT_fit_pose, GARMENT_TRANSFER_OT_bake_pose_fit)

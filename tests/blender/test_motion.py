@@ -1,0 +1,168 @@
+"""Garments that move: an armature made from MakeHuman's rig, a rigged transfer result, the fit to the current
+pose and its bake over frames, with the real bpy module."""
+
+from __future__ import annotations
+
+import bpy
+import numpy as np
+import pytest
+from conftest import import_obj, world_vertices
+
+from garment_transfer import (Rig, bvh_rotations, fit_to_pose, read_bvh, read_joints, read_obj, read_skeleton,
+                              read_weights, transfer_garment)
+
+# Blender's OBJ import of a Y-up file in decimetres (conftest.import_obj): world = 0.1 * C @ file.
+C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def to_world(P):
+    return 0.1 * np.asarray(P) @ C.T
+
+
+def extension_rigging():
+    import sys
+
+    return sys.modules[bpy.types.GARMENT_TRANSFER_OT_rig_garment.__module__]
+
+
+@pytest.fixture
+def character(makehuman):
+    """The pear body with MakeHuman's skeleton as an armature, its weights as vertex groups and an Armature
+    modifier; the average body and a suit on it as the source, all chosen in the Garment tab."""
+    rigging = extension_rigging()
+    skeleton = read_skeleton(makehuman / "rig" / "skeleton.json")
+    joints = read_joints(makehuman / "rig" / "joints" / "female_pear.json")
+    weights = read_weights(makehuman / "rig" / "weights.json", 13380)
+    body = import_obj(makehuman / "bodies" / "female_pear.obj", "pear")
+    source = import_obj(makehuman / "bodies" / "female_average.obj", "average")
+    garment = import_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj", "suit")
+    armature = rigging.make_armature(bpy.context, "pear_rig", skeleton,
+                                     {k: to_world(v) for k, v in joints.items()})
+    rigging.write_vertex_groups(body, weights)
+    mod = body.modifiers.new(name="Armature", type='ARMATURE')
+    mod.object = armature
+    settings = bpy.context.scene.garment_transfer
+    settings.source_body, settings.target_body, settings.garment = source, body, garment
+    core_rig = Rig(skeleton, {k: to_world(v) for k, v in joints.items()}, weights)
+    return rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman
+
+
+def evaluated_world(obj):
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(depsgraph)
+    me = ev.to_mesh()
+    try:
+        co = np.empty(3 * len(me.vertices), dtype=np.float32)
+        me.vertices.foreach_get("co", co)
+    finally:
+        ev.to_mesh_clear()
+    M = np.array(ev.matrix_world)
+    return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+
+
+def pose(character, name):
+    rigging, skeleton, core_rig, _, _, _, armature, _, makehuman = character
+    # Blender's world is Z up like the BVH files: their rotations apply as they are.
+    R = bvh_rotations(read_bvh(makehuman / "poses" / f"{name}.bvh"), skeleton, file_up="Z", body_up="Z")
+    T = core_rig.transforms(R)
+    rigging.pose_armature(armature, skeleton, T)
+    bpy.context.view_layer.update()
+    return T
+
+
+def test_an_armature_from_the_rig_has_its_bones_rolls_and_poses_the_body_as_the_core_does(character):
+    rigging, skeleton, core_rig, body, *_ = character
+    armature = character[6]
+    bones = armature.data.bones
+    assert len(bones) == skeleton.n_bones
+    heads, tails = core_rig.rest()
+    i = skeleton.index("lowerarm01.L")
+    assert np.allclose(np.array(bones["lowerarm01.L"].head_local), heads[i], atol=1e-6)
+    assert np.allclose(np.array(bones["lowerarm01.L"].tail_local), tails[i], atol=1e-6)
+    from garment_transfer import bone_frames
+
+    z = np.array(bones["lowerarm01.L"].matrix_local)[:3, 2]
+    assert np.dot(z, bone_frames(skeleton, core_rig.joints)[i][:, 2]) > 0.9999
+    T = pose(character, "run01")
+    expected = core_rig.pose(world_vertices(body), T)
+    posed = evaluated_world(body)
+    assert np.abs(posed - world_vertices(body)).max() > 0.1          # it moved (metres)
+    assert np.abs(posed - expected).max() < 1e-4                     # as the core's skinning, to 0.1 mm
+
+
+def test_a_transfer_onto_a_rigged_posed_body_is_made_at_rest_and_rigged(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    pose(character, "standing01")
+    settings.max_influences = 4
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    # Made on the rest pose: the base mesh is the transfer to the body at rest.
+    src, tgt = (read_obj(makehuman / "bodies" / f"{n}.obj") for n in ("female_average", "female_pear"))
+    cloth = read_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj")
+    at_rest = to_world(transfer_garment(src, tgt, cloth).V)
+    # Within 1 mm (the scene holds float32 coordinates; the pose moves the cloth by decimetres).
+    assert np.abs(world_vertices(result) - at_rest).max() < 1e-3
+    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SHRINKWRAP']
+    assert result.modifiers[0].object == armature and result.modifiers[1].target == body
+    groups = {g.index: g.name for g in result.vertex_groups}
+    assert set(groups.values()) <= set(skeleton.names)
+    counts = np.array([len(v.groups) for v in result.data.vertices])
+    sums = np.array([sum(g.weight for g in v.groups) for v in result.data.vertices])
+    assert counts.max() <= 4 and np.allclose(sums, 1, atol=1e-4)
+    assert not garment.vertex_groups and not garment.modifiers          # the input is unchanged
+    moved = np.linalg.norm(evaluated_world(result) - world_vertices(result), axis=1)
+    assert moved.max() > 0.05                                           # it follows the pose
+
+
+def test_fit_to_pose_and_bake(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    T = pose(character, "fight01")
+    bpy.context.scene.frame_set(7)
+    assert bpy.ops.garment_transfer.fit_pose() == {'FINISHED'}
+    fitted = bpy.data.objects[f"{result.name}_fitted_7"]
+    rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
+    rest_body = rest_body.with_vertices(to_world(rest_body.V))
+    cloth = rest_body.__class__(world_vertices(result), *[getattr(read_obj(
+        makehuman / "garments" / "female_sportsuit01" / "female_average.obj"), k)
+        for k in ("F", "face_vertices", "face_start", "tri_to_face")])
+    expected = fit_to_pose(rest_body, core_rig.pose(rest_body.V, T), cloth)
+    assert expected.info["crossings_outside_contact"] == 0
+    # The scene's float32 coordinates can take the crossing pass another way here and there: within 1 mm on
+    # average of the core's fit (the kick moves the cloth by decimetres).
+    assert np.linalg.norm(world_vertices(fitted) - expected.V, axis=1).mean() < 1e-3
+    assert not [m for m in fitted.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]
+    # Bake three frames: rest at 1, the kick at 3, keyed in between.
+    for bone in armature.pose.bones:
+        bone.keyframe_insert("location", frame=3)
+        bone.keyframe_insert("rotation_quaternion", frame=3)
+        bone.matrix_basis.identity()
+        bone.keyframe_insert("location", frame=1)
+        bone.keyframe_insert("rotation_quaternion", frame=1)
+    bpy.context.scene.frame_set(5)
+    before = set(bpy.data.objects)
+    steps = rigging.bake_steps(bpy.context, result, body, 1, 3)
+    next(steps)
+    steps.close()                                                       # cancelled: nothing made
+    assert set(bpy.data.objects) == before and bpy.context.scene.frame_current == 5
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3) == {'FINISHED'}
+    baked = bpy.data.objects[f"{result.name}_baked"]
+    keys = baked.data.shape_keys.key_blocks
+    assert [k.name for k in keys] == ["Basis", "frame 1", "frame 2", "frame 3"]
+    assert bpy.context.scene.frame_current == 5
+    bpy.context.scene.frame_set(3)
+    assert [round(k.value, 6) for k in keys[1:]] == [0.0, 0.0, 1.0]
+    assert np.linalg.norm(evaluated_world(baked) - expected.V, axis=1).mean() < 1e-3   # frame 3: the kick's fit
+
+
+def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_nothing(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    body.modifiers.remove(body.modifiers["Armature"])
+    settings.result = garment
+    groups = len(garment.vertex_groups)
+    with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
+        bpy.ops.garment_transfer.rig_garment()
+    assert len(garment.vertex_groups) == groups and not garment.modifiers
+    with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
+        bpy.ops.garment_transfer.fit_pose()

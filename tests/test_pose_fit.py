@@ -1,0 +1,102 @@
+"""The pose fit: a garment carried from the rest body to the same body posed, kept outside it, counted under
+every split of the quads."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from meshes import grid, icosphere, random_rotation, require_makehuman
+
+from garment_transfer import (Rig, bvh_rotations, every_split, fit_to_pose, inpainted_weights, mdc,
+                              mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
+                              read_obj, read_skeleton, read_weights, transfer_garment, write_obj)
+from garment_transfer.pipeline import self_contact
+from garment_transfer.pipeline.pose_fit import crossing_counts
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_split_holds_both_diagonals_and_every_fan():
+    quads = grid(4, 3)
+    F = every_split(quads)
+    assert np.array_equal(F[:quads.n_triangles], quads.F) and F.shape[0] == 4 * quads.n_faces
+    pentagon = mesh_from_polygons(np.array([[np.cos(a), np.sin(a), 0] for a in np.linspace(0, 6, 5)]),
+                                  [[0, 1, 2, 3, 4]])
+    assert {tuple(sorted(t)) for t in every_split(pentagon)} == {
+        (a, b, c) for a in range(5) for b in range(a + 1, 5) for c in range(b + 1, 5)}
+    tri = mesh_from_triangles(*icosphere(0))
+    assert np.array_equal(every_split(tri), tri.F)
+
+
+def test_self_contact_finds_where_a_body_crosses_itself():
+    V1, F1 = icosphere(2)
+    V2, F2 = icosphere(2, centre=(1.5, 0, 0))
+    V, F = np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)])
+    contact, pairs = self_contact(V, F, rings=0)
+    assert pairs > 0 and contact.any()
+    assert (V[contact, 0] > 0.3).all() and (V[contact, 0] < 1.2).all()     # only where the spheres overlap
+    apart, none = self_contact(np.vstack([V1, V2 + [1.5, 0, 0]]), F, rings=2)
+    assert none == 0 and not apart.any()
+
+
+def test_a_body_turned_as_a_whole_turns_the_garment_exactly():
+    rng = np.random.default_rng(2)
+    V, F = icosphere(3)
+    body = mesh_from_triangles(V, F, "body")
+    G, GF = icosphere(2, radius=1.05)
+    garment = mesh_from_triangles(G, GF, "garment")
+    R = random_rotation(rng)
+    result = fit_to_pose(body, V @ R.T + [0.3, 0, 0], garment, name="turned")
+    assert np.allclose(result.V, G @ R.T + [0.3, 0, 0], atol=1e-9)
+    info = result.info
+    assert info["crossings_outside_contact"] == info["crossings_at_contact"] == info["body_self_crossings"] == 0
+    assert info["warnings"] == [] and result.penetrating_vertices == 0
+
+
+def makehuman_suit():
+    root = require_makehuman()
+    body = read_obj(root / "bodies" / "female_pear.obj")
+    source = read_obj(root / "bodies" / "female_average.obj")
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    rest = garment.with_vertices(transfer_garment(source, body, garment).V)
+    skeleton = read_skeleton(root / "rig" / "skeleton.json")
+    rig = Rig(skeleton, read_joints(root / "rig" / "joints" / "female_pear.json"),
+              read_weights(root / "rig" / "weights.json", body.n_vertices))
+    T = rig.transforms(bvh_rotations(read_bvh(root / "poses" / "standing01.bvh"), skeleton))
+    return body, rest, rig, T
+
+
+def test_a_makehuman_suit_fitted_to_a_pose_is_clean_and_keeps_its_design_better_than_skinning():
+    body, rest, rig, T = makehuman_suit()
+    posed = rig.pose(body.V, T)
+    result = fit_to_pose(body, posed, rest, prepared=prepare_garment(body, rest), name="standing01")
+    # Away from where the posed body crosses itself, no crossing under any split of either mesh's quads.
+    contact, own = self_contact(posed, body.F)
+    body_F = every_split(body)
+    free = body_F[~contact[body_F].any(axis=1)]
+    assert own > 0 and sum(crossing_counts(result.V, every_split(rest), posed, free)) == 0
+    assert result.info["crossings_outside_contact"] == 0
+    weights, _ = inpainted_weights(body.V, body.F, rig.weights, rest.V, rest.F)
+    skinned = rig.pose(rest.V, T, weights)
+    assert mdc(rest.V, result.V, rest.F) < mdc(rest.V, skinned, rest.F)
+
+
+def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
+    body, rest, rig, T = makehuman_suit()
+    paths = {"rest": tmp_path / "rest.obj", "garment": tmp_path / "suit.obj", "pose": tmp_path / "standing01.obj"}
+    write_obj(paths["rest"], body)
+    write_obj(paths["garment"], rest)
+    write_obj(paths["pose"], body, rig.pose(body.V, T))
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--poses", "--source-body",
+                        paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"], "--out", out,
+                        "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    row, = data["shapes"]
+    assert row["crossings_outside_contact"] == 0 and isinstance(data["warnings"], list)
+    written = read_obj(row["out"])
+    assert np.array_equal(written.face_vertices, rest.face_vertices)      # the garment's own faces
+    assert json.loads((out / "poses.json").read_text())["shapes"] == [row]
