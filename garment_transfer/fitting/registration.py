@@ -55,9 +55,9 @@ import numpy as np
 from ..errors import MeshError, RegistrationError
 from ..geometry.mesh import Mesh, triangle_normals
 from ..geometry.proximity import TriangleSurface
-from .alignment import ASPECT_FACTOR, Similarity, align, closest_in_order, surface_samples
+from .alignment import ASPECT_FACTOR, Similarity, align, closest_points, surface_samples
 from .cache import cache_folder, cache_key, load_cached, save_cached
-from .nonrigid import SCHEDULE, nonrigid_fit
+from .nonrigid import COARSE_FACES, FINE_SCHEDULE, SCHEDULE, nonrigid_fit
 from .shape_basis import (
     SHAPE_BOUNDS,
     SHAPE_ITERATIONS,
@@ -77,7 +77,7 @@ log = logging.getLogger(__name__)
 
 
 #: Bumped whenever the algorithm or its defaults change, so old cache entries are not reused.
-ALGORITHM_VERSION = 9
+ALGORITHM_VERSION = 10
 
 #: Limits of an acceptable fit, as shares of the target's height (a 1.7 m body: 1% = 17 mm).
 #: Measured fits of MakeHuman bodies onto each other and onto the procedural mannequins stay below
@@ -159,7 +159,7 @@ class Registration:
 
 # --- quality ----------------------------------------------------------------------------------
 
-def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
+def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None, aligned=None):
     """Surface distance both ways and distortion of a fit.
 
     Parameters
@@ -173,6 +173,11 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     target_V, target_F : the target surface.
     X_source_frame : (n,3) float, optional
         The fit in the source's frame (default X): normals are compared there.
+    aligned : tuple, optional
+        ``(surface, scale)``: the target already built in the frame of ``X_source_frame`` (a
+        TriangleSurface) and the scale of that frame to the target's (the alignment's). The distances
+        are then measured there, with its search tree, and divided by the scale: the same points
+        (area-uniform samples do not depend on a similarity), the same distances.
 
     Returns
     -------
@@ -186,8 +191,12 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     height = float(np.ptp(np.asarray(target_V), axis=0).max())
     # Area-uniform points: a surface distance, not a vertex one (a body dense in the fingers and
     # face would otherwise be judged by them).
-    d1 = closest_in_order(TriangleSurface(target_V, target_F), surface_samples(X, F, QUALITY_SAMPLES, seed=3)[0])[1]
-    d2 = closest_in_order(TriangleSurface(X, F), surface_samples(target_V, target_F, QUALITY_SAMPLES, seed=4)[0])[1]
+    if aligned is None:
+        target, Y, scale = TriangleSurface(target_V, target_F), X, 1.0
+    else:
+        (target, scale), Y = aligned, X_source_frame
+    d1 = closest_points(target, surface_samples(Y, F, QUALITY_SAMPLES, seed=3)[0])[1] / scale
+    d2 = closest_points(TriangleSurface(Y, F), surface_samples(target.V, target.F, QUALITY_SAMPLES, seed=4)[0])[1] / scale
     q = {}
     for name, d in (("to_target", d1), ("from_target", d2)):
         for stat, v in (("mean", d.mean()), ("p95", np.quantile(d, 0.95)), ("max", d.max())):
@@ -237,7 +246,8 @@ def check_aspect(info, source_name, target_name):
 # --- the whole stage --------------------------------------------------------------------------
 
 def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None, progress=None,
-             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
+             schedule=SCHEDULE, fine_schedule=FINE_SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS,
+             body_model=False) -> Registration:
     """Fit the source body onto the target body (any mesh, units and axes; a similar pose).
 
     Parameters
@@ -255,7 +265,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     progress : callable, optional
         ``progress(fraction)``; returning True cancels.
     schedule : sequence of (alpha, steps)
-        The non-rigid stages (``SCHEDULE``).
+        The non-rigid stages on the decimated source (``SCHEDULE``).
+    fine_schedule : sequence of (alpha, steps)
+        Those that follow on the whole source (``FINE_SCHEDULE``).
     shape_basis : (k,n,3) float, optional
         Shape deltas of the source body (its vertex order, its frame and units): for example its
         shape keys relative to the basis shape, or other bodies of its mesh less the source
@@ -283,7 +295,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     for role, m in (("source body", source), ("target body", target)):
         if m.n_triangles < 4:
             raise MeshError(m.name, f"the {role} has {m.n_triangles} triangles; a body is needed")
-    settings = {"schedule": [list(s) for s in schedule]}
+    settings = {"schedule": [list(s) for s in schedule], "fine_schedule": [list(s) for s in fine_schedule],
+                "coarse_faces": COARSE_FACES}
     if shape_basis is not None:
         shape_basis = check_shape_basis(shape_basis, source.n_vertices)
         lo, hi = weight_bounds(shape_bounds, shape_basis.shape[0])
@@ -327,12 +340,13 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
             similarity = shape_info.get("similarity")
         seconds["shape"] = time.perf_counter() - t
         t = time.perf_counter()
-    Xs = nonrigid_fit(start, source.F, T, target.F, schedule=schedule, progress=progress, surface=surface,
-                      start_similarity=similarity)
+    Xs = nonrigid_fit(start, source.F, T, target.F, schedule=schedule, fine_schedule=fine_schedule,
+                      progress=progress, surface=surface, start_similarity=similarity)
     seconds["fit"] = time.perf_counter() - t
     t = time.perf_counter()
     V = alignment.inverse().apply(Xs)
-    quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs)
+    quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs,
+                          aligned=(surface, alignment.scale))
     quality.update({k: float(v) for k, v in info.items() if k != "snapped"})
     quality["units_snapped"] = float(info["snapped"])
     if shape_basis is not None:
