@@ -34,8 +34,10 @@ class CoarseBody:
         The source body.
     F : (m,3) int
         Its triangles.
-    faces : int
-        Triangles of the decimated body.
+    U : (k,3) float
+        The decimated body's vertices (``CoarseBody.of`` decimates).
+    G : (l,3) int
+        Its triangles.
 
     Attributes
     ----------
@@ -48,30 +50,29 @@ class CoarseBody:
         regulariser and the data terms that the weight gives on the source (see ``regulariser_scale``).
     """
 
-    def __init__(self, X, F, faces):
+    def __init__(self, X, F, U, G):
         X = np.asarray(X, dtype=np.float64)
-        F = np.asarray(F, dtype=np.int64)
-        U, G = igl.decimate(X, F, int(faces))[:2]
         self.X = np.ascontiguousarray(U, dtype=np.float64)
         self.F = np.ascontiguousarray(G, dtype=np.int64)
         _, _, self.tri, self.bary = TriangleSurface(self.X, self.F).closest(X)
         self.offset = X - self._points(self.X)
-        self.alpha_scale = regulariser_scale(X, F, self.X, self.F)
+        self.alpha_scale = regulariser_scale(X, np.asarray(F, dtype=np.int64), self.X, self.F)
 
     @classmethod
     def of(cls, X, F, faces):
-        """The decimated body, or None when the source is not worth decimating (at most 1.5 times
-        ``faces`` triangles) or libigl cannot decimate it (a non-manifold edge, duplicate faces, a
-        triangle soup)."""
+        """The source (X (n,3), F (m,3)) decimated to ``faces`` triangles; None when it is not worth
+        decimating (at most 1.5 times ``faces`` triangles) or libigl cannot decimate it (a non-manifold
+        edge, duplicate faces, a triangle soup)."""
+        X = np.asarray(X, dtype=np.float64)
         F = np.asarray(F, dtype=np.int64)
         if F.shape[0] <= 1.5 * faces:
             return None
-        body = cls(X, F, faces)
-        if body.F.shape[0] < 4 or body.F.shape[0] > FACES_SLACK * faces or not np.isfinite(body.X).all():
+        U, G = igl.decimate(X, F, int(faces))[:2]
+        if G.ndim != 2 or not 4 <= G.shape[0] <= FACES_SLACK * faces or not np.isfinite(U).all():
             log.info("registration: the source body could not be decimated (%d triangles), fitted whole",
-                     body.F.shape[0])
+                     G.shape[0] if G.ndim == 2 else 0)
             return None
-        return body
+        return cls(X, F, U, G)
 
     def _points(self, Y):
         return np.einsum("ki,kij->kj", self.bary, Y[self.F[self.tri]])

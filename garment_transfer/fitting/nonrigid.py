@@ -273,7 +273,7 @@ def global_similarity(X, F, surface, P, iterations=10, samples=2000, trim=0.9):
 
 #: Regulariser weights, stiff to soft, and the steps taken at each: ``SCHEDULE`` on the source decimated
 #: to COARSE_FACES triangles, then ``FINE_SCHEDULE`` on the whole source (``nonrigid_fit``).
-SCHEDULE = ((2000.0, 2), (600.0, 2), (200.0, 2), (60.0, 3), (20.0, 3), (5.0, 3), (1.0, 3))
+SCHEDULE = ((2000.0, 2), (600.0, 2), (200.0, 2), (60.0, 2), (20.0, 2), (5.0, 2), (1.0, 2))
 FINE_SCHEDULE = ((5.0, 2), (1.0, 3))
 COARSE_FACES = 6000
 
@@ -530,9 +530,16 @@ def part_similarity(Y0, Fp, core, Xcur, P, Np, iterations=PART_ITERATIONS, trim=
     outer_tri = ~core[Fp].all(axis=1)
     centre = Y0.mean(axis=0)
     radius = np.linalg.norm(Y0 - centre, axis=1).max()
+    # The target points within twice the part's reach of its start: each step picks its points among
+    # these (the same ones as among all of them while the part stays within that reach).
+    c0, reach = scale * R @ centre + t, 2.0 * scale * radius
+    pool = np.flatnonzero(np.linalg.norm(P - c0, axis=1) < reach)
     for _ in range(iterations):
         c = scale * R @ centre + t
-        near = np.flatnonzero(np.linalg.norm(P - c, axis=1) < scale * radius)
+        if np.linalg.norm(c - c0) + scale * radius > reach:
+            c0, reach = c, 2.0 * scale * radius
+            pool = np.flatnonzero(np.linalg.norm(P - c0, axis=1) < reach)
+        near = pool[np.linalg.norm(P[pool] - c, axis=1) < scale * radius]
         back = ((P[near] - t) @ R) / scale
         Cb, db, tb = closest_points(part_surface, back)
         keep = ~outer_tri[tb]

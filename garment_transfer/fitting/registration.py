@@ -321,7 +321,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
 
     seconds = {}
     t = time.perf_counter()
-    alignment, info = align(source, target)
+    # The global fit of the non-rigid stage refines the pose against the surfaces, with the scale.
+    alignment, info = align(source, target, refine=False)
     check_aspect(info, source.name, target.name)
     seconds["align"] = time.perf_counter() - t
     t = time.perf_counter()
