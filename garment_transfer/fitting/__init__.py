@@ -2,7 +2,8 @@
 that the pipeline sees one mesh in two shapes. ``alignment`` brings the target into the source's frame by a
 similarity, ``shape_basis`` fits the source as a blend of its own shapes (shape keys, other bodies of its mesh,
 MakeHuman's sliders from ``body_model``), ``nonrigid`` fits it closely (non-rigid ICP with an
-as-rigid-as-possible regulariser), ``registration`` runs the stages and checks the fit, and ``cache`` keeps fits.
+as-rigid-as-possible regulariser, its first stages on the source decimated by ``coarse``), ``registration`` runs
+the stages and checks the fit, and ``cache`` keeps fits.
 Built on ``geometry`` only.
 """
 

@@ -57,7 +57,7 @@ from ..geometry.mesh import Mesh, triangle_normals
 from ..geometry.proximity import TriangleSurface
 from .alignment import ASPECT_FACTOR, Similarity, align, closest_points, surface_samples
 from .cache import cache_folder, cache_key, load_cached, save_cached
-from .nonrigid import COARSE_FACES, FINE_SCHEDULE, SCHEDULE, nonrigid_fit
+from .nonrigid import COARSE_FACES, FINE_SCHEDULE, SCHEDULE, global_similarity, nonrigid_fit
 from .shape_basis import (
     SHAPE_BOUNDS,
     SHAPE_ITERATIONS,
@@ -102,7 +102,7 @@ class Registration:
         The fitted body: the source's vertex order and faces, the target's shape, in the target's
         frame and units.
     V_source_frame : (n,3) float64
-        The same in the source's frame and units.
+        The same in the source's frame and units (the alignment's: ``placed``).
     alignment : Similarity
         Target frame to source frame.
     quality : dict
@@ -233,6 +233,35 @@ def check_quality(quality, source_name, target_name, limits=None):
                          f"{limits['distorted']:.1%}): {hint}")
 
 
+def placed(alignment: Similarity, Xs, similarity):
+    """The alignment with the global fit's placement, and the fit in its frame.
+
+    ``align`` places the target by samples of both bodies (about their spacing); the global fit then
+    places the source on it against the exact surfaces (``nonrigid.global_similarity``: its rotation and
+    translation, the scale being the heights' ratio). Taking that rotation and translation into the
+    alignment leaves the fit in the target's frame as it is, and gives the alignment the precision the
+    refinement of ``align`` would (a model's field is turned by its rotation:
+    ``pipeline.field_mapping``).
+
+    Parameters
+    ----------
+    alignment : Similarity
+        Target frame to source frame.
+    Xs : (n,3) float
+        The fit in that source frame.
+    similarity : tuple
+        ``(scale, R (3,3), t (3,))`` of the global fit, in that frame.
+
+    Returns
+    -------
+    alignment : Similarity
+    Xs : (n,3) float64
+    """
+    _, R, t = similarity
+    moved = Similarity(alignment.scale, R.T @ alignment.R, R.T @ (alignment.t - t))
+    return moved, (np.asarray(Xs, dtype=np.float64) - t) @ R
+
+
 def check_aspect(info, source_name, target_name):
     """Refuse a target whose principal shape is unlike the source's (a sphere, a box, a head)."""
     a, b = info["aspect_source"], info["aspect_target"]
@@ -341,6 +370,9 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
             similarity = shape_info.get("similarity")
         seconds["shape"] = time.perf_counter() - t
         t = time.perf_counter()
+    if similarity is None:
+        similarity = global_similarity(start, source.F, surface,
+                                       surface_samples(T, target.F, min(start.shape[0], 8000), seed=0)[0])
     Xs = nonrigid_fit(start, source.F, T, target.F, schedule=schedule, fine_schedule=fine_schedule,
                       progress=progress, surface=surface, start_similarity=similarity)
     seconds["fit"] = time.perf_counter() - t
@@ -348,6 +380,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     V = alignment.inverse().apply(Xs)
     quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs,
                           aligned=(surface, alignment.scale))
+    alignment, Xs = placed(alignment, Xs, similarity)
     quality.update({k: float(v) for k, v in info.items() if k != "snapped"})
     quality["units_snapped"] = float(info["snapped"])
     if shape_basis is not None:
