@@ -62,21 +62,42 @@ def test_a_mesh_that_cannot_be_decimated_is_fitted_whole(sphere):
 
 def test_the_fit_through_the_decimated_body_is_the_whole_fit():
     # The demo mannequin banana (15,956 triangles) onto the pear (the same mesh, so each vertex's place
-    # is known), decimated to 6,000 triangles for the first stages, and fitted whole (every stage on it,
-    # as a body that cannot be decimated is). Measured: 7.09 and 7.03 mm mean from where the vertices
-    # belong (the banana itself 9.11 mm: between mannequins the shapes alone leave the vertices free to
-    # slide along the body), the two fits 0.18 mm apart on average.
+    # is known), decimated to 2,000 and 6,000 triangles for the first stages (``LEVELS``), and fitted
+    # whole (every stage on it, as a body that cannot be decimated is). Measured: 7.07 and 7.03 mm mean
+    # from where the vertices belong (the banana itself 9.11 mm: between mannequins the shapes alone
+    # leave the vertices free to slide along the body), the two fits 0.18 mm apart on average.
     banana = read_obj(ROOT / "data" / "demo" / "bodies" / "banana.obj")
     pear = read_obj(ROOT / "data" / "demo" / "bodies" / "pear.obj")
     F = np.asarray(banana.F)
     height = np.ptp(pear.V, axis=0).max()
     coarse_fit = nonrigid.nonrigid_fit(banana.V, F, pear.V, F)
-    whole_fit = nonrigid.nonrigid_fit(banana.V, F, pear.V, F, coarse_faces=F.shape[0])
+    every_stage = tuple(stage for _, stages in nonrigid.LEVELS for stage in stages)
+    whole_fit = nonrigid.nonrigid_fit(banana.V, F, pear.V, F, levels=((None, every_stage),))
     unfitted = np.linalg.norm(banana.V - pear.V, axis=1).mean()
     for X in (coarse_fit, whole_fit):
         assert np.linalg.norm(X - pear.V, axis=1).mean() < 0.85 * unfitted
         assert TriangleSurface(pear.V, F).closest(X)[1].mean() < 1e-3 * height
     assert np.linalg.norm(coarse_fit - whole_fit, axis=1).mean() < 5e-4 * height
+
+
+def test_levels_that_cannot_be_decimated_leave_their_stages_to_the_finer_one(sphere):
+    X, F = sphere
+    levels = ((2000, ((100.0, 1),)), (6000, ((10.0, 2),)), (None, ((1.0, 3),)))
+    got = nonrigid.decimated_levels(X, F, levels)
+    assert [len(level[0]) < X.shape[0] for level in got] == [True, True, False]
+    assert [level[2] for level in got] == [((100.0, 1),), ((10.0, 2),), ((1.0, 3),)]
+    assert got[0][4] is None and got[1][4].F.shape[0] == got[0][1].shape[0]
+    assert got[2][3] == 1.0 and 0 < got[1][3] < 1 and 0 < got[0][3] < got[1][3]
+    # 5,120 triangles: not worth 6,000, decimated to 2,000; its 6,000's stages run on the source.
+    V, G = icosphere(4)
+    got = nonrigid.decimated_levels(V, G, levels)
+    assert [level[2] for level in got] == [((100.0, 1),), ((10.0, 2), (1.0, 3))]
+    # A triangle soup: every stage on the source, stiff to soft.
+    soup = X[F].reshape(-1, 3)
+    got = nonrigid.decimated_levels(soup, np.arange(soup.shape[0]).reshape(-1, 3), levels)
+    assert len(got) == 1 and got[0][2] == ((100.0, 1), (10.0, 2), (1.0, 3)) and got[0][4] is None
+    with pytest.raises(ValueError, match="must end with the source"):
+        nonrigid.decimated_levels(X, F, levels[:2])
 
 
 def test_closest_points_are_those_of_the_exact_query(sphere):

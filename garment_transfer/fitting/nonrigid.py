@@ -271,11 +271,18 @@ def global_similarity(X, F, surface, P, iterations=10, samples=2000, trim=0.9):
     return scale, R, t
 
 
-#: Regulariser weights, stiff to soft, and the steps taken at each: ``SCHEDULE`` on the source decimated
-#: to COARSE_FACES triangles, then ``FINE_SCHEDULE`` on the whole source (``nonrigid_fit``).
-SCHEDULE = ((2000.0, 2), (600.0, 2), (200.0, 2), (60.0, 2), (20.0, 2), (5.0, 2), (1.0, 2))
-FINE_SCHEDULE = ((5.0, 2), (1.0, 3))
-COARSE_FACES = 6000
+#: The non-rigid fit's stages, coarse to fine: (triangles of the decimated source, or None for the source
+#: itself; its stages as (regulariser weight, steps), stiff to soft). Each level starts from the fit of
+#: the one before, carried to it (``coarse.CoarseBody``). Measured on MakeHuman (``female_average`` onto
+#: 5K- and 50K-triangle re-meshes of the five bodies, lab/notes/registration-study.md, version 10): the
+#: stiff stages need two steps, not three (the same fits); the soft ones on the whole source need their
+#: five steps (three: the garments 6% farther from their transfer through the true body on
+#: ``female_pear``); the coarse levels leave the fits as they were within the run-to-run differences of
+#: the variants (body and garments within 0.1 mm, but for the self-registration, 0.13 -> 0.22 mm), at a
+#: fifth (6,000) and a tenth (2,000) of the cost of a step on the 13K-vertex body.
+LEVELS = ((2000, ((2000.0, 2), (600.0, 2), (200.0, 2))),
+          (6000, ((60.0, 2), (20.0, 2), (5.0, 2), (1.0, 2))),
+          (None, ((5.0, 2), (1.0, 3))))
 
 
 #: On a target whose mean edge is longer than COARSE_TARGET times the source's, the source's edges
@@ -615,15 +622,15 @@ def _fit_parts(X_rest, X, F, edges, surface, height):
     return X
 
 
-def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, fine_schedule=FINE_SCHEDULE,
-                 coarse_faces=COARSE_FACES, normal_cos=0.5, max_share=0.05, target_samples=None, progress=None,
-                 seed=0, surface=None, start_similarity=None):
+def nonrigid_fit(X0, F, target_V, target_F, *, levels=LEVELS, normal_cos=0.5, max_share=0.05, target_samples=None,
+                 progress=None, seed=0, surface=None, start_similarity=None):
     """Fit the source shape X0 onto the target surface (both in the same frame).
 
-    After a global similarity, the stages of ``schedule`` run on the source decimated to
-    ``coarse_faces`` triangles (``coarse.CoarseBody``; on the source itself when it is not larger than
-    1.5 times that or cannot be decimated), the source is carried by that fit, and the stages of
-    ``fine_schedule`` run on the whole source; then its hands and feet are fitted as wholes.
+    After a global similarity, the stages of each level run in turn, coarse to fine: on the source
+    decimated to that level's triangles (each level decimated from the next finer one; a level that
+    would not have 1.5 times fewer triangles, or that libigl cannot decimate, leaves its stages to the
+    next finer level), each starting from the fit before it carried to it; then the hands and feet are
+    fitted as wholes.
 
     Parameters
     ----------
@@ -633,18 +640,15 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, fine_schedule=
         Source triangles.
     target_V : (k,3) float
     target_F : (l,3) int
-    schedule : sequence of (alpha, steps)
-        Regulariser weights from stiff to soft, on the decimated source.
-    fine_schedule : sequence of (alpha, steps)
-        The same, then on the whole source.
-    coarse_faces : int
-        Triangles of the decimated source.
+    levels : sequence of (int or None, sequence of (alpha, steps))
+        ``LEVELS``: triangles of each level (None, the last: the source) and its regulariser weights
+        from stiff to soft.
     normal_cos : float
         Pairs whose normals make a larger angle than arccos(normal_cos) are dropped.
     max_share : float
         Pairs farther apart than this share of the body's height are dropped.
     target_samples : int, optional
-        Target points used for the target-to-source term (default: as many as source vertices, at
+        Target points used for the target-to-source term (default: as many as the level's vertices, at
         most 8,000).
     progress : callable, optional
         ``progress(fraction)``; returning True cancels.
@@ -675,18 +679,49 @@ def nonrigid_fit(X0, F, target_V, target_F, *, schedule=SCHEDULE, fine_schedule=
     coarse = edge_lengths_mean(target_V, target_F) > COARSE_TARGET * edge_lengths_mean(X0, F)
     stages = Stages(surface, height, extremity_landmarks(X, F, surface.V, surface.F), coarse=coarse,
                     normal_cos=normal_cos, max_dist=max_share * height, seed=seed, target_samples=target_samples,
-                    total=sum(s for _, s in schedule) + sum(s for _, s in fine_schedule), progress=progress)
-    body = CoarseBody.of(X, F, coarse_faces)
-    if body is None:
-        fit, Y = stages.run(X, F, X, schedule + tuple(fine_schedule))
-    else:
-        fit_c, Yc = stages.run(body.X, body.F, body.X, schedule, alpha_scale=body.alpha_scale)
-        fit, Y = stages.run(X, F, body.carry(Yc, fit_c.rotations(Yc)), fine_schedule)
+                    total=sum(s for _, level in levels for _, s in level), progress=progress)
+    Y = fit = None
+    for V, G, schedule, alpha_scale, body in decimated_levels(X, F, levels):
+        start = V if Y is None else body.carry(Y, fit.rotations(Y))
+        fit, Y = stages.run(V, G, start, schedule, alpha_scale=alpha_scale)
     if not coarse:
         # Not on a much coarser target: its hands and feet are a few facets, off the true surface
         # by more than the part's own error (measured: 12 mm on a 5K-triangle MakeHuman re-mesh).
         Y = _fit_parts(X, Y, F, (fit.i, fit.j), surface, height)
     return Y
+
+
+def decimated_levels(X, F, levels):
+    """The bodies the stages of ``levels`` run on, coarse to fine.
+
+    Parameters
+    ----------
+    X : (n,3) float
+        The source body.
+    F : (m,3) int
+    levels : sequence of (int or None, sequence of (alpha, steps))
+        See ``LEVELS``; the last is the source's (None).
+
+    Returns
+    -------
+    list of (V (k,3), G (l,3), schedule, alpha_scale, body)
+        Coarse to fine: each level's rest shape and triangles, its stages, the factor of its
+        regulariser weights (``coarse.regulariser_scale`` against the source) and the ``CoarseBody``
+        that carries the fit of the level before onto it (None for the first).
+    """
+    if not levels or levels[-1][0] is not None:
+        raise ValueError(f"levels must end with the source's own (None, stages), got {levels!r}")
+    fine_to_coarse = [[X, F, tuple(levels[-1][1]), 1.0, None]]
+    for faces, schedule in reversed(levels[:-1]):
+        finer = fine_to_coarse[-1]
+        body = CoarseBody.of(finer[0], finer[1], faces)
+        if body is None:
+            # Not decimated: its stages run first on the next finer level.
+            finer[2] = tuple(schedule) + finer[2]
+            continue
+        finer[4] = body
+        fine_to_coarse.append([body.X, body.F, tuple(schedule), finer[3] * body.alpha_scale, None])
+    return [tuple(level) for level in fine_to_coarse[::-1]]
 
 
 class Stages:

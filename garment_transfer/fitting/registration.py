@@ -57,7 +57,7 @@ from ..geometry.mesh import Mesh, triangle_normals
 from ..geometry.proximity import TriangleSurface
 from .alignment import ASPECT_FACTOR, Similarity, align, closest_points, surface_samples
 from .cache import cache_folder, cache_key, load_cached, save_cached
-from .nonrigid import COARSE_FACES, FINE_SCHEDULE, SCHEDULE, global_similarity, nonrigid_fit
+from .nonrigid import LEVELS, global_similarity, nonrigid_fit
 from .shape_basis import (
     SHAPE_BOUNDS,
     SHAPE_ITERATIONS,
@@ -196,7 +196,8 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None, aligne
     else:
         (target, scale), Y = aligned, X_source_frame
     d1 = closest_points(target, surface_samples(Y, F, QUALITY_SAMPLES, seed=3)[0])[1] / scale
-    d2 = closest_points(TriangleSurface(Y, F), surface_samples(target.V, target.F, QUALITY_SAMPLES, seed=4)[0])[1] / scale
+    d2 = closest_points(TriangleSurface(Y, F), surface_samples(target.V, target.F, QUALITY_SAMPLES, seed=4)[0])[1]
+    d2 = d2 / scale
     q = {}
     for name, d in (("to_target", d1), ("from_target", d2)):
         for stat, v in (("mean", d.mean()), ("p95", np.quantile(d, 0.95)), ("max", d.max())):
@@ -275,8 +276,7 @@ def check_aspect(info, source_name, target_name):
 # --- the whole stage --------------------------------------------------------------------------
 
 def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None, progress=None,
-             schedule=SCHEDULE, fine_schedule=FINE_SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS,
-             body_model=False) -> Registration:
+             levels=LEVELS, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
     """Fit the source body onto the target body (any mesh, units and axes; a similar pose).
 
     Parameters
@@ -293,10 +293,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         Overrides of ``LIMITS``.
     progress : callable, optional
         ``progress(fraction)``; returning True cancels.
-    schedule : sequence of (alpha, steps)
-        The non-rigid stages on the decimated source (``SCHEDULE``).
-    fine_schedule : sequence of (alpha, steps)
-        Those that follow on the whole source (``FINE_SCHEDULE``).
+    levels : sequence of (int or None, sequence of (alpha, steps))
+        The non-rigid stages, coarse to fine (``nonrigid.LEVELS``).
     shape_basis : (k,n,3) float, optional
         Shape deltas of the source body (its vertex order, its frame and units): for example its
         shape keys relative to the basis shape, or other bodies of its mesh less the source
@@ -324,8 +322,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     for role, m in (("source body", source), ("target body", target)):
         if m.n_triangles < 4:
             raise MeshError(m.name, f"the {role} has {m.n_triangles} triangles; a body is needed")
-    settings = {"schedule": [list(s) for s in schedule], "fine_schedule": [list(s) for s in fine_schedule],
-                "coarse_faces": COARSE_FACES}
+    settings = {"levels": [[faces, [list(s) for s in stages]] for faces, stages in levels]}
     if shape_basis is not None:
         shape_basis = check_shape_basis(shape_basis, source.n_vertices)
         lo, hi = weight_bounds(shape_bounds, shape_basis.shape[0])
@@ -373,8 +370,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     if similarity is None:
         similarity = global_similarity(start, source.F, surface,
                                        surface_samples(T, target.F, min(start.shape[0], 8000), seed=0)[0])
-    Xs = nonrigid_fit(start, source.F, T, target.F, schedule=schedule, fine_schedule=fine_schedule,
-                      progress=progress, surface=surface, start_similarity=similarity)
+    Xs = nonrigid_fit(start, source.F, T, target.F, levels=levels, progress=progress, surface=surface,
+                      start_similarity=similarity)
     seconds["fit"] = time.perf_counter() - t
     t = time.perf_counter()
     V = alignment.inverse().apply(Xs)
