@@ -1,12 +1,12 @@
-"""The source body decimated for the non-rigid fit's first stages, and its vertices carried back.
+"""A body decimated for the non-rigid fit's first stages, and the finer body's vertices carried by it.
 
 The stiff stages of the non-rigid fit move the body as a whole (a limb swings, the torso grows); a body
-of a few thousand vertices does that as well as one of 13K, at a fifth of the cost of a step. The
-source is decimated (libigl's edge collapse, shortest edge first, so its triangles stay even), every
-vertex of the source is attached to its closest point on the decimated surface (a triangle, barycentric
-coordinates, and the offset from that point), and after the coarse stages the source is carried by the
-decimated body: the point moves with its triangle, the offset turns with the coarse fit's rotations
-there. The soft stages then run on the whole source from there.
+of a thousand or a few thousand vertices does that as well as one of 13K, at a fraction of the cost of a
+step. The body is decimated (libigl's edge collapse, shortest edge first, so its triangles stay even),
+every vertex of the finer body is attached to its closest point on the decimated surface (a triangle,
+barycentric coordinates, and the offset from that point), and after the coarse stages the finer body is
+carried by the decimated one: the point moves with its triangle, the offset turns with the coarse fit's
+rotations there. The next stages run on the finer body from there (``nonrigid.LEVELS``).
 """
 
 from __future__ import annotations
@@ -26,12 +26,12 @@ FACES_SLACK = 1.1
 
 
 class CoarseBody:
-    """A source body decimated, with each of its vertices attached to the decimated surface.
+    """A body decimated, with each vertex of the body attached to the decimated surface.
 
     Parameters
     ----------
     X : (n,3) float
-        The source body.
+        The body (the source, or a finer decimated body).
     F : (m,3) int
         Its triangles.
     U : (k,3) float
@@ -47,7 +47,7 @@ class CoarseBody:
         Its triangles.
     alpha_scale : float
         The factor of a regulariser weight on the decimated body that gives the balance of the
-        regulariser and the data terms that the weight gives on the source (see ``regulariser_scale``).
+        regulariser and the data terms that the weight gives on the body X (see ``regulariser_scale``).
     """
 
     def __init__(self, X, F, U, G):
@@ -60,7 +60,7 @@ class CoarseBody:
 
     @classmethod
     def of(cls, X, F, faces):
-        """The source (X (n,3), F (m,3)) decimated to ``faces`` triangles; None when it is not worth
+        """The body (X (n,3), F (m,3)) decimated to ``faces`` triangles; None when it is not worth
         decimating (at most 1.5 times ``faces`` triangles) or libigl cannot decimate it (a non-manifold
         edge, duplicate faces, a triangle soup)."""
         X = np.asarray(X, dtype=np.float64)
@@ -78,7 +78,7 @@ class CoarseBody:
         return np.einsum("ki,kij->kj", self.bary, Y[self.F[self.tri]])
 
     def carry(self, Y, R):
-        """The source body carried by the decimated one.
+        """The body carried by the decimated one.
 
         Parameters
         ----------

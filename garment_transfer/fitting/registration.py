@@ -30,7 +30,9 @@ Stages:
    keeps limbs from collapsing onto the torso); pairs whose normals disagree or that lie far apart
    are dropped. In the soft stages a weak pull holds each vertex at its height along the body's long
    axis, sliding along the surface (a body grows and thins across that axis). Each step solves one
-   sparse system (vertex count squared, three right-hand sides).
+   sparse system (vertex count squared, three right-hand sides). Coarse to fine (``nonrigid.LEVELS``):
+   the stiff stages on the source decimated to 2,000 triangles, the soft ones on 6,000, the last two on
+   the whole source, each level carried from the one before (``coarse``).
    Then the **hands and feet** (found from the shape as the ends of the body) are fitted each as a
    whole, by a similarity (point-to-plane ICP both ways), and blended into the fit: between body
    shapes they change by a similarity, which the ARAP fit (keeping their size) lets slide.
