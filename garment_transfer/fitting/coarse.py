@@ -69,8 +69,8 @@ class CoarseBody:
             return None
         U, G = igl.decimate(X, F, int(faces))[:2]
         if G.ndim != 2 or not 4 <= G.shape[0] <= FACES_SLACK * faces or not np.isfinite(U).all():
-            log.info("registration: the source body could not be decimated (%d triangles), fitted whole",
-                     G.shape[0] if G.ndim == 2 else 0)
+            log.info("registration: a body of %d triangles could not be decimated to %d (libigl gave %d); "
+                     "its stages run on it", F.shape[0], faces, G.shape[0] if G.ndim == 2 else 0)
             return None
         return cls(X, F, U, G)
 
