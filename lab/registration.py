@@ -377,7 +377,7 @@ def speed_study(repeats=3, prior="off", target_name="female_pear", body_model=No
                          "stages": reg.seconds, "prior": use_prior})
             print(f"speed run {i}{' (prior: ' + ', '.join(names) + ')' if use_prior else ''}: "
                   f"{source.n_vertices} vertices onto {target.n_triangles} triangles: "
-                  f"{rows[-1]['wall_s']:.1f} s wall, {rows[-1]['cpu_s']:.1f} s CPU (goal 10 s on 2 cores); "
+                  f"{rows[-1]['wall_s']:.1f} s wall, {rows[-1]['cpu_s']:.1f} s CPU (goal: 3 s, quiet 2 cores); "
                   + ", ".join(f"{k} {v:.2f}" for k, v in reg.seconds.items()), flush=True)
     return rows
 

@@ -267,7 +267,7 @@ def test_another_pose_is_refused_naming_the_figure(source, tmp_path):
 
 
 def test_cache_round_trip_and_off_switch(source, pear_remeshed, pear_registration, tmp_path, monkeypatch):
-    settings = {"schedule": [list(s) for s in nonrigid.SCHEDULE]}
+    settings = {"levels": [[faces, [list(s) for s in stages]] for faces, stages in nonrigid.LEVELS]}
     key = cache.cache_key(source, pear_remeshed, settings, registration.ALGORITHM_VERSION)
     cache.save_cached(str(tmp_path), key, *pear_registration.cache_entry())
     hit = register(source, pear_remeshed, cache=str(tmp_path))

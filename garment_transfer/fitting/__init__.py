@@ -2,8 +2,9 @@
 that the pipeline sees one mesh in two shapes. ``alignment`` brings the target into the source's frame by a
 similarity, ``shape_basis`` fits the source as a blend of its own shapes (shape keys, other bodies of its mesh,
 MakeHuman's sliders from ``body_model``), ``nonrigid`` fits it closely (non-rigid ICP with an
-as-rigid-as-possible regulariser), ``registration`` runs the stages and checks the fit, ``cache`` keeps fits, and
-``limbs`` finds a body's limbs from its shape and measures how far two shapes of it differ in pose.
+as-rigid-as-possible regulariser, its first stages on the source decimated by ``coarse``), ``registration`` runs
+the stages and checks the fit, ``cache`` keeps fits, and ``limbs`` finds a body's limbs from its shape and
+measures how far two shapes of it differ in pose.
 Built on ``geometry`` only.
 """
 

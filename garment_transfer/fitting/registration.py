@@ -30,7 +30,9 @@ Stages:
    keeps limbs from collapsing onto the torso); pairs whose normals disagree or that lie far apart
    are dropped. In the soft stages a weak pull holds each vertex at its height along the body's long
    axis, sliding along the surface (a body grows and thins across that axis). Each step solves one
-   sparse system (vertex count squared, three right-hand sides).
+   sparse system (vertex count squared, three right-hand sides). Coarse to fine (``nonrigid.LEVELS``):
+   the stiff stages on the source decimated to 2,000 triangles, the soft ones on 6,000, the last two on
+   the whole source, each level carried from the one before (``coarse``).
    Then the **hands and feet** (found from the shape as the ends of the body) are fitted each as a
    whole, by a similarity (point-to-plane ICP both ways), and blended into the fit: between body
    shapes they change by a similarity, which the ARAP fit (keeping their size) lets slide.
@@ -55,9 +57,9 @@ import numpy as np
 from ..errors import MeshError, RegistrationError
 from ..geometry.mesh import Mesh, triangle_normals
 from ..geometry.proximity import TriangleSurface, facing_outward
-from .alignment import ASPECT_FACTOR, Similarity, align, closest_in_order, surface_samples
+from .alignment import ASPECT_FACTOR, Similarity, align, closest_points, surface_samples
 from .cache import cache_folder, cache_key, load_cached, save_cached
-from .nonrigid import SCHEDULE, nonrigid_fit
+from .nonrigid import LEVELS, global_similarity, nonrigid_fit
 from .shape_basis import (
     SHAPE_BOUNDS,
     SHAPE_ITERATIONS,
@@ -77,7 +79,7 @@ log = logging.getLogger(__name__)
 
 
 #: Bumped whenever the algorithm or its defaults change, so old cache entries are not reused.
-ALGORITHM_VERSION = 9
+ALGORITHM_VERSION = 10
 
 #: Limits of an acceptable fit, as shares of the target's height (a 1.7 m body: 1% = 17 mm).
 #: Measured fits of MakeHuman bodies onto each other and onto the procedural mannequins stay below
@@ -102,7 +104,7 @@ class Registration:
         The fitted body: the source's vertex order and faces, the target's shape, in the target's
         frame and units.
     V_source_frame : (n,3) float64
-        The same in the source's frame and units.
+        The same in the source's frame and units (the alignment's: ``placed``).
     alignment : Similarity
         Target frame to source frame.
     quality : dict
@@ -159,7 +161,7 @@ class Registration:
 
 # --- quality ----------------------------------------------------------------------------------
 
-def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
+def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None, aligned=None):
     """Surface distance both ways and distortion of a fit.
 
     Parameters
@@ -173,6 +175,11 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     target_V, target_F : the target surface.
     X_source_frame : (n,3) float, optional
         The fit in the source's frame (default X): normals are compared there.
+    aligned : tuple, optional
+        ``(surface, scale)``: the target already built in the frame of ``X_source_frame`` (a
+        TriangleSurface) and the scale of that frame to the target's (the alignment's). The distances
+        are then measured there, with its search tree, and divided by the scale: the same points
+        (area-uniform samples do not depend on a similarity), the same distances.
 
     Returns
     -------
@@ -186,8 +193,13 @@ def fit_quality(X, F, source_X0, target_V, target_F, X_source_frame=None):
     height = float(np.ptp(np.asarray(target_V), axis=0).max())
     # Area-uniform points: a surface distance, not a vertex one (a body dense in the fingers and
     # face would otherwise be judged by them).
-    d1 = closest_in_order(TriangleSurface(target_V, target_F), surface_samples(X, F, QUALITY_SAMPLES, seed=3)[0])[1]
-    d2 = closest_in_order(TriangleSurface(X, F), surface_samples(target_V, target_F, QUALITY_SAMPLES, seed=4)[0])[1]
+    if aligned is None:
+        target, Y, scale = TriangleSurface(target_V, target_F), X, 1.0
+    else:
+        (target, scale), Y = aligned, X_source_frame
+    d1 = closest_points(target, surface_samples(Y, F, QUALITY_SAMPLES, seed=3)[0])[1] / scale
+    d2 = closest_points(TriangleSurface(Y, F), surface_samples(target.V, target.F, QUALITY_SAMPLES, seed=4)[0])[1]
+    d2 = d2 / scale
     q = {}
     for name, d in (("to_target", d1), ("from_target", d2)):
         for stat, v in (("mean", d.mean()), ("p95", np.quantile(d, 0.95)), ("max", d.max())):
@@ -224,6 +236,35 @@ def check_quality(quality, source_name, target_name, limits=None):
                          f"{limits['distorted']:.1%}): {hint}")
 
 
+def placed(alignment: Similarity, Xs, similarity):
+    """The alignment with the global fit's placement, and the fit in its frame.
+
+    ``align`` places the target by samples of both bodies (about their spacing); the global fit then
+    places the source on it against the exact surfaces (``nonrigid.global_similarity``: its rotation and
+    translation, the scale being the heights' ratio). Taking that rotation and translation into the
+    alignment leaves the fit in the target's frame as it is, and gives the alignment the precision the
+    refinement of ``align`` would (a model's field is turned by its rotation:
+    ``pipeline.field_mapping``).
+
+    Parameters
+    ----------
+    alignment : Similarity
+        Target frame to source frame.
+    Xs : (n,3) float
+        The fit in that source frame.
+    similarity : tuple
+        ``(scale, R (3,3), t (3,))`` of the global fit, in that frame.
+
+    Returns
+    -------
+    alignment : Similarity
+    Xs : (n,3) float64
+    """
+    _, R, t = similarity
+    moved = Similarity(alignment.scale, R.T @ alignment.R, R.T @ (alignment.t - t))
+    return moved, (np.asarray(Xs, dtype=np.float64) - t) @ R
+
+
 def check_aspect(info, source_name, target_name):
     """Refuse a target whose principal shape is unlike the source's (a sphere, a box, a head)."""
     a, b = info["aspect_source"], info["aspect_target"]
@@ -237,7 +278,7 @@ def check_aspect(info, source_name, target_name):
 # --- the whole stage --------------------------------------------------------------------------
 
 def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None, progress=None,
-             schedule=SCHEDULE, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
+             levels=LEVELS, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False) -> Registration:
     """Fit the source body onto the target body (any mesh, units and axes; a similar pose).
 
     Parameters
@@ -254,8 +295,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         Overrides of ``LIMITS``.
     progress : callable, optional
         ``progress(fraction)``; returning True cancels.
-    schedule : sequence of (alpha, steps)
-        The non-rigid stages (``SCHEDULE``).
+    levels : sequence of (int or None, sequence of (alpha, steps))
+        The non-rigid stages, coarse to fine (``nonrigid.LEVELS``).
     shape_basis : (k,n,3) float, optional
         Shape deltas of the source body (its vertex order, its frame and units): for example its
         shape keys relative to the basis shape, or other bodies of its mesh less the source
@@ -286,7 +327,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     # The fit compares normals: a body written with the other winding (its faces pointing inward) is fitted
     # as the same body facing outward, which is decided by the sign of the volume it encloses.
     source, target = facing_outward(source), facing_outward(target)
-    settings = {"schedule": [list(s) for s in schedule]}
+    settings = {"levels": [[faces, [list(s) for s in stages]] for faces, stages in levels]}
     if shape_basis is not None:
         shape_basis = check_shape_basis(shape_basis, source.n_vertices)
         lo, hi = weight_bounds(shape_bounds, shape_basis.shape[0])
@@ -311,7 +352,8 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
 
     seconds = {}
     t = time.perf_counter()
-    alignment, info = align(source, target)
+    # The global fit of the non-rigid stage refines the pose against the surfaces, with the scale.
+    alignment, info = align(source, target, refine=False)
     check_aspect(info, source.name, target.name)
     seconds["align"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -330,12 +372,17 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
             similarity = shape_info.get("similarity")
         seconds["shape"] = time.perf_counter() - t
         t = time.perf_counter()
-    Xs = nonrigid_fit(start, source.F, T, target.F, schedule=schedule, progress=progress, surface=surface,
+    if similarity is None:
+        similarity = global_similarity(start, source.F, surface,
+                                       surface_samples(T, target.F, min(start.shape[0], 8000), seed=0)[0])
+    Xs = nonrigid_fit(start, source.F, T, target.F, levels=levels, progress=progress, surface=surface,
                       start_similarity=similarity)
     seconds["fit"] = time.perf_counter() - t
     t = time.perf_counter()
     V = alignment.inverse().apply(Xs)
-    quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs)
+    quality = fit_quality(V, source.F, source.V, target.V, target.F, X_source_frame=Xs,
+                          aligned=(surface, alignment.scale))
+    alignment, Xs = placed(alignment, Xs, similarity)
     quality.update({k: float(v) for k, v in info.items() if k != "snapped"})
     quality["units_snapped"] = float(info["snapped"])
     if shape_basis is not None:
