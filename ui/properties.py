@@ -222,8 +222,9 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
                     "result the body's bones as vertex groups (matched where the cloth lies on the skin, filled "
                     "smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside")
     max_influences: IntProperty(
-        name="Bones per Vertex", default=4, min=1, max=16,
-        description="The most bones that move one garment vertex (game engines take 4 or 8)")
+        name="Bones per Vertex", default=8, min=1, max=16,
+        description="The most bones that move one garment vertex (game engines take 8, or 4: fewer follow the "
+                    "skin less closely)")
 
     drape_frames: IntProperty(
         name="Frames", default=30, min=1, soft_max=400,
