@@ -18,7 +18,7 @@ as Blender's Data Transfer gives them, is the baseline):
 - the share of garment triangles stretched by more than 20% (largest in-plane principal stretch > 1.2) and by
   more than 100% (a tear);
 - playback: the product's weights and each live correction of ``LIVE`` (the core's equivalents of the Blender
-  rig's modifiers: a Shrinkwrap Outside at half the transfer's offset, ``shape_keys.keep_outside``; the
+  rig's modifiers: a Shrinkwrap Outside at the transfer's offset, ``shape_keys.keep_outside``; the
   vertices that lie on the skin carried on the skinned body's surface, ``riding_share`` and ``carry``, as
   Blender's Surface Deform does), counted the same way; ``lab.blender.motion_playback`` measures the real
   modifiers in Blender;
@@ -83,8 +83,9 @@ def rules(max_influences=gt.MAX_INFLUENCES):
     return out
 
 
-#: The live corrections of playback measured in the core, on the product's weights: name -> (ride, keep outside).
-LIVE = {"shrinkwrap": (False, True), "surface": (True, False), "surface+shrinkwrap": (True, True)}
+#: The live corrections of playback measured in the core, on the product's weights: name -> (ride the body's
+#: surface, keep outside at this share of the cloth offset; 0: not).
+LIVE = {"shrinkwrap": (False, 1.0), "surface+shrinkwrap": (True, 1.0)}
 
 
 def mirror_name(bone):
@@ -264,7 +265,7 @@ def study_garment(name, body, garment, rig, poses, fit, say, weight_rules=None, 
         for live, (ride, outside) in LIVE.items():
             V = (1.0 - share) * skinned + share * carry(binding, posed.V, body.F) if ride else skinned
             if outside:
-                V = keep_outside(V, posed.surface, 0.5 * offset)
+                V = keep_outside(V, posed.surface, outside * offset)
             row[f"playback:{live}"] = dict(crossing_figures(V, gF, posed), **stretch_figures(garment.V, V, garment.F))
         if fit:
             t = time.perf_counter()

@@ -47,11 +47,13 @@ Y_TO_Z = C
 GARMENTS = ("female_sportsuit01", "female_casualsuit01", "female_casualsuit02", "aline_skirt", "maxi_skirt",
             "formal_dress")
 #: The live rigs compared with the nearest-surface rig: name -> Rig to Body's options.
-LIVE_RIGS = {"shrinkwrap": dict(ride_surface=False, outside=0.5),
+#: The product's rig is "shrinkwrap" (Rig to Body's defaults), "surface+shrinkwrap" with Ride Body Surface on;
+#: "shrinkwrap_half" is the first round's (a Shrinkwrap at half the cloth offset).
+LIVE_RIGS = {"shrinkwrap_half": dict(ride_surface=False, outside=0.5),
              "surface": dict(ride_surface=True, outside=0.0),
-             "surface+shrinkwrap": dict(ride_surface=True, outside=0.5),
-             "shrinkwrap1": dict(ride_surface=False, outside=1.0),
-             "surface+shrinkwrap1": dict(ride_surface=True, outside=1.0)}
+             "surface+shrinkwrap_half": dict(ride_surface=True, outside=0.5),
+             "shrinkwrap": dict(ride_surface=False, outside=1.0),
+             "surface+shrinkwrap": dict(ride_surface=True, outside=1.0)}
 
 
 def to_world(P):
