@@ -225,7 +225,7 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Ride Body Surface", default=False,
         description="Rigging also adds a Surface Deform, bound to the body at rest, that carries the cloth lying "
                     "on the skin with the posed body's surface (the rest follows the bones): closer to the skin at "
-                    "the bends; as many crossings as without it over the poses measured")
+                    "the bends; in Blender about as many crossings as without it over the poses measured")
     max_influences: IntProperty(
         name="Bones per Vertex", default=8, min=1, max=16,
         description="The most bones that move one garment vertex (game engines take 8, or 4: fewer follow the "
