@@ -180,7 +180,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
             if armature is not None:
                 try:
                     for result in results:
-                        rig_to_body(context, result, settings.target_body, max_influences=settings.max_influences)
+                        rig_to_body(context, result, settings.target_body, max_influences=settings.max_influences,
+                                    ride_surface=settings.ride_surface)
                 except BaseException:
                     for result in results:
                         me = result.data

@@ -283,7 +283,8 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
             if armature is not None:
                 try:
                     rigged = rig_to_body(context, result, settings.target_body,
-                                         max_influences=settings.max_influences)[1]
+                                         max_influences=settings.max_influences,
+                                         ride_surface=settings.ride_surface)[1]
                 except BaseException:
                     me = result.data
                     bpy.data.objects.remove(result)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from garment_transfer import (MeshError, RigError, Rig, axes_between, bvh_rotations, inpainted_weights,
+from garment_transfer import (MeshError, RigError, Rig, axes_between, body_scale, bvh_rotations, inpainted_weights,
                               matching_rotations, nearest_weights, parse_bvh, pose_transforms, read_bvh,
-                              read_joints, read_skeleton, read_weights, skin, skin_weights, write_weights)
+                              read_joints, read_skeleton, read_weights, riding_share, skin, skin_weights,
+                              write_weights)
 from garment_transfer.rigging import (bone_frames, cotangent_laplacian, group_transforms, inpaint, match,
                                       skeleton_from_dict, smoothness_matrix, weights_from_dict)
 from tests.meshes import grid, icosphere, random_rotation, require_makehuman
@@ -281,6 +282,40 @@ def test_a_piece_far_from_the_body_takes_its_nearest_vertex_weights():
     assert info["inpainted"] == len(B) - 1 and len(info["warnings"]) == 1 and "1 pieces" in info["warnings"][0]
     with pytest.raises(MeshError, match="far from the body"):
         inpainted_weights(V, F, W, B + [0, 0, 3], BF, name="lost button")
+
+
+def test_riding_share_is_one_on_the_skin_none_where_the_cloth_hangs_free_and_a_ramp_between():
+    V, F, _ = sphere_rig()
+    G, GF = icosphere(2)
+    # Each vertex at its own height above the unit sphere: from on the skin (bottom) to 10 cm off (top), facing out.
+    lift = 0.05 * (G[:, 2] + 1)
+    G = G * (1 + lift)[:, None]
+    full, none = 0.01, 0.06
+    share = riding_share(V, F, G, GF, full=full, none=none, smoothing=0)
+    dist = np.linalg.norm(G, axis=1) - 1                       # the sphere's facets are within 1 mm of r = 1
+    assert np.all(share[dist < full - 2e-3] == 1) and np.all(share[dist > none + 2e-3] == 0)
+    ramp = (dist > full + 2e-3) & (dist < none - 2e-3)
+    assert ramp.sum() > 20 and np.allclose(share[ramp], (none - dist[ramp]) / (none - full), atol=0.05)
+    # A patch standing on edge 2-5 cm above the top faces across the skin: it does not ride; laid flat it does.
+    a, b = np.meshgrid(np.linspace(-0.05, 0.05, 6), np.linspace(0.02, 0.05, 4))
+    PF = np.array([[i * 6 + j, i * 6 + j + 1, (i + 1) * 6 + j] for i in range(3) for j in range(5)]
+                  + [[i * 6 + j + 1, (i + 1) * 6 + j + 1, (i + 1) * 6 + j] for i in range(3) for j in range(5)])
+    standing = np.stack([a.ravel(), np.zeros(a.size), 1 + b.ravel()], axis=1)
+    flat = np.stack([a.ravel(), b.ravel() - 0.035, 1 + b.ravel()], axis=1)
+    flat[:, 2] = 1.03
+    assert np.all(riding_share(V, F, standing, PF, full=full, none=none, smoothing=0) == 0)
+    assert np.all(riding_share(V, F, flat, PF, full=full, none=none, smoothing=0) > 0.4)
+    # Smoothing keeps the share within [0, 1] and spreads it: no edge joins a vertex riding fully to a free one.
+    smooth = riding_share(V, F, G, GF, full=full, none=none)
+    edges = np.vstack([GF[:, [0, 1]], GF[:, [1, 2]], GF[:, [2, 0]]])
+    assert smooth.min() >= 0 and smooth.max() <= 1
+    assert np.abs(np.diff(smooth[edges], axis=1)).max() < np.abs(np.diff(share[edges], axis=1)).max()
+    # Defaults: shares of the body's scale.
+    default = riding_share(V, F, G, GF, smoothing=0)
+    scale = body_scale(V)
+    assert np.all(default[dist < 0.005 * scale - 2e-3] == 1) and np.all(default[dist > 0.02 * scale + 2e-3] == 0)
+    with pytest.raises(ValueError, match="riding distances"):
+        riding_share(V, F, G, GF, full=0.05, none=0.01)
 
 
 def test_weight_transfer_refuses_mismatched_weights_and_empty_garments():

@@ -155,6 +155,7 @@ class VIEW3D_PT_garment_transfer_motion(GarmentPanel, bpy.types.Panel):
         settings = context.scene.garment_transfer
         layout.prop(settings, "rig_result")
         layout.prop(settings, "max_influences")
+        layout.prop(settings, "ride_surface")
         layout.prop(settings, "result")
         layout.operator("garment_transfer.rig_garment", icon='ARMATURE_DATA')
         layout.operator("garment_transfer.fit_pose", icon='POSE_HLT')

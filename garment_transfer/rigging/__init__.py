@@ -13,11 +13,12 @@ from .skeleton import Skeleton, bone_frames, plane_normals, read_joints, read_sk
 from .skinning import (SkinWeights, deforming, group_transforms, pose_transforms, read_weights, skin, skin_weights,
                        weights_from_dict, weights_to_dict, write_weights)
 from .weight_transfer import (MATCH_ANGLE, MATCH_DISTANCE_SHARE, MAX_INFLUENCES, cotangent_laplacian, inpaint,
-                              inpainted_weights, match, nearest_weights, smoothness_matrix, surface_weights)
+                              inpainted_weights, match, nearest_weights, riding_share, smoothness_matrix,
+                              surface_weights)
 
 __all__ = ["Skeleton", "read_skeleton", "read_joints", "skeleton_from_dict", "bone_frames", "plane_normals",
            "Motion", "read_bvh", "parse_bvh", "axes_between", "SkinWeights", "skin_weights", "read_weights",
            "write_weights", "weights_from_dict", "weights_to_dict", "skin", "pose_transforms", "group_transforms",
            "deforming", "Rig", "bvh_rotations", "matching_rotations", "surface_weights", "nearest_weights",
-           "inpainted_weights", "match", "inpaint", "cotangent_laplacian", "smoothness_matrix", "MATCH_ANGLE",
-           "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES"]
+           "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian", "smoothness_matrix",
+           "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES"]

@@ -39,10 +39,20 @@ MATCH_ANGLE = 30.0
 #: ... or it touches the body, closer than this share of the body's scale (about 1 cm), facing any way: a
 #: cuff's rim at the wrist, a collar's edge at the neck follow the skin they touch.
 TOUCH_SHARE = 0.005
-#: Influences kept per vertex by default (what game engines take).
-MAX_INFLUENCES = 4
+#: Influences kept per vertex by default: 8, what game engines take at most (4 is their other limit).
+#: MakeHuman's body has up to 9 per vertex; keeping 4 moves the garment off the skin it was matched to: more
+#: crossings and more stretch in motion than 8, which is as good as all (``lab/notes/motion-study.md``).
+MAX_INFLUENCES = 8
 #: A garment whose median distance from the body exceeds this share of the body's scale is not dressed on it.
 FAR_SHARE = 0.2
+#: A garment vertex rides the posed body's surface fully (``riding_share``) when it lies closer to the body than
+#: this share of its scale (about 1 cm), whichever way it faces ...
+RIDE_FULL_SHARE = 0.005
+#: ... and not at all from this share on (about 4 cm, the match distance), or when it faces away farther than
+#: ``RIDE_FULL_SHARE``; in between, the share falls linearly.
+RIDE_NONE_SHARE = 0.02
+#: Rounds of neighbour averaging of the share, so that no garment edge joins a riding vertex to a free one.
+RIDE_SMOOTHING = 3
 
 
 def surface_weights(body_V, body_F, weights, points, surface=None):
@@ -311,3 +321,57 @@ def nearest_weights(body_V, body_F, body_weights: SkinWeights, garment_V, *, max
     W = surface_weights(body_V, body_F, body_weights.W, garment_V, surface)
     weights = skin_weights(body_weights.groups, W, name)
     return weights.limited(max_influences) if max_influences else weights.normalised()
+
+
+def riding_share(body_V, body_F, garment_V, garment_F, *, full=None, none=None, angle=MATCH_ANGLE, surface=None,
+                 smoothing=RIDE_SMOOTHING):
+    """How much each garment vertex rides the posed body's surface rather than following the bones: 1 where the
+    cloth lies on the skin, 0 where it hangs free, in between a ramp by the distance from the body.
+
+    A vertex bound to the skinned body's surface (Blender's Surface Deform, bound at rest) keeps its distance
+    from the skin in every pose, where linear blend skinning of the cloth itself folds it into the skin at the
+    bends; a vertex that hangs free (a skirt's hem) must follow the bones instead, or it tears between the legs.
+
+    Parameters
+    ----------
+    body_V : (n,3) float
+    body_F : (m,3) int
+    garment_V : (p,3) float
+    garment_F : (q,3) int
+        The garment, dressed on the body at rest.
+    full : float, optional
+        Closer than this rides fully, facing any way (default ``RIDE_FULL_SHARE`` of the body's scale).
+    none : float, optional
+        From this distance on it does not ride (default ``RIDE_NONE_SHARE`` of the body's scale).
+    angle : float
+        Between ``full`` and ``none`` a vertex rides only if its normal is within this angle of the body's.
+    surface : TriangleSurface, optional
+    smoothing : int
+        Rounds of averaging with the neighbours.
+
+    Returns
+    -------
+    share : (p,) float64
+        In [0, 1].
+    """
+    garment_V = np.asarray(garment_V, dtype=np.float64)
+    garment_F = np.asarray(garment_F, dtype=np.int64)
+    surface = surface or TriangleSurface(body_V, body_F)
+    scale = body_scale(surface.V)
+    full = RIDE_FULL_SHARE * scale if full is None else float(full)
+    none = RIDE_NONE_SHARE * scale if none is None else float(none)
+    if not 0 <= full < none:
+        raise ValueError(f"the riding distances must satisfy 0 <= full < none, got {full} and {none}")
+    matched, dist, _, _ = match(surface.V, surface.F, garment_V, garment_F, none, angle, surface, full)
+    share = np.clip((none - dist) / (none - full), 0.0, 1.0) * matched
+    if smoothing and garment_F.shape[0]:
+        n = garment_V.shape[0]
+        i, j = garment_F.reshape(-1), np.roll(garment_F, 1, axis=1).reshape(-1)
+        A = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+        A = ((A + A.T) > 0).astype(np.float64)
+        degree = np.asarray(A.sum(axis=1)).ravel()
+        mean = sp.diags(np.divide(1.0, degree, out=np.zeros(n), where=degree > 0)) @ A
+        alone = degree == 0
+        for _ in range(int(smoothing)):
+            share = np.where(alone, share, 0.5 * share + 0.5 * (mean @ share))
+    return share

@@ -1,19 +1,24 @@
-"""Playback and bake in Blender: a MakeHuman suit rigged by the extension, played back on the posed character,
-against the nearest-surface rig; and the time of a baked pose fit.
+"""Playback and bake in Blender: garments rigged by the extension, played back on the posed character against the
+nearest-surface rig; and the time of a baked pose fit.
 
-The pear body (``../shared/data/makehuman``) gets MakeHuman's skeleton as an armature (the extension's
+Two characters (``../shared/data/makehuman``), each with MakeHuman's skeleton as an armature (the extension's
 ``make_armature``: bones from the joints, roll from the planes), its weights as vertex groups and an Armature
-modifier. Each suit is transferred onto it from ``female_average`` by the Transfer operator, which rigs the
-result (inpainted weights, at most 4 bones a vertex, an Armature modifier and a Shrinkwrap Outside: the live
-playback). The baseline is the same result rigged by the nearest-surface rule (every influence, Armature only:
-what Blender's Data Transfer gives). Per shared pose, both are evaluated by Blender on the posed character and
-their crossings with the evaluated body counted under every split of both meshes' quads (the core's exact
-count), in all and away from where the posed body crosses or closes on itself.
+modifier: the pear body, onto which each MakeHuman suit is transferred from ``female_average`` by the Transfer
+operator (which rigs the result), and the average body, dressed with the demo's dresses and skirts as
+``lab.motion`` makes them (the product's transfer from the banana mannequin) and rigged by Rig to Body. The live
+rigs compared (``LIVE_RIGS``) are Rig to Body's options: the product's weights, an Armature modifier and a live
+correction (a Surface Deform carrying the cloth that lies on the skin, a Shrinkwrap Outside, or both). The
+baseline is the same garment rigged by the nearest-surface rule (every influence, Armature only: what Blender's
+Data Transfer gives). In every pose of ``lab.motion.pose_set`` (the shared poses and those kept back), each rig
+is evaluated by Blender on the posed character and its crossings with the evaluated body counted under every
+split of both meshes' quads (the core's exact count), in all and away from where the posed body crosses or closes
+on itself, with the share of triangles stretched by more than 20%.
 
 Then the bake: the armature keyed from the rest pose (frame 1) to a pose (frame ``--frames``) and the Bake Pose
 Fit operator timed over the range, with the time Blender takes to play a frame of the live rig.
 
-    .venv/bin/python -m lab.blender.motion_playback [--garments g1 g2] [--frames 20] [--bake-pose run01]
+    .venv/bin/python -m lab.blender.motion_playback [--garments g1 g2] [--live r1 r2] [--poses p q]
+        [--frames 20] [--bake-pose run01]
 """
 
 from __future__ import annotations
@@ -33,10 +38,22 @@ import numpy as np  # noqa: E402
 
 import garment_transfer as gt  # noqa: E402
 from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, self_contact  # noqa: E402
+from lab.motion import LOOSE, LOOSE_BODY, SUITS, pose_set, principal_stretch, rest_garments  # noqa: E402
 from lab.paths import makehuman_folder  # noqa: E402
 
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-POSES = ("standing01", "standing02", "standing03", "sit01", "run01", "fight01")
+#: Blender's world is Z up, MakeHuman's files Y up: the rotations of ``pose_set`` (body axes) turned to it.
+Y_TO_Z = C
+GARMENTS = ("female_sportsuit01", "female_casualsuit01", "female_casualsuit02", "aline_skirt", "maxi_skirt",
+            "formal_dress")
+#: The live rigs compared with the nearest-surface rig: name -> Rig to Body's options.
+#: The product's rig is "shrinkwrap" (Rig to Body's defaults), "surface+shrinkwrap" with Ride Body Surface on;
+#: "shrinkwrap_half" is the first round's (a Shrinkwrap at half the cloth offset).
+LIVE_RIGS = {"shrinkwrap_half": dict(ride_surface=False, outside=0.5),
+             "surface": dict(ride_surface=True, outside=0.0),
+             "surface+shrinkwrap_half": dict(ride_surface=True, outside=0.5),
+             "shrinkwrap": dict(ride_surface=False, outside=1.0),
+             "surface+shrinkwrap": dict(ride_surface=True, outside=1.0)}
 
 
 def to_world(P):
@@ -63,21 +80,30 @@ def world(obj, evaluated):
     return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
 
 
-def setup(root, rig_module):
-    skeleton = gt.read_skeleton(root / "rig" / "skeleton.json")
-    joints = {k: to_world(v) for k, v in gt.read_joints(root / "rig" / "joints" / "female_pear.json").items()}
-    weights = gt.read_weights(root / "rig" / "weights.json", 13380)
-    body = import_obj(root / "bodies" / "female_pear.obj", "pear")
-    source = import_obj(root / "bodies" / "female_average.obj", "average")
-    armature = rig_module.make_armature(bpy.context, "pear_rig", skeleton, joints)
-    rig_module.write_vertex_groups(body, weights)
-    body.modifiers.new(name="Armature", type='ARMATURE').object = armature
-    settings = bpy.context.scene.garment_transfer
-    settings.source_body, settings.target_body = source, body
-    return skeleton, gt.Rig(skeleton, joints, weights), body, armature, settings
+class Character:
+    """A MakeHuman body in the scene with its armature, weights and Armature modifier."""
+
+    def __init__(self, root, rig_module, body_name):
+        self.skeleton = gt.read_skeleton(root / "rig" / "skeleton.json")
+        joints = {k: to_world(v) for k, v in gt.read_joints(root / "rig" / "joints" / f"{body_name}.json").items()}
+        weights = gt.read_weights(root / "rig" / "weights.json", 13380)
+        self.rest = gt.read_obj(root / "bodies" / f"{body_name}.obj")
+        self.body = import_obj(root / "bodies" / f"{body_name}.obj", body_name)
+        self.armature = rig_module.make_armature(bpy.context, f"{body_name}_rig", self.skeleton, joints)
+        rig_module.write_vertex_groups(self.body, weights)
+        self.body.modifiers.new(name="Armature", type='ARMATURE').object = self.armature
+        self.rig = gt.Rig(self.skeleton, joints, weights)
+        self.rest_V = to_world(self.rest.V)
+        self.F = gt.every_split(self.rest)
+        self.offset = gt.OFFSET_SHARE * gt.body_scale(self.rest_V)
+
+    def pose(self, rig_module, R):
+        """Pose the armature by local rotations in MakeHuman's axes (``lab.motion.pose_set``)."""
+        R_world = np.einsum("ij,bjk,lk->bil", Y_TO_Z, R, Y_TO_Z)
+        rig_module.pose_armature(self.armature, self.skeleton, self.rig.transforms(R_world))
 
 
-def nearest_twin(result, body, rig, rig_module, armature):
+def nearest_twin(result, character, rig_module):
     """A copy of the result rigged by the nearest-surface rule (every influence), Armature modifier only."""
     twin = result.copy()
     twin.data = result.data.copy()
@@ -86,11 +112,20 @@ def nearest_twin(result, body, rig, rig_module, armature):
     for group in list(twin.vertex_groups):
         twin.vertex_groups.remove(group)
     for mod in list(twin.modifiers):
-        if mod.type == 'SHRINKWRAP':
-            twin.modifiers.remove(mod)
-    rest_body = gt.read_obj(makehuman_folder() / "bodies" / "female_pear.obj")
-    rig_module.write_vertex_groups(twin, gt.nearest_weights(to_world(rest_body.V), rest_body.F, rig.weights,
+        twin.modifiers.remove(mod)
+    rig_module.add_armature_modifier(twin, character.armature)
+    rig_module.write_vertex_groups(twin, gt.nearest_weights(character.rest_V, character.rest.F, character.rig.weights,
                                                             world(twin, False)))
+    return twin
+
+
+def live_twin(result, body, rig_module, name, options):
+    """A copy of the result rigged by the extension's Rig to Body with ``options``."""
+    twin = result.copy()
+    twin.data = result.data.copy()
+    twin.name = f"{result.name}_{name}"
+    bpy.context.scene.collection.objects.link(twin)
+    rig_module.rig_to_body(bpy.context, twin, body, **options)
     return twin
 
 
@@ -100,52 +135,97 @@ def count(V, garment_F, body_V, body_F, free_F):
     return c["a_edges_through_b"] + c["b_edges_through_a"], free["a_edges_through_b"] + free["b_edges_through_a"]
 
 
-def playback(root, names, rig_module):
-    skeleton, rig, body, armature, settings = setup(root, rig_module)
-    rest_body = gt.read_obj(root / "bodies" / "female_pear.obj")
-    body_F = gt.every_split(rest_body)
-    offset = gt.OFFSET_SHARE * gt.body_scale(to_world(rest_body.V))
-    motions = {p: gt.read_bvh(root / "poses" / f"{p}.bvh") for p in POSES}
-    totals = {}
-    results = []
+def dressed(root, names, rig_module, characters, live):
+    """Each garment rigged on its character: [(name, character, rigs {rule: object}, every split, F, rest V)]."""
+    settings = bpy.context.scene.garment_transfer
+    out = []
+    rest = rest_garments(root, [n for n in names if n not in SUITS], lambda line: print(line, flush=True))
     for name in names:
-        settings.garment = import_obj(root / "garments" / name / "female_average.obj", name)
-        assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
-        result = settings.result
-        twin = nearest_twin(result, body, rig, rig_module, armature)
-        garment_F = gt.every_split(gt.read_obj(root / "garments" / name / "female_average.obj"))
-        results.append((name, result, twin, garment_F))
-    for pose in POSES:
-        T = rig.transforms(gt.bvh_rotations(motions[pose], skeleton, file_up="Z", body_up="Z"))
-        rig_module.pose_armature(armature, skeleton, T)
+        if name in SUITS:
+            character = characters[SUITS[name]]
+            settings.source_body = characters["source"]
+            settings.target_body = character.body
+            settings.garment = import_obj(root / "garments" / name / "female_average.obj", name)
+            assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+            result = settings.result
+            garment = gt.read_obj(root / "garments" / name / "female_average.obj")
+        else:
+            character = characters[LOOSE_BODY]
+            garment = rest[name][1]
+            path = ROOT / "results" / "motion" / "rest" / f"{name}_on_{LOOSE_BODY}.obj"
+            result = import_obj(path, name)
+            rig_module.rig_to_body(bpy.context, result, character.body)
+        rigs = {"nearest": nearest_twin(result, character, rig_module)}
+        for live_name in live:
+            rigs[live_name] = live_twin(result, character.body, rig_module, live_name, LIVE_RIGS[live_name])
+        out.append((name, character, rigs, gt.every_split(garment), garment.F, world(result, False)))
+    return out
+
+
+def playback(root, names, rig_module, live=tuple(LIVE_RIGS), poses=None):
+    characters = {"female_pear": Character(root, rig_module, "female_pear"),
+                  LOOSE_BODY: Character(root, rig_module, LOOSE_BODY)}
+    characters["source"] = import_obj(root / "bodies" / "female_average.obj", "average_source")
+    results = dressed(root, names, rig_module, characters, live)
+    every = pose_set(root, characters["female_pear"].skeleton)
+    every = {p: every[p] for p in (poses or every)}
+    rigs = ("nearest", *live)
+    totals = {}
+    for pose, R in every.items():
+        contact = {}
+        for key, ch in characters.items():
+            if key == "source":
+                continue
+            ch.pose(rig_module, R)
         bpy.context.view_layer.update()
-        posed = world(body, True)
-        contact, _ = self_contact(posed, rest_body.F, CONTACT_RINGS, to_world(rest_body.V), CONTACT_GAP * offset)
-        free_F = body_F[~contact[body_F].any(axis=1)]
-        for name, result, twin, garment_F in results:
-            live = count(world(result, True), garment_F, posed, body_F, free_F)
-            near = count(world(twin, True), garment_F, posed, body_F, free_F)
-            totals.setdefault(pose, np.zeros(4, dtype=np.int64))
-            totals[pose] += [*near, *live]
-            print(f"{name:>20} {pose:>10}: nearest rig {near[0]} crossings ({near[1]} away from the body's contact), "
-                  f"live rig {live[0]} ({live[1]})", flush=True)
-    print("\n| pose | nearest-surface rig: crossings (away from contact) | live rig (ours) | ratio |")
-    print("|---|---:|---:|---:|")
-    for pose, (n, nf, w, wf) in totals.items():
-        print(f"| {pose} | {n} ({nf}) | {w} ({wf}) | {w / max(n, 1):.2f} ({wf / max(nf, 1):.2f}) |")
-    all_n, all_w = sum(t[0] for t in totals.values()), sum(t[2] for t in totals.values())
-    print(f"\nall poses: nearest {all_n}, live {all_w}: {all_w / max(all_n, 1):.2f} of the nearest rig's")
-    return skeleton, rig, armature, results
+        for name, ch, objects, garment_F, F, rest_V in results:
+            if ch not in contact:
+                posed = world(ch.body, True)
+                c, _ = self_contact(posed, ch.rest.F, CONTACT_RINGS, ch.rest_V, CONTACT_GAP * ch.offset)
+                contact[ch] = posed, ch.F[~c[ch.F].any(axis=1)]
+            posed, free_F = contact[ch]
+            kind = "loose" if name in LOOSE else "suits"
+            cells = []
+            for r in rigs:
+                V = world(objects[r], True)
+                all_, free = count(V, garment_F, posed, ch.F, free_F)
+                s20 = float((principal_stretch(rest_V, V, F) > 1.2).mean())
+                totals.setdefault((kind, pose), {}).setdefault(r, []).append((all_, free, s20))
+                cells.append(f"{r} {all_} ({free}) {s20:.3f}")
+            print(f"{name:>20} {pose:>18}: " + "; ".join(cells), flush=True)
+    for kind in ("suits", "loose"):
+        keys = [k for k in totals if k[0] == kind]
+        if not keys:
+            continue
+        print(f"\n{kind}: per pose, summed over the garments: crossings (away from contact), mean share stretched >20%"
+              "; ratio to the nearest rig's crossings (away from contact)\n")
+        print("| pose | " + " | ".join(rigs) + " |")
+        print("|---|" + "---:|" * len(rigs))
+        sums = {r: np.zeros(2) for r in rigs}
+        for key in keys:
+            row = {r: np.array(v) for r, v in totals[key].items()}
+            n, nf = row["nearest"][:, 0].sum(), row["nearest"][:, 1].sum()
+            cells = []
+            for r in rigs:
+                a, f, s = row[r][:, 0].sum(), row[r][:, 1].sum(), row[r][:, 2].mean()
+                sums[r] += (a, f)
+                cells.append(f"{int(a)} ({int(f)}) {s:.3f}" + ("" if r == "nearest" else
+                                                               f"; {a / max(n, 1):.2f} ({f / max(nf, 1):.2f})"))
+            print(f"| {key[1]} | " + " | ".join(cells) + " |")
+        n, nf = sums["nearest"]
+        print("| all | " + " | ".join(f"{int(a)} ({int(f)})" + ("" if r == "nearest" else
+                                                                   f"; {a / max(n, 1):.2f} ({f / max(nf, 1):.2f})")
+                                      for r, (a, f) in sums.items()) + " |")
+    return characters, results
 
 
-def bake(skeleton, rig, armature, result, motion, frames):
-    T = rig.transforms(gt.bvh_rotations(motion, skeleton, file_up="Z", body_up="Z"))
+def bake(character, rig_module, result, R, pose_name, frames):
+    armature = character.armature
     for bone in armature.pose.bones:
         bone.matrix_basis.identity()
         bone.keyframe_insert("location", frame=1)
         bone.keyframe_insert("rotation_quaternion", frame=1)
-    ext_rigging = sys.modules[bpy.types.GARMENT_TRANSFER_OT_rig_garment.__module__]
-    ext_rigging.pose_armature(armature, skeleton, T)
+    character.pose(rig_module, R)
     for bone in armature.pose.bones:
         bone.keyframe_insert("location", frame=frames)
         bone.keyframe_insert("rotation_quaternion", frame=frames)
@@ -158,16 +238,18 @@ def bake(skeleton, rig, armature, result, motion, frames):
     t = time.perf_counter()
     assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=frames) == {'FINISHED'}
     seconds = time.perf_counter() - t
-    print(f"\nbake of {frames} frames ({result.name}, rest to {motion.name}): {seconds:.1f} s, "
+    print(f"\nbake of {frames} frames ({result.name}, rest to {pose_name}): {seconds:.1f} s, "
           f"{seconds / frames:.2f} s a frame ({100 * seconds / frames:.0f} s for 100 frames); live playback "
           f"{play * 1000:.0f} ms a frame")
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.blender.motion_playback", description=__doc__.split("\n\n")[0])
-    p.add_argument("--garments", nargs="+", default=["female_sportsuit01", "female_casualsuit01",
-                                                     "female_casualsuit02"])
-    p.add_argument("--frames", type=int, default=20)
+    p.add_argument("--garments", nargs="+", default=list(GARMENTS))
+    p.add_argument("--live", nargs="+", default=list(LIVE_RIGS), choices=list(LIVE_RIGS),
+                   help="the live rigs compared with the nearest-surface rig")
+    p.add_argument("--poses", nargs="+", help="poses by name (default: the shared poses and those kept back)")
+    p.add_argument("--frames", type=int, default=20, help="frames of the timed bake (0: none)")
     p.add_argument("--bake-pose", default="run01")
     args = p.parse_args(argv)
     root = makehuman_folder()
@@ -179,10 +261,15 @@ def main(argv=None):
     ext.register()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     rig_module = sys.modules[bpy.types.GARMENT_TRANSFER_OT_rig_garment.__module__]
-    skeleton, rig, armature, results = playback(root, args.garments, rig_module)
+    characters, results = playback(root, args.garments, rig_module, args.live, args.poses)
     if args.frames:
-        bake(skeleton, rig, armature, results[0][1], gt.read_bvh(root / "poses" / f"{args.bake_pose}.bvh"),
-             args.frames)
+        suits = [r for r in results if r[0] in SUITS]
+        if suits:
+            name, character, objects, *_ = suits[0]
+            bpy.context.scene.garment_transfer.target_body = character.body
+            R = pose_set(root, character.skeleton, [args.bake_pose], kept_back=False)[args.bake_pose]
+            bake(character, rig_module, objects[args.live[-1]] if args.live else objects["nearest"], R,
+                 args.bake_pose, args.frames)
 
 
 if __name__ == "__main__":

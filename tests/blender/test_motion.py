@@ -104,6 +104,10 @@ def test_a_transfer_onto_a_rigged_posed_body_is_made_at_rest_and_rigged(characte
     assert np.abs(world_vertices(result) - at_rest).max() < 1e-3
     assert [m.type for m in result.modifiers] == ['ARMATURE', 'SHRINKWRAP']
     assert result.modifiers[0].object == armature and result.modifiers[1].target == body
+    # The Shrinkwrap keeps the transfer's cloth offset: it moves nothing at rest.
+    from garment_transfer import OFFSET_SHARE, body_scale
+
+    assert result.modifiers[1].offset == pytest.approx(OFFSET_SHARE * body_scale(to_world(tgt.V)), rel=1e-5)
     groups = {g.index: g.name for g in result.vertex_groups}
     assert set(groups.values()) <= set(skeleton.names)
     counts = np.array([len(v.groups) for v in result.data.vertices])
@@ -112,6 +116,59 @@ def test_a_transfer_onto_a_rigged_posed_body_is_made_at_rest_and_rigged(characte
     assert not garment.vertex_groups and not garment.modifiers          # the input is unchanged
     moved = np.linalg.norm(evaluated_world(result) - world_vertices(result), axis=1)
     assert moved.max() > 0.05                                           # it follows the pose
+
+
+def test_riding_the_body_surface_keeps_the_cloth_on_the_skin_at_the_bends(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    from garment_transfer import TriangleSurface, riding_share
+
+    settings.ride_surface = True
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
+    ride = result.modifiers[1]
+    assert ride.is_bound and ride.target == body and ride.vertex_group == rigging.RIDE_GROUP
+    rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
+    rest_body = rest_body.with_vertices(to_world(rest_body.V))
+    cloth = world_vertices(result)
+    # The garment as the operator reads it (its quads split by the extension).
+    mesh = rigging.convert.core_mesh_from_object(result, bpy.context.evaluated_depsgraph_get(), False, "garment")
+    share = riding_share(rest_body.V, rest_body.F, mesh.V, mesh.F)
+    group = result.vertex_groups[rigging.RIDE_GROUP].index
+    written = np.zeros(len(cloth))
+    for v in result.data.vertices:
+        for g in v.groups:
+            if g.group == group:
+                written[v.index] = g.weight
+    on_skin = share > 0.9
+    assert np.allclose(written, np.round(share, 4), atol=1e-3) and on_skin.sum() > 0.5 * len(share)
+    # Without the Shrinkwrap, so that the Surface Deform is seen alone; the same weights without it as the
+    # reference. In fight01, the cloth on the skin keeps its distance from the skinned body better.
+    riding = result.copy()
+    riding.data = result.data.copy()
+    bpy.context.scene.collection.objects.link(riding)
+    riding.modifiers.remove(riding.modifiers[2])
+    bones_only = riding.copy()
+    bones_only.data = riding.data.copy()
+    bpy.context.scene.collection.objects.link(bones_only)
+    bones_only.modifiers.remove(bones_only.modifiers[1])
+    # Bound at rest, and the Shrinkwrap at the cloth offset: at rest the whole rig moves nothing.
+    assert np.abs(evaluated_world(result) - cloth).max() < 1e-5
+    rest_distance = TriangleSurface(rest_body.V, rest_body.F).signed_distance(cloth)[0]
+    pose(character, "fight01")
+    posed = TriangleSurface(evaluated_world(body), rest_body.F)
+    kept = [np.abs(posed.signed_distance(evaluated_world(o))[0] - rest_distance)[on_skin] for o in (riding, bones_only)]
+    assert np.percentile(kept[0], 95) < 0.5 * np.percentile(kept[1], 95)
+    assert np.linalg.norm(evaluated_world(riding) - cloth, axis=1).max() > 0.3           # it moved with the pose
+    # Rigged again without it (Rig to Body, the body posed): the Surface Deform and its group go.
+    settings.ride_surface = False
+    assert bpy.ops.garment_transfer.rig_garment() == {'FINISHED'}
+    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SHRINKWRAP']
+    assert rigging.RIDE_GROUP not in result.vertex_groups
+    settings.ride_surface = True
+    assert bpy.ops.garment_transfer.rig_garment() == {'FINISHED'}
+    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
+    assert result.modifiers[1].is_bound
 
 
 def test_fit_to_pose_and_bake(character):
