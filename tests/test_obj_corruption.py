@@ -15,17 +15,17 @@ exception. Files the format cannot tell from a good one (cut exactly at a line b
 faces, with every vertex still used; a digit changed into another) are valid OBJ files and are
 read as what they say.
 
-The default run tries 300 derandomized examples; ``pytest -m slow tests/test_obj_corruption.py`` runs
-5,000 more.
+The default run tries 300 derandomized examples; the sweep at 5,000 (a study, not part of the suite):
+``GARMENT_TRANSFER_OBJ_SWEEP=5000 bash tools/run.sh test tests/test_obj_corruption.py``.
 """
 
 from __future__ import annotations
 
+import os
 import random
 import re
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -170,25 +170,15 @@ def test_the_undamaged_files_read_and_round_trip(tmp_path):
         assert check(tmp_path, base, base) == "read"
 
 
-@settings(max_examples=300, deadline=None, derandomize=True,
+#: Damaged files the sweep tries (``GARMENT_TRANSFER_OBJ_SWEEP`` sets another number).
+EXAMPLES = int(os.environ.get("GARMENT_TRANSFER_OBJ_SWEEP", "300"))
+
+
+@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(damaged())
 def test_damaged_obj_is_read_right_or_refused(tmp_path, case):
     check(tmp_path, *case)
-
-
-@pytest.mark.slow
-def test_damaged_obj_is_read_right_or_refused_many(tmp_path, request):
-    if "slow" not in (request.config.getoption("markexpr") or ""):
-        pytest.skip("5,000 more damaged files: run with -m slow")
-
-    @settings(max_examples=5000, deadline=None, derandomize=True, database=None,
-              suppress_health_check=[HealthCheck.too_slow])
-    @given(damaged())
-    def sweep(case):
-        check(tmp_path, *case)
-
-    sweep()
 
 
 def test_cut_at_a_line_break_inside_the_faces_is_the_one_undetectable_cut(tmp_path):
