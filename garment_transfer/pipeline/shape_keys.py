@@ -44,6 +44,14 @@ from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_g
 #: shape, has vertices between half and the whole offset from the body (where the crossing pass lifted edges and
 #: restored folds), which the whole offset moves by up to 2.3 mm, half of it by nothing.
 KEEP_OUTSIDE_SHARE = 0.5
+#: Bands of the per-vertex keep-outside distance (``keep_outside_bands``), shares of the transfer's offset: every
+#: vertex is kept at least ``KEEP_OUTSIDE_SHARE`` of the offset outside, and each further band keeps only the
+#: vertices that the basis and every key at 1 already hold at least that far (so that no key at 1 moves). In
+#: Blender, one Shrinkwrap per band, each limited to its band's vertex group, in increasing order.
+KEEP_OUTSIDE_BANDS = (0.5, 0.75, 1.0)
+#: A vertex joins a band only if the basis and every key at 1 hold it at least ``band / KEEP_OUTSIDE_SLACK``
+#: away: room for Blender's 32-bit coordinates and its own nearest-point search.
+KEEP_OUTSIDE_SLACK = 0.999
 
 
 @dataclass
@@ -305,7 +313,7 @@ def inside_share(V, body_V, body_F, depth, surface=None):
     return float((sd < -depth).mean()), float(max(0.0, -sd.min()))
 
 
-def keep_outside(V, surface: TriangleSurface, distance=0.0):
+def keep_outside(V, surface: TriangleSurface, distance=0.0, only=None):
     """Vertices closer to the body than ``distance`` (or inside it) moved to that distance along the
     body's normal; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode,
     which the Blender operator can add after the shape keys to catch what linear blending clips.
@@ -316,6 +324,8 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0):
     surface : TriangleSurface
         The body in the blended shape.
     distance : float
+    only : (g,) bool, optional
+        The vertices the rule applies to (a Shrinkwrap limited to a vertex group of weight 1); default all.
 
     Returns
     -------
@@ -323,9 +333,64 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0):
         A new array.
     """
     V = np.array(V, dtype=np.float64)
-    sd, closest, normal, _ = surface.signed_distance(V)
+    rows = np.arange(len(V)) if only is None else np.flatnonzero(np.asarray(only, dtype=bool))
+    sd, closest, normal, _ = surface.signed_distance(V[rows])
     bad = sd < distance
-    V[bad] = closest[bad] + distance * normal[bad]
+    V[rows[bad]] = closest[bad] + distance * normal[bad]
+    return V
+
+
+def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None, bands=KEEP_OUTSIDE_BANDS,
+                       slack=KEEP_OUTSIDE_SLACK):
+    """The per-vertex keep-outside distance, in bands: for each band (increasing), its distance and the
+    vertices it keeps. The first band keeps every vertex; a later band keeps the vertices that the basis and
+    every key at 1 hold at least ``band * offset / slack`` from the body in that shape, so that the rule moves
+    no key at 1 (nor the basis) while keeping a mix as far out as the keys allow.
+
+    Parameters
+    ----------
+    fit : ShapeKeyFit
+    source_body : Mesh
+        The body's basis shape (``fit.basis`` is on it).
+    shapes : dict of str to (n,3) float
+        Each key's body shape (``fit.keys[name]`` is on it).
+    offset : float, optional
+        The transfer's offset (default ``fit.info["Basis"]["offset"]``).
+    bands : sequence of float
+        Shares of ``offset``, increasing.
+    slack : float
+        At most 1.
+
+    Returns
+    -------
+    list of (float, (g,) bool)
+    """
+    bands = [float(b) for b in bands]
+    if not bands or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
+        raise ValueError(f"bands must be positive and increasing, got {bands}")
+    if not 0 < slack <= 1:
+        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    if offset is None:
+        offset = fit.info["Basis"]["offset"]
+    held = TriangleSurface(source_body.V, source_body.F).signed_distance(fit.basis)[0]
+    for name, V_body in shapes.items():
+        sd = TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F).signed_distance(fit.keys[name])[0]
+        held = np.minimum(held, sd)
+    out = [(bands[0] * offset, np.ones(len(held), dtype=bool))]
+    for b in bands[1:]:
+        out.append((b * offset, held * slack >= b * offset))
+    return out
+
+
+def keep_outside_banded(V, surface: TriangleSurface, bands):
+    """``keep_outside`` band after band (``keep_outside_bands``), as Blender's Shrinkwrap modifiers in a stack.
+
+    Returns
+    -------
+    V : (g,3) float64
+    """
+    for distance, only in bands:
+        V = keep_outside(V, surface, distance, only)
     return V
 
 
