@@ -115,14 +115,55 @@ def add_armature_modifier(obj, armature):
     return mod
 
 
-def add_keep_outside(obj, body, offset):
-    """A Shrinkwrap (Outside) on the body, last in the stack: the live correction of playback."""
-    mod = obj.modifiers.new(name=KEEP_OUTSIDE_MODIFIER, type='SHRINKWRAP')
+def add_keep_outside(obj, body, distance, only=None, name=KEEP_OUTSIDE_MODIFIER):
+    """A Shrinkwrap (Outside mode, nearest surface point) on ``body`` at the end of the stack (after any Armature
+    modifier, so that posed cloth meets the posed body): it moves only the vertices inside the body or closer to
+    it than ``distance`` (world units), out to that distance: what a pose or a mix of size keys clips
+    (``shape_keys.keep_outside`` is the same rule). The live correction of playback and of size shape keys.
+
+    Parameters
+    ----------
+    only : (g,) bool, optional
+        The vertices it applies to: a vertex group ``<name>`` of weight 1 holding them (made, or replaced) limits
+        the modifier (Blender's Shrinkwrap moves no vertex outside its group); default every vertex.
+    """
+    mod = obj.modifiers.new(name=name, type='SHRINKWRAP')
     mod.target = body
     mod.wrap_method = 'NEAREST_SURFACEPOINT'
     mod.wrap_mode = 'OUTSIDE'
-    mod.offset = offset
+    # The modifier's offset is in the garment's own units.
+    mod.offset = distance / float(np.mean(np.array(obj.matrix_world.to_scale())))
+    if only is not None:
+        mod.vertex_group = write_share_group(obj, name, np.asarray(only, dtype=np.float64)).name
     return mod
+
+
+def add_keep_outside_bands(obj, body, bands):
+    """``add_keep_outside`` per band of ``shape_keys.keep_outside_bands`` (distance, vertices), in increasing
+    order: the first on every vertex (``KEEP_OUTSIDE_MODIFIER``), each later one limited to its vertices
+    (``KEEP_OUTSIDE_MODIFIER 2``, ``3``...: the modifier and its vertex group share the name)."""
+    mods = []
+    for i, (distance, only) in enumerate(bands):
+        if i and not np.any(only):
+            # Not even an empty group: on a mesh with no vertex in any group, Blender applies the modifier to all.
+            continue
+        name = KEEP_OUTSIDE_MODIFIER if i == 0 else f"{KEEP_OUTSIDE_MODIFIER} {i + 1}"
+        mods.append(add_keep_outside(obj, body, distance, None if i == 0 else only, name))
+    return mods
+
+
+def is_keep_outside(name):
+    """Whether a modifier or vertex group name is one of ``add_keep_outside_bands``'s."""
+    head, _, tail = name.partition(f"{KEEP_OUTSIDE_MODIFIER} ")
+    return name == KEEP_OUTSIDE_MODIFIER or (not head and tail.isdigit())
+
+
+def remove_keep_outside(obj):
+    """The Keep Outside Body modifiers and their vertex groups taken off ``obj``."""
+    for mod in [m for m in obj.modifiers if m.type == 'SHRINKWRAP' and is_keep_outside(m.name)]:
+        obj.modifiers.remove(mod)
+    for group in [g for g in obj.vertex_groups if is_keep_outside(g.name)]:
+        obj.vertex_groups.remove(group)
 
 
 def write_share_group(obj, name, share):
@@ -182,8 +223,8 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
                                       max_influences=max_influences, name=obj.name)
     write_vertex_groups(obj, weights)
-    for mod in [m for m in obj.modifiers
-                if m.type == 'ARMATURE' or m.name in (KEEP_OUTSIDE_MODIFIER, RIDE_MODIFIER)]:
+    remove_keep_outside(obj)
+    for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == RIDE_MODIFIER]:
         obj.modifiers.remove(mod)
     add_armature_modifier(obj, armature)
     info["riding"] = 0

@@ -345,7 +345,9 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     """The per-vertex keep-outside distance, in bands: for each band (increasing), its distance and the
     vertices it keeps. The first band keeps every vertex; a later band keeps the vertices that the basis and
     every key at 1 hold at least ``band * offset / slack`` from the body in that shape, so that the rule moves
-    no key at 1 (nor the basis) while keeping a mix as far out as the keys allow.
+    no key at 1 (nor the basis) while keeping a mix as far out as the keys allow. Where the basis or a key at 1
+    holds some vertex nearer than the first band, every vertex is kept at that nearest distance (times
+    ``slack``) and the first band, too, keeps only its vertices.
 
     Parameters
     ----------
@@ -376,9 +378,13 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     for name, V_body in shapes.items():
         sd = TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F).signed_distance(fit.keys[name])[0]
         held = np.minimum(held, sd)
-    out = [(bands[0] * offset, np.ones(len(held), dtype=bool))]
-    for b in bands[1:]:
-        out.append((b * offset, held * slack >= b * offset))
+    # The floor, for every vertex: the first band, or less where the basis or a key at 1 has a vertex nearer
+    # (the crossing pass may bring one closer than the offset); never inside.
+    floor = float(np.clip(slack * held.min(), 0.0, bands[0] * offset))
+    out = [(floor, np.ones(len(held), dtype=bool))]
+    for b in bands:
+        if b * offset > floor:
+            out.append((b * offset, held * slack >= b * offset))
     return out
 
 
