@@ -140,15 +140,16 @@ def add_keep_outside(obj, body, distance, only=None, name=KEEP_OUTSIDE_MODIFIER)
 
 def add_keep_outside_bands(obj, body, bands):
     """``add_keep_outside`` per band of ``shape_keys.keep_outside_bands`` (distance, vertices), in increasing
-    order: the first on every vertex (``KEEP_OUTSIDE_MODIFIER``), each later one limited to its vertices
-    (``KEEP_OUTSIDE_MODIFIER 2``, ``3``...: the modifier and its vertex group share the name)."""
+    order: ``KEEP_OUTSIDE_MODIFIER``, ``KEEP_OUTSIDE_MODIFIER 2``, ``3``..., each limited to a vertex group of the
+    same name holding its vertices (none for a band of every vertex)."""
     mods = []
     for i, (distance, only) in enumerate(bands):
-        if i and not np.any(only):
+        only = np.asarray(only, dtype=bool)
+        if not only.any():
             # Not even an empty group: on a mesh with no vertex in any group, Blender applies the modifier to all.
             continue
         name = KEEP_OUTSIDE_MODIFIER if i == 0 else f"{KEEP_OUTSIDE_MODIFIER} {i + 1}"
-        mods.append(add_keep_outside(obj, body, distance, None if i == 0 else only, name))
+        mods.append(add_keep_outside(obj, body, distance, None if only.all() else only, name))
     return mods
 
 

@@ -118,11 +118,16 @@ def test_keep_outside_bands_move_no_key_at_one_and_keep_a_mix_as_far_as_its_band
     offset = fit.info["Basis"]["offset"]
     bands = keep_outside_bands(fit, basis, shapes)
     # The pear key at 1 holds one vertex nearer than half the offset: every vertex is kept at that distance,
-    # and each band (half the offset included) keeps only the vertices every shape holds that far.
+    # and each band (half the offset included) keeps only the vertices every shape holds that far. The male_slim
+    # key at 1 has one vertex, twice the offset out, behind its closest triangle's face normal (a concave edge):
+    # a Shrinkwrap would move it by 9 mm, so it is in no band.
     floor = bands[0][0]
     assert 0.4 * offset < floor < KEEP_OUTSIDE_BANDS[0] * offset
     assert [d for d, _ in bands[1:]] == pytest.approx([b * offset for b in KEEP_OUTSIDE_BANDS])
-    assert bands[0][1].all() and not bands[1][1].all()
+    assert (~bands[0][1]).sum() == 1 and not bands[1][1].all()
+    k = np.flatnonzero(~bands[0][1])[0]
+    slim = TriangleSurface(shapes["male_slim"], basis.F)
+    assert np.linalg.norm(keep_outside(fit.keys["male_slim"], slim, floor)[k] - fit.keys["male_slim"][k]) > 0.05
     for (_, wider), (_, narrower) in zip(bands, bands[1:]):
         assert not (narrower & ~wider).any()             # nested: a vertex in a band is in every band below
     assert 0 < bands[-1][1].sum() < len(fit.basis)

@@ -314,9 +314,12 @@ def inside_share(V, body_V, body_F, depth, surface=None):
 
 
 def keep_outside(V, surface: TriangleSurface, distance=0.0, only=None):
-    """Vertices closer to the body than ``distance`` (or inside it) moved to that distance along the
-    body's normal; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode,
-    which the Blender operator can add after the shape keys to catch what linear blending clips.
+    """Vertices closer to the body than ``distance`` (or inside it) moved to that distance from their closest
+    point, on the outer side; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode
+    (nearest surface point), which the Blender operator adds after the shape keys to catch what linear blending
+    clips: the side is the closest triangle's face normal's, and a vertex moves along the line through it and
+    its closest point (along the face normal when it lies on the surface). Given the body's triangles as
+    Blender splits them, it equals the modifier to within 32-bit rounding.
 
     Parameters
     ----------
@@ -334,10 +337,35 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0, only=None):
     """
     V = np.array(V, dtype=np.float64)
     rows = np.arange(len(V)) if only is None else np.flatnonzero(np.asarray(only, dtype=bool))
-    sd, closest, normal, _ = surface.signed_distance(V[rows])
+    sd, closest, away = shrinkwrap_distance(V[rows], surface)
     bad = sd < distance
-    V[rows[bad]] = closest[bad] + distance * normal[bad]
+    V[rows[bad]] = closest[bad] + distance * away[bad]
     return V
+
+
+def shrinkwrap_distance(P, surface: TriangleSurface):
+    """Signed distance as Blender's Shrinkwrap (nearest surface point) judges it: the distance to the closest
+    point, negative where the point is behind the closest triangle's face normal.
+
+    Returns
+    -------
+    sd : (p,) float64
+    closest : (p,3) float64
+    away : (p,3) float64
+        Unit direction from the closest point to where a point kept outside goes: towards the point (away from
+        it when behind), the face normal when it lies on the surface.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    closest, _, tri, _ = surface.closest(P)
+    T = surface.V[surface.F[tri]]
+    normal = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    delta = P - closest
+    d = np.linalg.norm(delta, axis=1)
+    side = np.where(np.einsum("ij,ij->i", delta, normal) < 0, -1.0, 1.0)
+    on = d < 1e-12 * (1.0 + np.abs(closest).max(axis=1))
+    away = np.where(on[:, None], normal, delta * (side / np.where(on, 1.0, d))[:, None])
+    return np.where(on, 0.0, side * d), closest, away
 
 
 def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None, bands=KEEP_OUTSIDE_BANDS,
@@ -347,7 +375,8 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     every key at 1 hold at least ``band * offset / slack`` from the body in that shape, so that the rule moves
     no key at 1 (nor the basis) while keeping a mix as far out as the keys allow. Where the basis or a key at 1
     holds some vertex nearer than the first band, every vertex is kept at that nearest distance (times
-    ``slack``) and the first band, too, keeps only its vertices.
+    ``slack``) and the first band, too, keeps only its vertices. A vertex the Shrinkwrap judges inside in the
+    basis or a key at 1 (``shrinkwrap_distance`` < 0) is in no band.
 
     Parameters
     ----------
@@ -366,6 +395,7 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     Returns
     -------
     list of (float, (g,) bool)
+        The first keeps every vertex unless some vertex is in no band.
     """
     bands = [float(b) for b in bands]
     if not bands or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
@@ -374,14 +404,17 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
         raise ValueError(f"slack must be in (0, 1], got {slack}")
     if offset is None:
         offset = fit.info["Basis"]["offset"]
-    held = TriangleSurface(source_body.V, source_body.F).signed_distance(fit.basis)[0]
+    # Measured as the Shrinkwrap measures (shrinkwrap_distance), so that keep_outside moves no key at 1.
+    held = shrinkwrap_distance(fit.basis, TriangleSurface(source_body.V, source_body.F))[0]
     for name, V_body in shapes.items():
-        sd = TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F).signed_distance(fit.keys[name])[0]
-        held = np.minimum(held, sd)
-    # The floor, for every vertex: the first band, or less where the basis or a key at 1 has a vertex nearer
-    # (the crossing pass may bring one closer than the offset); never inside.
-    floor = float(np.clip(slack * held.min(), 0.0, bands[0] * offset))
-    out = [(floor, np.ones(len(held), dtype=bool))]
+        surface = TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F)
+        held = np.minimum(held, shrinkwrap_distance(fit.keys[name], surface)[0])
+    # The floor: the first band, or less where the basis or a key at 1 has a vertex nearer (the crossing pass may
+    # bring one closer than the offset). A vertex the Shrinkwrap judges inside in some shape (behind its closest
+    # triangle's face normal, at a concave edge, though outside the body) is in no band: it would move it.
+    ahead = held >= 0
+    floor = float(np.clip(slack * held[ahead].min(), 0.0, bands[0] * offset)) if ahead.any() else 0.0
+    out = [(floor, ahead)]
     for b in bands:
         if b * offset > floor:
             out.append((b * offset, held * slack >= b * offset))
