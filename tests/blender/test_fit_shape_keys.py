@@ -222,7 +222,7 @@ def test_each_key_at_one_is_the_transfer_to_that_shape_and_crosses_nothing(keyed
 @pytest.mark.parametrize("mix", [{"pear": 1.0, "slim": 1.0}, {"pear": 0.6, "slim": 0.9}])
 def test_keep_outside_catches_what_a_mix_clips_as_the_numpy_rule_does(keyed, mix):
     # Blender's stack of Shrinkwraps is keep_outside_banded: the study measures what the user gets.
-    from garment_transfer.pipeline.shape_keys import keep_outside_banded
+    from garment_transfer.pipeline.shape_keys import keep_outside_banded, shrinkwrap_distance
 
     body, garment = keyed
     assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
@@ -237,16 +237,20 @@ def test_keep_outside_catches_what_a_mix_clips_as_the_numpy_rule_does(keyed, mix
     shown = evaluated_world(result)
     sd_shown = surface.signed_distance(shown)[0]
     assert (sd_shown < -1e-3).sum() == 0                       # nothing more than 1 mm inside
-    expected = keep_outside_banded(blend, blender_triangles_surface(body), bands)
+    seen = blender_triangles_surface(body)
+    expected = keep_outside_banded(blend, seen, bands)
     moved = np.linalg.norm(expected - blend, axis=1) > 1e-4
-    assert moved.sum() > 20
+    assert moved.sum() > 10                                     # the rule does something
     assert np.abs(shown - expected).max() < 1e-6               # 1 micrometre: 32-bit rounding
+    # As the Shrinkwrap measures: what no band reaches is the blend itself.
+    sd_blend = shrinkwrap_distance(blend, seen)[0]
     last, only = bands[-1]
-    assert (np.abs(shown[sd_blend > last] - blend[sd_blend > last]) < 1e-5).all()   # the rest is the blend itself
+    far = sd_blend > last
+    assert far.mean() > 0.5 and (np.abs(shown[far] - blend[far]) < 1e-5).all()
     # A vertex outside the last band's group is not taken to its distance (the group limits the Shrinkwrap).
-    skipped = ~only & (sd_blend < bands[-2][0])
+    skipped = ~only & bands[0][1] & (sd_blend < bands[-2][0])
     assert skipped.sum() > 5
-    assert (sd_shown[skipped] < 0.95 * last).all()
+    assert (shrinkwrap_distance(shown[skipped], seen)[0] < 0.95 * last).all()
 
 
 def test_undo_takes_the_fitted_garment_back(keyed):
