@@ -56,7 +56,7 @@ LAYERS = {
                  "OFFSET_SHARE", "POSE_LIMITS", "pose_check", "check_result", "result_warnings",
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
                  "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "keep_outside_bands",
-                 "all_pairs", "fit_steps",
+                 "held_bands", "all_pairs", "fit_steps",
                  "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
                  "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
                  "poses_to_files", "every_split", "transfer_across_rest_poses", "pose_difference"),

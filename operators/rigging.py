@@ -131,11 +131,23 @@ def add_keep_outside(obj, body, distance, only=None, name=KEEP_OUTSIDE_MODIFIER)
     mod.target = body
     mod.wrap_method = 'NEAREST_SURFACEPOINT'
     mod.wrap_mode = 'OUTSIDE'
-    # The modifier's offset is in the garment's own units.
-    mod.offset = distance / float(np.mean(np.array(obj.matrix_world.to_scale())))
+    # The Shrinkwrap snaps in the target's space: its offset is in the body's own units.
+    mod.offset = distance / float(np.mean(np.array(body.matrix_world.to_scale())))
     if only is not None:
         mod.vertex_group = write_share_group(obj, name, np.asarray(only, dtype=np.float64)).name
     return mod
+
+
+def shrinkwrap_surface(body, V_world):
+    """The body's surface at ``V_world`` (its vertices, world space) split into triangles as Blender splits its
+    faces (its loop triangles): what a Shrinkwrap on it sees."""
+    from ..garment_transfer import TriangleSurface
+
+    me = body.data
+    me.calc_loop_triangles()
+    tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+    me.loop_triangles.foreach_get("vertices", tris)
+    return TriangleSurface(V_world, tris.reshape(-1, 3))
 
 
 def add_keep_outside_bands(obj, body, bands):
@@ -240,7 +252,13 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     elif RIDE_GROUP in obj.vertex_groups:
         obj.vertex_groups.remove(obj.vertex_groups[RIDE_GROUP])
     if outside > 0:
-        add_keep_outside(obj, body, outside * OFFSET_SHARE * body_scale(body_mesh.V))
+        # Per vertex, in bands up to ``outside`` times the cloth offset, as far as the cloth at rest is held: the
+        # rig moves nothing at rest (the crossing pass leaves some vertices nearer than the offset).
+        from ..garment_transfer import KEEP_OUTSIDE_BANDS, held_bands
+
+        offset = OFFSET_SHARE * body_scale(body_mesh.V)
+        add_keep_outside_bands(obj, body, held_bands([(shrinkwrap_surface(body, body_mesh.V), cloth.V)], offset,
+                                                     [outside * b for b in KEEP_OUTSIDE_BANDS]))
     obj.data.update()
     return armature, info
 

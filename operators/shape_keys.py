@@ -285,10 +285,13 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
         yield done / total
     bands = None
     if keep_outside:
-        from ..garment_transfer import keep_outside_bands
+        from ..garment_transfer import held_bands
 
-        # Per vertex, as far out as the basis and every key at 1 hold it (in bands, one Shrinkwrap each).
-        bands = keep_outside_bands(fit, body_mesh, shapes)
+        # Per vertex, as far out as the basis and every key at 1 hold it (in bands, one Shrinkwrap each), measured
+        # on the body's faces as Blender splits them (``shape_keys.keep_outside_bands`` on Blender's triangles).
+        held = [(rigging.shrinkwrap_surface(body, basis_V), fit.basis)]
+        held += [(rigging.shrinkwrap_surface(body, V), fit.keys[name]) for name, V in shapes.items()]
+        bands = held_bands(held, fit.info["Basis"]["offset"])
     result = build_result(context, garment, body, fit, garment_basis_local, weights, bands)
     return result, fit, kept, note, key_warnings(result, fit, cloth, body_mesh, shapes)
 

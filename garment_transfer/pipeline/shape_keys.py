@@ -397,18 +397,29 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     list of (float, (g,) bool)
         The first keeps every vertex unless some vertex is in no band.
     """
+    if offset is None:
+        offset = fit.info["Basis"]["offset"]
+    held = [(TriangleSurface(source_body.V, source_body.F), fit.basis)]
+    held += [(TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F), fit.keys[name])
+             for name, V_body in shapes.items()]
+    return held_bands(held, offset, bands, slack)
+
+
+def held_bands(held, offset, bands=KEEP_OUTSIDE_BANDS, slack=KEEP_OUTSIDE_SLACK):
+    """``keep_outside_bands`` for any shapes the rule must not move: ``held``, a list of (TriangleSurface of the
+    body, (g,3) garment on it); ``bands``, shares of ``offset``.
+
+    Returns
+    -------
+    list of (float, (g,) bool)
+    """
     bands = [float(b) for b in bands]
     if not bands or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
         raise ValueError(f"bands must be positive and increasing, got {bands}")
     if not 0 < slack <= 1:
         raise ValueError(f"slack must be in (0, 1], got {slack}")
-    if offset is None:
-        offset = fit.info["Basis"]["offset"]
-    # Measured as the Shrinkwrap measures (shrinkwrap_distance), so that keep_outside moves no key at 1.
-    held = shrinkwrap_distance(fit.basis, TriangleSurface(source_body.V, source_body.F))[0]
-    for name, V_body in shapes.items():
-        surface = TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F)
-        held = np.minimum(held, shrinkwrap_distance(fit.keys[name], surface)[0])
+    # Measured as the Shrinkwrap measures (shrinkwrap_distance), so that keep_outside moves none of the shapes.
+    held = np.min([shrinkwrap_distance(V, surface)[0] for surface, V in held], axis=0)
     # The floor: the first band, or less where the basis or a key at 1 has a vertex nearer (the crossing pass may
     # bring one closer than the offset). A vertex the Shrinkwrap judges inside in some shape (behind its closest
     # triangle's face normal, at a concave edge, though outside the body) is in no band: it would move it.

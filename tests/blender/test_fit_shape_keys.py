@@ -65,10 +65,17 @@ def mesh_of(obj, V):
 
 
 def expected_bands(body, fit):
-    """The keep-outside bands of the core's fit (``keep_outside_bands``), read independently of the operator."""
+    """The keep-outside bands of the core's fit (``keep_outside_bands``) on the body's faces as Blender splits
+    them (the Shrinkwrap's view), read independently of the operator."""
+    from garment_transfer.geometry.mesh import mesh_from_triangles
     from garment_transfer.pipeline.shape_keys import keep_outside_bands
 
-    return keep_outside_bands(fit, mesh_of(body, key_world(body, "Basis")), {k: key_world(body, k) for k in KEYS})
+    me = body.data
+    me.calc_loop_triangles()
+    tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+    me.loop_triangles.foreach_get("vertices", tris)
+    basis = mesh_from_triangles(key_world(body, "Basis"), tris.reshape(-1, 3))
+    return keep_outside_bands(fit, basis, {k: key_world(body, k) for k in KEYS})
 
 
 def group_members(obj, name):
@@ -196,7 +203,7 @@ def test_each_key_at_one_is_the_transfer_to_that_shape_and_crosses_nothing(keyed
     mods = list(result.modifiers)
     names = ["Keep Outside Body"] + [f"Keep Outside Body {i}" for i in range(2, len(bands) + 1)]
     assert [m.name for m in mods] == names
-    scale = np.mean(np.array(result.matrix_world.to_scale()))
+    scale = np.mean(np.array(body.matrix_world.to_scale()))      # the offset is in the target's units
     for i, (mod, (distance, only)) in enumerate(zip(mods, bands)):
         assert (mod.type, mod.wrap_mode, mod.wrap_method, mod.target) == \
             ('SHRINKWRAP', 'OUTSIDE', 'NEAREST_SURFACEPOINT', body)
@@ -312,7 +319,7 @@ def test_weights_from_the_body_and_posing_deforms_the_result(keyed):
 
 
 def test_rigging_the_result_replaces_every_keep_outside_band(keyed, extension):
-    # Rig to Body on a fitted result takes off the bands (modifiers and vertex groups) and adds its own Shrinkwrap.
+    # Rig to Body on a fitted result takes off the bands (modifiers and vertex groups) and adds its own.
     rigging = importlib.import_module(f"{extension.__name__}.operators.rigging")
     body, garment = keyed
     arm = rig(body, garment)
@@ -320,10 +327,11 @@ def test_rigging_the_result_replaces_every_keep_outside_band(keyed, extension):
     result = bpy.data.objects["suit_fitted"]
     assert len(result.modifiers) >= 3 and len(result.vertex_groups) >= 2
     rigging.rig_to_body(bpy.context, result, body)
-    assert [(m.type, m.name) for m in result.modifiers] == [('ARMATURE', "Armature"),
-                                                             ('SHRINKWRAP', "Keep Outside Body")]
-    assert result.modifiers[0].object == arm and result.modifiers[1].vertex_group == ""
-    assert [g.name for g in result.vertex_groups] == ["spine"]
+    mods = list(result.modifiers)
+    assert (mods[0].type, mods[0].name, mods[0].object) == ('ARMATURE', "Armature", arm)
+    assert all(m.type == 'SHRINKWRAP' and m.target == body for m in mods[1:])
+    # Its own bands, from the result at rest (no key at 1 any more): every group is one of them or the bone's.
+    assert [g.name for g in result.vertex_groups] == ["spine"] + [m.vertex_group for m in mods if m.vertex_group]
 
 
 def test_the_garments_own_rigging_is_kept(keyed):
