@@ -37,12 +37,10 @@ from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
 
-#: A blend of keys is kept at least this share of the transfer's offset outside the body (``keep_outside``, the
-#: Blender operator's Shrinkwrap). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys, 50
-#: mixes of 3 to 6 keys): the garment's edges or the body's cross the other under some triangulation in 25 mixes
-#: kept only on the surface, 16 at half the offset, 1 at the whole offset; but each key at 1, the transfer to its
-#: shape, has vertices between half and the whole offset from the body (where the crossing pass lifted edges and
-#: restored folds), which the whole offset moves by up to 2.3 mm, half of it by nothing.
+#: One keep-outside distance for every vertex, a share of the transfer's offset (the study's uniform row; the
+#: operator uses ``KEEP_OUTSIDE_BANDS``). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys,
+#: 50 mixes, Blender's Shrinkwrap rule): 15 of 50 mixes cross under some triangulation and a key at 1 moves by up to
+#: 13 mm (the Shrinkwrap takes some vertices at concave edges for inside); in 3 bands: 3 of 50, keys at 1 unmoved.
 KEEP_OUTSIDE_SHARE = 0.5
 #: Bands of the per-vertex keep-outside distance (``keep_outside_bands``), shares of the transfer's offset: every
 #: vertex is kept at least ``KEEP_OUTSIDE_SHARE`` of the offset outside, and each further band keeps only the
