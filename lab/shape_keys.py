@@ -16,9 +16,10 @@ blend of the garment's keys against the body at that combination (share of garme
 1 mm inside), and the distance of the blend from a transfer to that exact body. Remedies: a margin
 (every key transferred further from the body), corrective keys for every pair of keys, and keeping the
 blend outside the body (``shape_keys.keep_outside``: what the operator's Shrinkwrap modifier does, at
-``KEEP_OUTSIDE_SHARE`` of the offset; on the surface and at the whole offset beside it). For each, the mixes in
-which a garment edge passes through the body or a body edge through the garment under some triangulation of
-the faces (``crossings`` under every reading).
+half the offset, on the surface and at the whole offset; and per vertex, in bands, ``keep_outside_bands``: what
+the operator's Shrinkwrap modifiers do, one per band). For each, the mixes in which a garment edge passes
+through the body or a body edge through the garment under some triangulation of the faces (``crossings`` under
+every reading), and the most it moves a vertex of a key at 1 (which must stay the transfer to its shape).
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.intersections import crossings
 from garment_transfer.geometry.readings import readings_of
-from garment_transfer.pipeline.shape_keys import KEEP_OUTSIDE_SHARE, all_pairs, body_at, fit_shape_keys, keep_outside
+from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, all_pairs, body_at,
+                                                  fit_shape_keys, keep_outside, keep_outside_banded,
+                                                  keep_outside_bands)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, MAKEHUMAN_TARGETS, makehuman_folder
@@ -140,8 +143,12 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
         remedies += [(f"margin {m:g} mm", m * MM, False, False) for m in margin_mm]
         remedies += [("pair correctives", 0.0, True, False),
                      ("keep outside, on the surface", 0.0, False, 0.0),
-                     ("keep outside (Shrinkwrap)", 0.0, False, KEEP_OUTSIDE_SHARE),
+                     ("keep outside, half the offset", 0.0, False, 0.5),
                      ("keep outside, the whole offset", 0.0, False, 1.0)]
+        # Per-vertex distances in bands (one Shrinkwrap per band in Blender): the default, then finer ones.
+        remedies += [(f"keep outside in {len(b)} bands", 0.0, False, tuple(b))
+                     for b in (KEEP_OUTSIDE_BANDS, np.linspace(0.5, 1.0, 5), np.linspace(0.5, 1.0, 11))]
+        key_surfaces = {k: TriangleSurface(V, basis.F) for k, V in shapes.items()}
         fits = {}
         for label, margin, pairs, outside in remedies:
             key = (margin, pairs)
@@ -149,11 +156,24 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
                 fits[key] = fit_shape_keys(basis, shapes, garment, prepared=prepared, margin=margin,
                                            pairs=all_pairs(shapes) if pairs else ())
             fit = fits[key]
+            offset = fit.info["Basis"]["offset"]
+            if isinstance(outside, tuple):
+                bands = keep_outside_bands(fit, basis, shapes, bands=outside)
+
+                def kept(V, surface):
+                    return keep_outside_banded(V, surface, bands)
+            elif outside is not False:
+                def kept(V, surface, share=outside):
+                    return keep_outside(V, surface, share * offset)
+            else:
+                def kept(V, surface):
+                    return V
+            # How far the rule moves each key at 1 (each must stay the transfer to its shape).
+            key_moved = max(float(np.linalg.norm(kept(fit.keys[k], key_surfaces[k]) - fit.keys[k], axis=1).max())
+                            for k in shapes)
             inside, worst, error, crossed = [], [], [], []
             for w, surface, ex, body in zip(combos, surfaces, exact, bodies):
-                V = fit.blend(w)
-                if outside is not False:
-                    V = keep_outside(V, surface, outside * fit.info["Basis"]["offset"])
+                V = kept(fit.blend(w), surface)
                 sd = surface.signed_distance(V)[0]
                 inside.append(float((sd < -MM).mean()))
                 worst.append(float(max(0.0, -sd.min())))
@@ -167,6 +187,7 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
                          "deepest_mm": max(worst) / MM,
                          "mean_distance_to_exact_mm": float(np.mean(error)) / MM,
                          "combinations_crossing": int(np.count_nonzero(crossed)),
+                         "key_at_one_moved_mm": key_moved / MM,
                          "most_edges_crossing": int(max(crossed)),
                          "fit_seconds": fit.seconds["total"], "extra_keys": len(fit.correctives),
                          "exact_mean_inside": float(np.mean(exact_inside)),
@@ -204,14 +225,16 @@ def main(argv=None):
         print("mean/max: over the combinations; >0.5%: combinations above the goal; to exact: mean "
               "vertex distance from the transfer to that exact body; exact: the exact transfer's own share; "
               "crossing: combinations where an edge passes through the other mesh under some triangulation "
-              "(most: edges in the worst)")
+              "(most: edges in the worst); key@1: the most the remedy moves a vertex of a key at 1")
         print(f"{'garment':20s} {'remedy':33s} {'mean':>7s} {'max':>7s} {'>0.5%':>5s} {'deepest':>9s} "
-              f"{'to exact':>9s} {'exact':>7s} {'crossing':>8s} {'most':>5s} {'keys+':>5s} {'fit s':>6s}")
+              f"{'to exact':>9s} {'exact':>7s} {'crossing':>8s} {'most':>5s} {'key@1':>7s} {'keys+':>5s} "
+              f"{'fit s':>6s}")
         for r in rows:
             print(f"{r['garment']:20s} {r['remedy']:33s} {r['mean_inside']:7.3%} {r['max_inside']:7.3%} "
                   f"{r['combinations_over_half_percent']:5d} {r['deepest_mm']:7.2f}mm "
                   f"{r['mean_distance_to_exact_mm']:7.2f}mm {r['exact_mean_inside']:7.3%} "
                   f"{r['combinations_crossing']:8d} {r['most_edges_crossing']:5d} "
+                  f"{r['key_at_one_moved_mm']:5.2f}mm "
                   f"{r['extra_keys']:5d} {r['fit_seconds']:6.1f}")
     return 0
 

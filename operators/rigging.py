@@ -115,14 +115,68 @@ def add_armature_modifier(obj, armature):
     return mod
 
 
-def add_keep_outside(obj, body, offset):
-    """A Shrinkwrap (Outside) on the body, last in the stack: the live correction of playback."""
-    mod = obj.modifiers.new(name=KEEP_OUTSIDE_MODIFIER, type='SHRINKWRAP')
+def add_keep_outside(obj, body, distance, only=None, name=KEEP_OUTSIDE_MODIFIER):
+    """A Shrinkwrap (Outside mode, nearest surface point) on ``body`` at the end of the stack (after any Armature
+    modifier, so that posed cloth meets the posed body): it moves only the vertices inside the body or closer to
+    it than ``distance`` (world units), out to that distance: what a pose or a mix of size keys clips
+    (``shape_keys.keep_outside`` is the same rule). The live correction of playback and of size shape keys.
+
+    Parameters
+    ----------
+    only : (g,) bool, optional
+        The vertices it applies to: a vertex group ``<name>`` of weight 1 holding them (made, or replaced) limits
+        the modifier (Blender's Shrinkwrap moves no vertex outside its group); default every vertex.
+    """
+    mod = obj.modifiers.new(name=name, type='SHRINKWRAP')
     mod.target = body
     mod.wrap_method = 'NEAREST_SURFACEPOINT'
     mod.wrap_mode = 'OUTSIDE'
-    mod.offset = offset
+    # The Shrinkwrap snaps in the target's space: its offset is in the body's own units.
+    mod.offset = distance / float(np.mean(np.array(body.matrix_world.to_scale())))
+    if only is not None:
+        mod.vertex_group = write_share_group(obj, name, np.asarray(only, dtype=np.float64)).name
     return mod
+
+
+def shrinkwrap_surface(body, V_world):
+    """The body's surface at ``V_world`` (its vertices, world space) split into triangles as Blender splits its
+    faces (its loop triangles): what a Shrinkwrap on it sees."""
+    from ..garment_transfer import TriangleSurface
+
+    me = body.data
+    me.calc_loop_triangles()
+    tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+    me.loop_triangles.foreach_get("vertices", tris)
+    return TriangleSurface(V_world, tris.reshape(-1, 3))
+
+
+def add_keep_outside_bands(obj, body, bands):
+    """``add_keep_outside`` per band of ``shape_keys.keep_outside_bands`` (distance, vertices), in increasing
+    order: ``KEEP_OUTSIDE_MODIFIER``, ``KEEP_OUTSIDE_MODIFIER 2``, ``3``..., each limited to a vertex group of the
+    same name holding its vertices (none for a band of every vertex)."""
+    mods = []
+    for i, (distance, only) in enumerate(bands):
+        only = np.asarray(only, dtype=bool)
+        if not only.any():
+            # Not even an empty group: on a mesh with no vertex in any group, Blender applies the modifier to all.
+            continue
+        name = KEEP_OUTSIDE_MODIFIER if i == 0 else f"{KEEP_OUTSIDE_MODIFIER} {i + 1}"
+        mods.append(add_keep_outside(obj, body, distance, None if only.all() else only, name))
+    return mods
+
+
+def is_keep_outside(name):
+    """Whether a modifier or vertex group name is one of ``add_keep_outside_bands``'s."""
+    head, _, tail = name.partition(f"{KEEP_OUTSIDE_MODIFIER} ")
+    return name == KEEP_OUTSIDE_MODIFIER or (not head and tail.isdigit())
+
+
+def remove_keep_outside(obj):
+    """The Keep Outside Body modifiers and their vertex groups taken off ``obj``."""
+    for mod in [m for m in obj.modifiers if m.type == 'SHRINKWRAP' and is_keep_outside(m.name)]:
+        obj.modifiers.remove(mod)
+    for group in [g for g in obj.vertex_groups if is_keep_outside(g.name)]:
+        obj.vertex_groups.remove(group)
 
 
 def write_share_group(obj, name, share):
@@ -182,8 +236,8 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
                                       max_influences=max_influences, name=obj.name)
     write_vertex_groups(obj, weights)
-    for mod in [m for m in obj.modifiers
-                if m.type == 'ARMATURE' or m.name in (KEEP_OUTSIDE_MODIFIER, RIDE_MODIFIER)]:
+    remove_keep_outside(obj)
+    for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == RIDE_MODIFIER]:
         obj.modifiers.remove(mod)
     add_armature_modifier(obj, armature)
     info["riding"] = 0
@@ -198,7 +252,13 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     elif RIDE_GROUP in obj.vertex_groups:
         obj.vertex_groups.remove(obj.vertex_groups[RIDE_GROUP])
     if outside > 0:
-        add_keep_outside(obj, body, outside * OFFSET_SHARE * body_scale(body_mesh.V))
+        # Per vertex, in bands up to ``outside`` times the cloth offset, as far as the cloth at rest is held: the
+        # rig moves nothing at rest (the crossing pass leaves some vertices nearer than the offset).
+        from ..garment_transfer import KEEP_OUTSIDE_BANDS, held_bands
+
+        offset = OFFSET_SHARE * body_scale(body_mesh.V)
+        add_keep_outside_bands(obj, body, held_bands([(shrinkwrap_surface(body, body_mesh.V), cloth.V)], offset,
+                                                     [outside * b for b in KEEP_OUTSIDE_BANDS]))
     obj.data.update()
     return armature, info
 

@@ -153,23 +153,10 @@ def write_key(me, key_block, V_local):
     key_block.data.foreach_set("co", np.ascontiguousarray(V_local, dtype=np.float32).reshape(-1))
 
 
-def add_keep_outside(obj, body, distance=0.0):
-    """A Shrinkwrap modifier at the end of the stack (after any Armature modifier, so that posed cloth
-    meets the posed body) that moves only vertices inside the body, or closer to it than ``distance`` (world
-    units), out to that distance: what a blend of keys clips, at any slider setting and pose
-    (shape_keys.keep_outside is the same rule; the distance: ``KEEP_OUTSIDE_SHARE`` of the transfer's offset)."""
-    mod = obj.modifiers.new(name="Keep Outside Body", type='SHRINKWRAP')
-    mod.target = body
-    mod.wrap_method = 'NEAREST_SURFACEPOINT'
-    mod.wrap_mode = 'OUTSIDE'
-    # The modifier's offset is in the garment's own units.
-    mod.offset = distance / float(np.mean(np.array(obj.matrix_world.to_scale())))
-    return mod
-
-
-def build_result(context, garment, body, fit, garment_basis_local, weights=None, keep_outside=False):
+def build_result(context, garment, body, fit, garment_basis_local, weights=None, keep_outside=None):
     """The new object: the garment's copy with the fitted basis, a driven key per body key and per
-    corrective pair, the garment's own keys moved with the basis, its parent, modifiers and groups."""
+    corrective pair, the garment's own keys moved with the basis, its parent, modifiers and groups, and with
+    ``keep_outside`` (``shape_keys.keep_outside_bands``) a Shrinkwrap per band last in the stack."""
     key_body = body.data.shape_keys
     me = garment.data.copy()
     obj = None
@@ -220,10 +207,7 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
                         new.use_deform_preserve_volume = m.use_deform_preserve_volume
                         break
         if keep_outside:
-            from ..garment_transfer import KEEP_OUTSIDE_SHARE
-
-            offset = fit.info["Basis"]["offset"] if "Basis" in fit.info else 0.0
-            add_keep_outside(obj, body, KEEP_OUTSIDE_SHARE * offset)
+            rigging.add_keep_outside_bands(obj, body, keep_outside)
         me.update()
         for coll in convert.result_collections(garment, context.scene, context.view_layer):
             coll.objects.link(obj)
@@ -299,7 +283,16 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
             fit = stop.value
             break
         yield done / total
-    result = build_result(context, garment, body, fit, garment_basis_local, weights, keep_outside)
+    bands = None
+    if keep_outside:
+        from ..garment_transfer import held_bands
+
+        # Per vertex, as far out as the basis and every key at 1 hold it (in bands, one Shrinkwrap each), measured
+        # on the body's faces as Blender splits them (``shape_keys.keep_outside_bands`` on Blender's triangles).
+        held = [(rigging.shrinkwrap_surface(body, basis_V), fit.basis)]
+        held += [(rigging.shrinkwrap_surface(body, V), fit.keys[name]) for name, V in shapes.items()]
+        bands = held_bands(held, fit.info["Basis"]["offset"])
+    result = build_result(context, garment, body, fit, garment_basis_local, weights, bands)
     return result, fit, kept, note, key_warnings(result, fit, cloth, body_mesh, shapes)
 
 
@@ -349,8 +342,9 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
 
     keep_outside: BoolProperty(
         name="Keep Outside Body", default=True,
-        description="Add a Shrinkwrap modifier (Outside mode, last in the stack) that moves only the "
-                    "vertices a mix of sliders or a pose puts inside the body back onto its surface")
+        description="Add Shrinkwrap modifiers (Outside mode, last in the stack) that move only the vertices "
+                    "a mix of sliders or a pose puts inside or too near the body out to the distance each "
+                    "key at 1 keeps them (half the offset to the whole offset, in bands)")
 
     status_text = "Fitting to shape keys"
     cancel_text = "Fitting to shape keys cancelled; nothing was made"

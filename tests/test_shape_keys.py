@@ -13,7 +13,8 @@ from garment_transfer.errors import MeshError
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
-from garment_transfer.pipeline.shape_keys import body_at, fit_shape_keys, keep_outside, transfer_to_shapes
+from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, body_at, fit_shape_keys, keep_outside,
+                                                  keep_outside_banded, keep_outside_bands, transfer_to_shapes)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 from garment_transfer import surface_weights
 from lab.paths import makehuman_folder
@@ -101,6 +102,50 @@ def test_keep_outside_moves_only_what_is_too_close():
     assert np.array_equal(out[1], P[1])
     sd = surface.signed_distance(out)[0]
     assert np.allclose(sd[[0, 2]], 0.05)
+
+
+def test_keep_outside_limited_to_some_vertices_leaves_the_others():
+    V, F = icosphere(3)
+    surface = TriangleSurface(V, F)
+    P = np.array([[0.0, 0.0, 0.5], [0.0, 0.5, 0.0], [0.0, 0.0, 1.01]])
+    out = keep_outside(P, surface, 0.05, only=np.array([True, False, True]))
+    assert np.array_equal(out[1], P[1])
+    assert np.allclose(surface.signed_distance(out)[0][[0, 2]], 0.05)
+
+
+def test_keep_outside_bands_move_no_key_at_one_and_keep_a_mix_as_far_as_its_band(keyed):
+    basis, shapes, garment, prepared, fit, _ = keyed
+    offset = fit.info["Basis"]["offset"]
+    bands = keep_outside_bands(fit, basis, shapes)
+    # The pear key at 1 holds one vertex nearer than half the offset: every vertex is kept at that distance,
+    # and each band (half the offset included) keeps only the vertices every shape holds that far. The male_slim
+    # key at 1 has one vertex, twice the offset out, behind its closest triangle's face normal (a concave edge):
+    # a Shrinkwrap would move it by 9 mm, so it is in no band.
+    floor = bands[0][0]
+    assert 0.4 * offset < floor < KEEP_OUTSIDE_BANDS[0] * offset
+    assert [d for d, _ in bands[1:]] == pytest.approx([b * offset for b in KEEP_OUTSIDE_BANDS])
+    assert (~bands[0][1]).sum() == 1 and not bands[1][1].all()
+    k = np.flatnonzero(~bands[0][1])[0]
+    slim = TriangleSurface(shapes["male_slim"], basis.F)
+    assert np.linalg.norm(keep_outside(fit.keys["male_slim"], slim, floor)[k] - fit.keys["male_slim"][k]) > 0.05
+    for (_, wider), (_, narrower) in zip(bands, bands[1:]):
+        assert not (narrower & ~wider).any()             # nested: a vertex in a band is in every band below
+    assert 0 < bands[-1][1].sum() < len(fit.basis)
+    # The basis and each key at 1 are left exactly as they are; the whole offset for every vertex would move them.
+    moved_whole = 0.0
+    for V_body, V in [(basis.V, fit.basis)] + [(shapes[k], fit.keys[k]) for k in shapes]:
+        surface = TriangleSurface(V_body, basis.F)
+        assert np.array_equal(keep_outside_banded(V, surface, bands), V)
+        moved_whole = max(moved_whole, np.abs(keep_outside(V, surface, offset) - V).max())
+    assert moved_whole > 0
+    # At a mix, every vertex ends at least its own band's distance out.
+    mix = {k: 0.8 for k in shapes}
+    surface = TriangleSurface(body_at(basis.V, shapes, mix), basis.F)
+    sd = surface.signed_distance(keep_outside_banded(fit.blend(mix, correctives=False), surface, bands))[0]
+    own = np.max([np.where(only, d, 0.0) for d, only in bands], axis=0)
+    assert (sd >= own - 1e-6 * offset).all()
+    with pytest.raises(ValueError, match="increasing"):
+        keep_outside_bands(fit, basis, shapes, bands=(1.0, 0.5))
 
 
 def test_surface_weights_are_exact_at_vertices_and_for_linear_fields():

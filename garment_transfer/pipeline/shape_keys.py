@@ -37,13 +37,19 @@ from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
 
-#: A blend of keys is kept at least this share of the transfer's offset outside the body (``keep_outside``, the
-#: Blender operator's Shrinkwrap). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys, 50
-#: mixes of 3 to 6 keys): the garment's edges or the body's cross the other under some triangulation in 25 mixes
-#: kept only on the surface, 16 at half the offset, 1 at the whole offset; but each key at 1, the transfer to its
-#: shape, has vertices between half and the whole offset from the body (where the crossing pass lifted edges and
-#: restored folds), which the whole offset moves by up to 2.3 mm, half of it by nothing.
+#: One keep-outside distance for every vertex, a share of the transfer's offset (the study's uniform row; the
+#: operator uses ``KEEP_OUTSIDE_BANDS``). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys,
+#: 50 mixes, Blender's Shrinkwrap rule): 15 of 50 mixes cross under some triangulation and a key at 1 moves by up to
+#: 13 mm (the Shrinkwrap takes some vertices at concave edges for inside); in 3 bands: 3 of 50, keys at 1 unmoved.
 KEEP_OUTSIDE_SHARE = 0.5
+#: Bands of the per-vertex keep-outside distance (``keep_outside_bands``), shares of the transfer's offset: every
+#: vertex is kept at least ``KEEP_OUTSIDE_SHARE`` of the offset outside, and each further band keeps only the
+#: vertices that the basis and every key at 1 already hold at least that far (so that no key at 1 moves). In
+#: Blender, one Shrinkwrap per band, each limited to its band's vertex group, in increasing order.
+KEEP_OUTSIDE_BANDS = (0.5, 0.75, 1.0)
+#: A vertex joins a band only if the basis and every key at 1 hold it at least ``band / KEEP_OUTSIDE_SLACK``
+#: away: room for Blender's 32-bit coordinates and its own nearest-point search.
+KEEP_OUTSIDE_SLACK = 0.999
 
 
 @dataclass
@@ -305,10 +311,13 @@ def inside_share(V, body_V, body_F, depth, surface=None):
     return float((sd < -depth).mean()), float(max(0.0, -sd.min()))
 
 
-def keep_outside(V, surface: TriangleSurface, distance=0.0):
-    """Vertices closer to the body than ``distance`` (or inside it) moved to that distance along the
-    body's normal; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode,
-    which the Blender operator can add after the shape keys to catch what linear blending clips.
+def keep_outside(V, surface: TriangleSurface, distance=0.0, only=None):
+    """Vertices closer to the body than ``distance`` (or inside it) moved to that distance from their closest
+    point, on the outer side; the others unchanged. What Blender's Shrinkwrap modifier does in its Outside mode
+    (nearest surface point), which the Blender operator adds after the shape keys to catch what linear blending
+    clips: the side is the closest triangle's face normal's, and a vertex moves along the line through it and
+    its closest point (along the face normal when it lies on the surface). Given the body's triangles as
+    Blender splits them, it equals the modifier to within 32-bit rounding.
 
     Parameters
     ----------
@@ -316,6 +325,8 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0):
     surface : TriangleSurface
         The body in the blended shape.
     distance : float
+    only : (g,) bool, optional
+        The vertices the rule applies to (a Shrinkwrap limited to a vertex group of weight 1); default all.
 
     Returns
     -------
@@ -323,9 +334,111 @@ def keep_outside(V, surface: TriangleSurface, distance=0.0):
         A new array.
     """
     V = np.array(V, dtype=np.float64)
-    sd, closest, normal, _ = surface.signed_distance(V)
+    rows = np.arange(len(V)) if only is None else np.flatnonzero(np.asarray(only, dtype=bool))
+    sd, closest, away = shrinkwrap_distance(V[rows], surface)
     bad = sd < distance
-    V[bad] = closest[bad] + distance * normal[bad]
+    V[rows[bad]] = closest[bad] + distance * away[bad]
+    return V
+
+
+def shrinkwrap_distance(P, surface: TriangleSurface):
+    """Signed distance as Blender's Shrinkwrap (nearest surface point) judges it: the distance to the closest
+    point, negative where the point is behind the closest triangle's face normal.
+
+    Returns
+    -------
+    sd : (p,) float64
+    closest : (p,3) float64
+    away : (p,3) float64
+        Unit direction from the closest point to where a point kept outside goes: towards the point (away from
+        it when behind), the face normal when it lies on the surface.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    closest, _, tri, _ = surface.closest(P)
+    T = surface.V[surface.F[tri]]
+    normal = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    delta = P - closest
+    d = np.linalg.norm(delta, axis=1)
+    side = np.where(np.einsum("ij,ij->i", delta, normal) < 0, -1.0, 1.0)
+    on = d < 1e-12 * (1.0 + np.abs(closest).max(axis=1))
+    away = np.where(on[:, None], normal, delta * (side / np.where(on, 1.0, d))[:, None])
+    return np.where(on, 0.0, side * d), closest, away
+
+
+def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None, bands=KEEP_OUTSIDE_BANDS,
+                       slack=KEEP_OUTSIDE_SLACK):
+    """The per-vertex keep-outside distance, in bands: for each band (increasing), its distance and the
+    vertices it keeps. The first band keeps every vertex; a later band keeps the vertices that the basis and
+    every key at 1 hold at least ``band * offset / slack`` from the body in that shape, so that the rule moves
+    no key at 1 (nor the basis) while keeping a mix as far out as the keys allow. Where the basis or a key at 1
+    holds some vertex nearer than the first band, every vertex is kept at that nearest distance (times
+    ``slack``) and the first band, too, keeps only its vertices. A vertex the Shrinkwrap judges inside in the
+    basis or a key at 1 (``shrinkwrap_distance`` < 0) is in no band.
+
+    Parameters
+    ----------
+    fit : ShapeKeyFit
+    source_body : Mesh
+        The body's basis shape (``fit.basis`` is on it).
+    shapes : dict of str to (n,3) float
+        Each key's body shape (``fit.keys[name]`` is on it).
+    offset : float, optional
+        The transfer's offset (default ``fit.info["Basis"]["offset"]``).
+    bands : sequence of float
+        Shares of ``offset``, increasing.
+    slack : float
+        At most 1.
+
+    Returns
+    -------
+    list of (float, (g,) bool)
+        The first keeps every vertex unless some vertex is in no band.
+    """
+    if offset is None:
+        offset = fit.info["Basis"]["offset"]
+    held = [(TriangleSurface(source_body.V, source_body.F), fit.basis)]
+    held += [(TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F), fit.keys[name])
+             for name, V_body in shapes.items()]
+    return held_bands(held, offset, bands, slack)
+
+
+def held_bands(held, offset, bands=KEEP_OUTSIDE_BANDS, slack=KEEP_OUTSIDE_SLACK):
+    """``keep_outside_bands`` for any shapes the rule must not move: ``held``, a list of (TriangleSurface of the
+    body, (g,3) garment on it); ``bands``, shares of ``offset``.
+
+    Returns
+    -------
+    list of (float, (g,) bool)
+    """
+    bands = [float(b) for b in bands]
+    if not bands or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
+        raise ValueError(f"bands must be positive and increasing, got {bands}")
+    if not 0 < slack <= 1:
+        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    # Measured as the Shrinkwrap measures (shrinkwrap_distance), so that keep_outside moves none of the shapes.
+    held = np.min([shrinkwrap_distance(V, surface)[0] for surface, V in held], axis=0)
+    # The floor: the first band, or less where the basis or a key at 1 has a vertex nearer (the crossing pass may
+    # bring one closer than the offset). A vertex the Shrinkwrap judges inside in some shape (behind its closest
+    # triangle's face normal, at a concave edge, though outside the body) is in no band: it would move it.
+    ahead = held >= 0
+    floor = float(np.clip(slack * held[ahead].min(), 0.0, bands[0] * offset)) if ahead.any() else 0.0
+    out = [(floor, ahead)]
+    for b in bands:
+        if b * offset > floor:
+            out.append((b * offset, held * slack >= b * offset))
+    return out
+
+
+def keep_outside_banded(V, surface: TriangleSurface, bands):
+    """``keep_outside`` band after band (``keep_outside_bands``), as Blender's Shrinkwrap modifiers in a stack.
+
+    Returns
+    -------
+    V : (g,3) float64
+    """
+    for distance, only in bands:
+        V = keep_outside(V, surface, distance, only)
     return V
 
 

@@ -64,6 +64,27 @@ def mesh_of(obj, V):
     return mesh_from_polygons(V, np.split(fv, np.cumsum(sizes)[:-1]), name=obj.name)
 
 
+def expected_bands(body, fit):
+    """The keep-outside bands of the core's fit (``keep_outside_bands``) on the body's faces as Blender splits
+    them (the Shrinkwrap's view), read independently of the operator."""
+    from garment_transfer.geometry.mesh import mesh_from_triangles
+    from garment_transfer.pipeline.shape_keys import keep_outside_bands
+
+    me = body.data
+    me.calc_loop_triangles()
+    tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+    me.loop_triangles.foreach_get("vertices", tris)
+    basis = mesh_from_triangles(key_world(body, "Basis"), tris.reshape(-1, 3))
+    return keep_outside_bands(fit, basis, {k: key_world(body, k) for k in KEYS})
+
+
+def group_members(obj, name):
+    """The vertices of ``obj`` in its vertex group ``name`` and their weights."""
+    index = obj.vertex_groups[name].index
+    rows = {v.index: g.weight for v in obj.data.vertices for g in v.groups if g.group == index}
+    return np.array(sorted(rows)), np.array([rows[i] for i in sorted(rows)])
+
+
 def expected_fit(body, garment, **options):
     """The core's fit of the same inputs, read independently of the operator."""
     shapes = {k: key_world(body, k) for k in KEYS}
@@ -148,22 +169,50 @@ def evaluated_body_surface(body):
     return TriangleSurface(V, mesh_of(body, V).F)
 
 
+def blender_triangles_surface(body):
+    """The evaluated body with its quads split as Blender splits them (its loop triangles): the surface a
+    Shrinkwrap on it sees."""
+    from garment_transfer.geometry.proximity import TriangleSurface
+
+    ev = body.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    try:
+        me.calc_loop_triangles()
+        tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+        me.loop_triangles.foreach_get("vertices", tris)
+    finally:
+        ev.to_mesh_clear()
+    return TriangleSurface(evaluated_world(body), tris.reshape(-1, 3))
+
+
 def test_each_key_at_one_is_the_transfer_to_that_shape_and_crosses_nothing(keyed):
     # With Keep Outside Body (the default), each key at 1, as Blender evaluates the garment, is within 1 mm of
     # the transfer to that shape, and no edge of either crosses the other under any triangulation of the faces.
+    # Keep Outside Body is one Shrinkwrap per band of keep_outside_bands, in increasing order, each after the first
+    # limited to a vertex group of weight 1 holding exactly its band's vertices.
     from garment_transfer.geometry.intersections import crossings
     from garment_transfer.geometry.readings import readings_of
-    from garment_transfer.pipeline.shape_keys import KEEP_OUTSIDE_SHARE
     from garment_transfer.pipeline.transfer import transfer_garment
 
     body, garment = keyed
     assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
-    (mod,) = result.modifiers
-    assert (mod.type, mod.wrap_mode, mod.target) == ('SHRINKWRAP', 'OUTSIDE', body)
     fit = expected_fit(body, garment)
-    keep = KEEP_OUTSIDE_SHARE * fit.info["Basis"]["offset"]                 # world units
-    assert mod.offset * np.mean(np.array(result.matrix_world.to_scale())) == pytest.approx(keep, rel=1e-6)
+    bands = expected_bands(body, fit)
+    assert len(bands) >= 3
+    mods = list(result.modifiers)
+    names = ["Keep Outside Body"] + [f"Keep Outside Body {i}" for i in range(2, len(bands) + 1)]
+    assert [m.name for m in mods] == names
+    scale = np.mean(np.array(body.matrix_world.to_scale()))      # the offset is in the target's units
+    for i, (mod, (distance, only)) in enumerate(zip(mods, bands)):
+        assert (mod.type, mod.wrap_mode, mod.wrap_method, mod.target) == \
+            ('SHRINKWRAP', 'OUTSIDE', 'NEAREST_SURFACEPOINT', body)
+        assert mod.offset * scale == pytest.approx(distance, rel=1e-6)        # world units
+        if i == 0:
+            assert mod.vertex_group == ""
+        else:
+            rows, weights = group_members(result, mod.vertex_group)
+            assert np.array_equal(rows, np.flatnonzero(only)) and (weights == 1.0).all()
     basis = mesh_of(body, key_world(body, "Basis"))
     cloth = mesh_of(garment, world_of(garment, np.array([v.co for v in garment.data.vertices])))
     for key in KEYS:
@@ -177,25 +226,38 @@ def test_each_key_at_one_is_the_transfer_to_that_shape_and_crosses_nothing(keyed
         set_key(body, key, 0.0)
 
 
-def test_keep_outside_catches_what_a_mix_clips(keyed):
-    from garment_transfer.pipeline.shape_keys import KEEP_OUTSIDE_SHARE
+@pytest.mark.parametrize("mix", [{"pear": 1.0, "slim": 1.0}, {"pear": 0.6, "slim": 0.9}])
+def test_keep_outside_catches_what_a_mix_clips_as_the_numpy_rule_does(keyed, mix):
+    # Blender's stack of Shrinkwraps is keep_outside_banded: the study measures what the user gets.
+    from garment_transfer.pipeline.shape_keys import keep_outside_banded, shrinkwrap_distance
 
     body, garment = keyed
     assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
     fit = expected_fit(body, garment)
-    set_key(body, "pear", 1.0)
-    set_key(body, "slim", 1.0)             # both at 1: a mix the keys were not made for
-    blend = fit.blend({"pear": 1.0, "slim": 1.0})
+    bands = expected_bands(body, fit)
+    for name, value in mix.items():
+        set_key(body, name, value)                 # a mix the keys were not made for
+    blend = fit.blend(mix)
     surface = evaluated_body_surface(body)
     sd_blend = surface.signed_distance(blend)[0]
     shown = evaluated_world(result)
     sd_shown = surface.signed_distance(shown)[0]
     assert (sd_shown < -1e-3).sum() == 0                       # nothing more than 1 mm inside
-    keep = KEEP_OUTSIDE_SHARE * fit.info["Basis"]["offset"]
-    outside = sd_blend > 2 * keep
-    assert outside.mean() > 0.5
-    assert np.abs(shown[outside] - blend[outside]).max() < 1e-5  # the rest is the blend itself
+    seen = blender_triangles_surface(body)
+    expected = keep_outside_banded(blend, seen, bands)
+    moved = np.linalg.norm(expected - blend, axis=1) > 1e-4
+    assert moved.sum() > 5                                      # the rule does something
+    assert np.abs(shown - expected).max() < 1e-6               # 1 micrometre: 32-bit rounding
+    # As the Shrinkwrap measures: what no band reaches is the blend itself.
+    sd_blend = shrinkwrap_distance(blend, seen)[0]
+    last, only = bands[-1]
+    far = sd_blend > last
+    assert far.mean() > 0.5 and (np.abs(shown[far] - blend[far]) < 1e-5).all()
+    # A vertex outside the last band's group is not taken to its distance (the group limits the Shrinkwrap).
+    skipped = ~only & bands[0][1] & (sd_blend < bands[-2][0])
+    assert skipped.sum() > 5
+    assert (shrinkwrap_distance(shown[skipped], seen)[0] < 0.95 * last).all()
 
 
 def test_undo_takes_the_fitted_garment_back(keyed):
@@ -256,6 +318,22 @@ def test_weights_from_the_body_and_posing_deforms_the_result(keyed):
     assert np.abs(evaluated_world(result) - posed).max() > 1e-3
 
 
+def test_rigging_the_result_replaces_every_keep_outside_band(keyed, extension):
+    # Rig to Body on a fitted result takes off the bands (modifiers and vertex groups) and adds its own.
+    rigging = importlib.import_module(f"{extension.__name__}.operators.rigging")
+    body, garment = keyed
+    arm = rig(body, garment)
+    assert bpy.ops.garment_transfer.fit_shape_keys(weights_from_body=False) == {'FINISHED'}
+    result = bpy.data.objects["suit_fitted"]
+    assert len(result.modifiers) >= 3 and len(result.vertex_groups) >= 2
+    rigging.rig_to_body(bpy.context, result, body)
+    mods = list(result.modifiers)
+    assert (mods[0].type, mods[0].name, mods[0].object) == ('ARMATURE', "Armature", arm)
+    assert all(m.type == 'SHRINKWRAP' and m.target == body for m in mods[1:])
+    # Its own bands, from the result at rest (no key at 1 any more): every group is one of them or the bone's.
+    assert [g.name for g in result.vertex_groups] == ["spine"] + [m.vertex_group for m in mods if m.vertex_group]
+
+
 def test_the_garments_own_rigging_is_kept(keyed):
     body, garment = keyed
     arm = rig(body, garment)
@@ -268,9 +346,11 @@ def test_the_garments_own_rigging_is_kept(keyed):
     assert bpy.ops.garment_transfer.fit_shape_keys(weights_from_body=True) == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
     assert result.parent == arm
-    assert [g.name for g in result.vertex_groups] == ["own"]
-    assert [(m.name, getattr(m, "object", None) or m.target) for m in result.modifiers] == \
-        [("Skin", arm), ("Keep Outside Body", body)]
+    mods = list(result.modifiers)
+    assert (mods[0].name, mods[0].object) == ("Skin", arm)
+    assert [m.name for m in mods[1:]] == ["Keep Outside Body"] + [f"Keep Outside Body {i}" for i in range(2, len(mods))]
+    assert all(m.type == 'SHRINKWRAP' and m.target == body for m in mods[1:])
+    assert [g.name for g in result.vertex_groups] == ["own"] + [m.name for m in mods[2:]]
     assert np.allclose(np.array(result.matrix_world), np.array(garment.matrix_world))
 
 

@@ -15,6 +15,11 @@ from garment_transfer import (Rig, bvh_rotations, fit_to_pose, read_bvh, read_jo
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
+def kinds(obj):
+    """The types of the object's modifiers, the Shrinkwraps of Keep Outside Body's bands counted once."""
+    k = [m.type for m in obj.modifiers]
+    return [t for i, t in enumerate(k) if not (t == 'SHRINKWRAP' and i and k[i - 1] == 'SHRINKWRAP')]
+
 def to_world(P):
     return 0.1 * np.asarray(P) @ C.T
 
@@ -102,16 +107,24 @@ def test_a_transfer_onto_a_rigged_posed_body_is_made_at_rest_and_rigged(characte
     at_rest = to_world(transfer_garment(src, tgt, cloth).V)
     # Within 1 mm (the scene holds float32 coordinates; the pose moves the cloth by decimetres).
     assert np.abs(world_vertices(result) - at_rest).max() < 1e-3
-    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SHRINKWRAP']
+    assert kinds(result) == ['ARMATURE', 'SHRINKWRAP']
     assert result.modifiers[0].object == armature and result.modifiers[1].target == body
-    # The Shrinkwrap keeps the transfer's cloth offset: it moves nothing at rest.
+    # The Shrinkwrap keeps the transfer's cloth offset (world units; the modifier's offset is in the body's own
+    # units, the Shrinkwrap snapping in its target's space): it moves nothing at rest.
     from garment_transfer import OFFSET_SHARE, body_scale
 
-    assert result.modifiers[1].offset == pytest.approx(OFFSET_SHARE * body_scale(to_world(tgt.V)), rel=1e-5)
-    groups = {g.index: g.name for g in result.vertex_groups}
+    assert body.matrix_world.to_scale()[0] == pytest.approx(0.1)          # scaled on import: the units matter
+    # Keep Outside Body in bands: the last, limited to the vertices the cloth at rest holds that far, at the offset.
+    assert [m.name for m in result.modifiers[1:]] == ["Keep Outside Body", "Keep Outside Body 2",
+                                                      "Keep Outside Body 3", "Keep Outside Body 4"]
+    assert result.modifiers[-1].offset * np.mean(np.array(body.matrix_world.to_scale())) == \
+        pytest.approx(OFFSET_SHARE * body_scale(to_world(tgt.V)), rel=1e-5)
+    bands = {m.vertex_group for m in result.modifiers if m.type == 'SHRINKWRAP' and m.vertex_group}
+    assert len(bands) == 3
+    groups = {g.index: g.name for g in result.vertex_groups if g.name not in bands}
     assert set(groups.values()) <= set(skeleton.names)
-    counts = np.array([len(v.groups) for v in result.data.vertices])
-    sums = np.array([sum(g.weight for g in v.groups) for v in result.data.vertices])
+    counts = np.array([sum(g.group in groups for g in v.groups) for v in result.data.vertices])
+    sums = np.array([sum(g.weight for g in v.groups if g.group in groups) for v in result.data.vertices])
     assert counts.max() <= 4 and np.allclose(sums, 1, atol=1e-4)
     assert not garment.vertex_groups and not garment.modifiers          # the input is unchanged
     moved = np.linalg.norm(evaluated_world(result) - world_vertices(result), axis=1)
@@ -125,7 +138,7 @@ def test_riding_the_body_surface_keeps_the_cloth_on_the_skin_at_the_bends(charac
     settings.ride_surface = True
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     result = settings.result
-    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
+    assert kinds(result) == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
     ride = result.modifiers[1]
     assert ride.is_bound and ride.target == body and ride.vertex_group == rigging.RIDE_GROUP
     rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
@@ -147,7 +160,8 @@ def test_riding_the_body_surface_keeps_the_cloth_on_the_skin_at_the_bends(charac
     riding = result.copy()
     riding.data = result.data.copy()
     bpy.context.scene.collection.objects.link(riding)
-    riding.modifiers.remove(riding.modifiers[2])
+    for mod in [m for m in riding.modifiers if m.type == 'SHRINKWRAP']:
+        riding.modifiers.remove(mod)
     bones_only = riding.copy()
     bones_only.data = riding.data.copy()
     bpy.context.scene.collection.objects.link(bones_only)
@@ -163,11 +177,11 @@ def test_riding_the_body_surface_keeps_the_cloth_on_the_skin_at_the_bends(charac
     # Rigged again without it (Rig to Body, the body posed): the Surface Deform and its group go.
     settings.ride_surface = False
     assert bpy.ops.garment_transfer.rig_garment() == {'FINISHED'}
-    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SHRINKWRAP']
+    assert kinds(result) == ['ARMATURE', 'SHRINKWRAP']
     assert rigging.RIDE_GROUP not in result.vertex_groups
     settings.ride_surface = True
     assert bpy.ops.garment_transfer.rig_garment() == {'FINISHED'}
-    assert [m.type for m in result.modifiers] == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
+    assert kinds(result) == ['ARMATURE', 'SURFACE_DEFORM', 'SHRINKWRAP']
     assert result.modifiers[1].is_bound
 
 
