@@ -7,7 +7,8 @@ modifier: the pear body, onto which each MakeHuman suit is transferred from ``fe
 operator (which rigs the result), and the average body, dressed with the demo's dresses and skirts as
 ``lab.motion`` makes them (the product's transfer from the banana mannequin) and rigged by Rig to Body. The live
 rigs compared (``LIVE_RIGS``) are Rig to Body's options: the product's weights, an Armature modifier and a live
-correction (a Surface Deform carrying the cloth that lies on the skin, a Shrinkwrap Outside, or both). The
+correction (a Surface Deform carrying the cloth that lies on the skin, Keep Outside Body's Shrinkwraps, or both;
+the rig is built by the operator's own ``rig_to_body``, so the study measures what Rig to Body makes). The
 baseline is the same garment rigged by the nearest-surface rule (every influence, Armature only: what Blender's
 Data Transfer gives). In every pose of ``lab.motion.pose_set`` (the shared poses and those kept back), each rig
 is evaluated by Blender on the posed character and its crossings with the evaluated body counted under every
@@ -47,8 +48,9 @@ Y_TO_Z = C
 GARMENTS = ("female_sportsuit01", "female_casualsuit01", "female_casualsuit02", "aline_skirt", "maxi_skirt",
             "formal_dress")
 #: The live rigs compared with the nearest-surface rig: name -> Rig to Body's options.
-#: The product's rig is "shrinkwrap" (Rig to Body's defaults), "surface+shrinkwrap" with Ride Body Surface on;
-#: "shrinkwrap_half" is the first round's (a Shrinkwrap at half the cloth offset).
+#: The product's rig is "shrinkwrap" (Rig to Body's defaults: Keep Outside Body in bands up to the cloth offset,
+#: each band held at rest), "surface+shrinkwrap" with Ride Body Surface on; "shrinkwrap_half" keeps outside in
+#: bands up to half the cloth offset (the first round's distance).
 LIVE_RIGS = {"shrinkwrap_half": dict(ride_surface=False, outside=0.5),
              "surface": dict(ride_surface=True, outside=0.0),
              "surface+shrinkwrap_half": dict(ride_surface=True, outside=0.5),
