@@ -335,7 +335,10 @@ def test_a_stopped_run_records_what_it_did_and_resumes(dataset, tmp_path):
 
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_ctrl_c_stops_cleanly_with_exit_130_and_only_whole_files(tmp_path, workers):
-    ds = make_dataset(tmp_path / "data")
+    # Enough pairs (3 garments x 12 targets) that work is left when the first record appears, however fast
+    # the machine: the run is stopped then.
+    shapes = dict(SHAPES, **{f"wide{k}": (1.0 + 0.03 * k, 1.0, 1.0) for k in range(1, 10)})
+    ds = make_dataset(tmp_path / "data", shapes=shapes)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "garment_transfer", "batch", str(ds), "--source", "round",
            "--out", str(out), "--workers", workers]
@@ -364,7 +367,7 @@ def test_ctrl_c_stops_cleanly_with_exit_130_and_only_whole_files(tmp_path, worke
                            text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     counts = json.loads(again.stdout)["counts"]
-    assert counts["skipped"] == doc["counts"]["done"] and counts["done"] == 9 - counts["skipped"]
+    assert counts["skipped"] == doc["counts"]["done"] and counts["done"] == 3 * 12 - counts["skipped"]
 
 
 # --- Dask ----------------------------------------------------------------------------------------
