@@ -17,9 +17,11 @@ blend of the garment's keys against the body at that combination (share of garme
 (every key transferred further from the body), corrective keys for every pair of keys, and keeping the
 blend outside the body (``shape_keys.keep_outside``: what the operator's Shrinkwrap modifier does, at
 half the offset, on the surface and at the whole offset; and per vertex, in bands, ``keep_outside_bands``: what
-the operator's Shrinkwrap modifiers do, one per band). For each, the mixes in which a garment edge passes
-through the body or a body edge through the garment under some triangulation of the faces (``crossings`` under
-every reading), and the most it moves a vertex of a key at 1 (which must stay the transfer to its shape).
+the operator's Shrinkwrap modifiers do, one per band; ``SHAPE_KEY_BANDS`` the default, ``KEEP_OUTSIDE_BANDS`` up to
+the offset only; where the mixes that still cross do so: ``lab.shape_keys_mixes``). For each, the mixes in which a
+garment edge passes through the body or a body edge through the garment under some triangulation of the faces
+(``crossings`` under every reading), and the most it moves a vertex of a key at 1 (which must stay the transfer
+to its shape).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.intersections import crossings
 from garment_transfer.geometry.readings import readings_of
-from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, all_pairs, body_at,
+from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, SHAPE_KEY_BANDS, all_pairs, body_at,
                                                   fit_shape_keys, keep_outside, keep_outside_banded,
                                                   keep_outside_bands)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
@@ -145,9 +147,12 @@ def study(folder, garments, count=50, seed=0, margin_mm=(2.0,)):
                      ("keep outside, on the surface", 0.0, False, 0.0),
                      ("keep outside, half the offset", 0.0, False, 0.5),
                      ("keep outside, the whole offset", 0.0, False, 1.0)]
-        # Per-vertex distances in bands (one Shrinkwrap per band in Blender): the default, then finer ones.
-        remedies += [(f"keep outside in {len(b)} bands", 0.0, False, tuple(b))
-                     for b in (KEEP_OUTSIDE_BANDS, np.linspace(0.5, 1.0, 5), np.linspace(0.5, 1.0, 11))]
+        # Per-vertex distances in bands (one Shrinkwrap per band in Blender): the default (bands above the offset
+        # too), then up to the offset only (the default before), finer ones up to the offset.
+        remedies += [(f"keep outside in {len(b)} bands{' (default)' if tuple(b) == SHAPE_KEY_BANDS else ''}", 0.0,
+                      False, tuple(b))
+                     for b in (SHAPE_KEY_BANDS, KEEP_OUTSIDE_BANDS, np.linspace(0.5, 1.0, 5),
+                               np.linspace(0.5, 1.0, 11))]
         key_surfaces = {k: TriangleSurface(V, basis.F) for k, V in shapes.items()}
         fits = {}
         for label, margin, pairs, outside in remedies:

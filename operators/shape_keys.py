@@ -344,7 +344,7 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
         name="Keep Outside Body", default=True,
         description="Add Shrinkwrap modifiers (Outside mode, last in the stack) that move only the vertices "
                     "a mix of sliders or a pose puts inside or too near the body out to the distance each "
-                    "key at 1 keeps them (half the offset to the whole offset, in bands)")
+                    "key at 1 keeps them (half the offset to twice the offset, in bands)")
 
     status_text = "Fitting to shape keys"
     cancel_text = "Fitting to shape keys cancelled; nothing was made"

@@ -17,14 +17,16 @@ from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .pose_fit import every_split, fit_to_pose, poses_to_files, self_contact
 from .rest_pose import pose_difference, transfer_across_rest_poses
 from .result_check import check_result, result_warnings
-from .shape_keys import (KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, ShapeKeyFit, all_pairs, fit_shape_keys, fit_steps,
-                         held_bands, keep_outside_bands, shapes_to_files, transfer_to_shapes)
+from .shape_keys import (KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, SHAPE_KEY_BANDS, ShapeKeyFit, all_pairs,
+                         fit_shape_keys, fit_steps, held_bands, keep_outside_bands, shapes_to_files,
+                         transfer_to_shapes)
 from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
            "POSE_LIMITS", "check_result", "result_warnings",
-           "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "keep_outside_bands", "held_bands",
+           "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS", "keep_outside_bands",
+           "held_bands",
            "OutfitError", "OutfitResult", "transfer_outfit",
            "ShapeKeyFit", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps",
            "evaluate", "mdc",

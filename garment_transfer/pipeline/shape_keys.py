@@ -38,15 +38,21 @@ from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_g
 
 
 #: One keep-outside distance for every vertex, a share of the transfer's offset (the study's uniform row; the
-#: operator uses ``KEEP_OUTSIDE_BANDS``). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys,
+#: operator uses ``SHAPE_KEY_BANDS``). Measured with ``python -m lab.shape_keys`` (female_casualsuit01, ten keys,
 #: 50 mixes, Blender's Shrinkwrap rule): 15 of 50 mixes cross under some triangulation and a key at 1 moves by up to
-#: 13 mm (the Shrinkwrap takes some vertices at concave edges for inside); in 3 bands: 3 of 50, keys at 1 unmoved.
+#: 13 mm (the Shrinkwrap takes some vertices at concave edges for inside); in bands: keys at 1 unmoved.
 KEEP_OUTSIDE_SHARE = 0.5
-#: Bands of the per-vertex keep-outside distance (``keep_outside_bands``), shares of the transfer's offset: every
-#: vertex is kept at least ``KEEP_OUTSIDE_SHARE`` of the offset outside, and each further band keeps only the
-#: vertices that the basis and every key at 1 already hold at least that far (so that no key at 1 moves). In
-#: Blender, one Shrinkwrap per band, each limited to its band's vertex group, in increasing order.
+#: Bands of the per-vertex keep-outside distance (``held_bands``), shares of the offset: every vertex is kept at
+#: least ``KEEP_OUTSIDE_SHARE`` of the offset outside, and each further band keeps only the vertices that every shape
+#: that must not move already holds at least that far. In Blender, one Shrinkwrap per band, each limited to its
+#: band's vertex group, in increasing order. Rig to Body's bands (times its Keep Outside share).
 KEEP_OUTSIDE_BANDS = (0.5, 0.75, 1.0)
+#: The bands of size shape keys (``keep_outside_bands``): those of ``KEEP_OUTSIDE_BANDS`` and more above the
+#: offset, so that a vertex the basis and every key at 1 hold farther out than the offset is kept that far at a
+#: mix too (a long garment edge over the buttocks then no longer meets the body). ``python -m lab.shape_keys``
+#: (50 mixes): 1 of 50 mixes crossing, 3 of 50 with ``KEEP_OUTSIDE_BANDS`` (``lab/shape_keys_mixes.py``, the
+#: diagnosis); the one left is a body that crosses itself, and the exact transfer to it crosses it too.
+SHAPE_KEY_BANDS = (0.5, 0.75, 1.0, 1.1, 1.2, 1.35, 1.5, 2.0)
 #: A vertex joins a band only if the basis and every key at 1 hold it at least ``band / KEEP_OUTSIDE_SLACK``
 #: away: room for Blender's 32-bit coordinates and its own nearest-point search.
 KEEP_OUTSIDE_SLACK = 0.999
@@ -366,7 +372,7 @@ def shrinkwrap_distance(P, surface: TriangleSurface):
     return np.where(on, 0.0, side * d), closest, away
 
 
-def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None, bands=KEEP_OUTSIDE_BANDS,
+def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None, bands=SHAPE_KEY_BANDS,
                        slack=KEEP_OUTSIDE_SLACK):
     """The per-vertex keep-outside distance, in bands: for each band (increasing), its distance and the
     vertices it keeps. The first band keeps every vertex; a later band keeps the vertices that the basis and
@@ -403,7 +409,7 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     return held_bands(held, offset, bands, slack)
 
 
-def held_bands(held, offset, bands=KEEP_OUTSIDE_BANDS, slack=KEEP_OUTSIDE_SLACK):
+def held_bands(held, offset, bands=SHAPE_KEY_BANDS, slack=KEEP_OUTSIDE_SLACK):
     """``keep_outside_bands`` for any shapes the rule must not move: ``held``, a list of (TriangleSurface of the
     body, (g,3) garment on it); ``bands``, shares of ``offset``.
 

@@ -252,8 +252,8 @@ def test_keep_outside_catches_what_a_mix_clips_as_the_numpy_rule_does(keyed, mix
     # As the Shrinkwrap measures: what no band reaches is the blend itself.
     sd_blend = shrinkwrap_distance(blend, seen)[0]
     last, only = bands[-1]
-    far = sd_blend > last
-    assert far.mean() > 0.5 and (np.abs(shown[far] - blend[far]) < 1e-5).all()
+    far = sd_blend > last                                      # a quarter here: the last band is twice the offset
+    assert far.mean() > 0.2 and (np.abs(shown[far] - blend[far]) < 1e-5).all()
     # A vertex outside the last band's group is not taken to its distance (the group limits the Shrinkwrap).
     skipped = ~only & bands[0][1] & (sd_blend < bands[-2][0])
     assert skipped.sum() > 5
