@@ -309,16 +309,30 @@ def readings_of(mesh) -> Readings:
     ----------
     mesh : Mesh
     """
-    for fv, fs, R in _kept:
-        if fv is mesh.face_vertices and fs is mesh.face_start:
-            return R if R.split is mesh.F else replace(R, split=np.asarray(mesh.F, dtype=np.int64))
-    R = polygon_readings(mesh.face_vertices, mesh.face_start, mesh.F)
-    _kept.insert(0, (mesh.face_vertices, mesh.face_start, R))
+    R = _kept_for((mesh.face_vertices, mesh.face_start),
+                  lambda: polygon_readings(mesh.face_vertices, mesh.face_start, mesh.F))
+    return R if R.split is mesh.F else replace(R, split=np.asarray(mesh.F, dtype=np.int64))
+
+
+def kept_triangle_readings(F) -> Readings:
+    """``triangle_readings(F)``, kept as ``readings_of`` keeps a mesh's (by the identity of the array ``F``): the
+    poses of one character share their triangle arrays, so what a self-intersection check needs of them
+    (``Readings.topology``) is made once."""
+    return _kept_for((F,), lambda: triangle_readings(F))
+
+
+def _kept_for(arrays, make) -> Readings:
+    """The readings kept for these very arrays (by identity), else ``make()``, kept for the next time."""
+    for kept, R in _kept:
+        if len(kept) == len(arrays) and all(a is b for a, b in zip(kept, arrays)):
+            return R
+    R = make()
+    _kept.insert(0, (arrays, R))
     del _kept[KEPT_READINGS:]
     return R
 
 
-#: How many meshes' readings ``readings_of`` keeps (their polygon arrays are held with them).
+#: How many readings ``readings_of`` and ``kept_triangle_readings`` keep (their arrays are held with them).
 KEPT_READINGS = 8
 _kept = []
 

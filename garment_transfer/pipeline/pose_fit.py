@@ -32,7 +32,7 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
-from ..geometry.readings import Readings, triangle_readings
+from ..geometry.readings import kept_triangle_readings
 from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
@@ -79,19 +79,6 @@ def every_split(mesh: Mesh):
     return F[np.sort(first)]
 
 
-def read_as_triangles(F) -> Readings:
-    """``readings.triangle_readings(F)``, kept for the last ``KEPT`` arrays asked (by identity): the poses of one
-    character share their triangle arrays, so what a self-intersection check needs of them (``Readings.topology``)
-    is made once, not at every frame."""
-    for kept, R in _kept:
-        if kept is F:
-            return R
-    R = triangle_readings(F)
-    _kept.insert(0, (F, R))
-    del _kept[KEPT:]
-    return R
-
-
 def kept_split(mesh: Mesh):
     """``every_split(mesh)``, kept per mesh (by the identity of its polygon arrays, which ``Mesh.with_vertices``
     keeps: every pose of one body)."""
@@ -104,9 +91,8 @@ def kept_split(mesh: Mesh):
     return F
 
 
-#: Triangle arrays (and meshes' splits) whose readings are kept.
+#: Meshes whose ``every_split`` is kept.
 KEPT = 4
-_kept = []
 _kept_splits = []
 
 
@@ -130,7 +116,7 @@ def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
     pairs : int
         The body's own edge-triangle crossings.
     """
-    R = read_as_triangles(F)
+    R = kept_triangle_readings(F)
     count, edges, triangles = self_intersections(V, R)
     contact = np.zeros(V.shape[0], dtype=bool)
     contact[edges.reshape(-1)] = True
@@ -234,7 +220,7 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
     body_F = kept_split(body)
     free_F = body_F[~contact[body_F].any(axis=1)]
-    garment_F = read_as_triangles(kept_split(garment))
+    garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
     outside = sum(crossing_counts(V, garment_F, body.V, free_F))
     info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
