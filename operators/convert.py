@@ -259,6 +259,14 @@ def new_result_object(garment, V_world, name, depsgraph, evaluated=True, scene=N
         raise
 
 
+def remove_results(objects):
+    """Remove new result objects and their meshes (what an operator made before it failed)."""
+    for obj in objects:
+        me = obj.data
+        bpy.data.objects.remove(obj)
+        bpy.data.meshes.remove(me)
+
+
 def write_vertex_colors(me, rgba, name):
     """Write (n,4) per-vertex colours as a float colour attribute and make it the active one."""
     rgba = np.ascontiguousarray(rgba, dtype=np.float32)

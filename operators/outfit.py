@@ -106,10 +106,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
             results.append(convert.new_result_object(g, V, result_name(g, target_body), depsgraph, evaluated,
                                                      scene=context.scene, view_layer=context.view_layer))
     except BaseException:
-        for obj in results:
-            me = obj.data
-            bpy.data.objects.remove(obj)
-            bpy.data.meshes.remove(me)
+        convert.remove_results(results)
         raise
     outcome.checks = layer_checks(context, results, cloths, target)
     return results, outcome, design
@@ -183,10 +180,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
                         rig_to_body(context, result, settings.target_body, max_influences=settings.max_influences,
                                     ride_surface=settings.ride_surface)
                 except BaseException:
-                    for result in results:
-                        me = result.data
-                        bpy.data.objects.remove(result)
-                        bpy.data.meshes.remove(me)
+                    convert.remove_results(results)
                     raise
         except Exception as exc:
             return report_failure(self, exc)

@@ -350,9 +350,7 @@ def baked_object(context, obj, frames, positions):
         result.data.update()
         return result
     except BaseException:
-        me = result.data
-        bpy.data.objects.remove(result)
-        bpy.data.meshes.remove(me)
+        convert.remove_results([result])
         raise
 
 

@@ -286,9 +286,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                                          max_influences=settings.max_influences,
                                          ride_surface=settings.ride_surface)[1]
                 except BaseException:
-                    me = result.data
-                    bpy.data.objects.remove(result)
-                    bpy.data.meshes.remove(me)
+                    convert.remove_results([result])
                     raise
         except Exception as exc:
             return report_failure(self, exc)
