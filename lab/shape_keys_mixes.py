@@ -23,19 +23,21 @@ from garment_transfer.geometry.intersections import crossings, self_intersection
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.readings import readings_of
-from garment_transfer.pipeline.shape_keys import (body_at, fit_shape_keys, keep_outside_banded, keep_outside_bands,
-                                                  shrinkwrap_distance)
+from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, SHAPE_KEY_BANDS, body_at, fit_shape_keys,
+                                                  keep_outside_banded, keep_outside_bands, shrinkwrap_distance)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, makehuman_folder
 from .shape_keys import BANDS, MM, body_with_keys, combinations
 
 SAMPLES = 17                   # points along an edge to find its deepest point inside the body
-#: Candidate bands (shares of the transfer's offset) for ``keep_outside_bands``: the default, bands above the offset
-#: (vertices that the basis and every key at 1 hold farther out than the offset kept that far), and a fine ladder
-#: up to three offsets (near the per-vertex limit of the rule).
-REMEDIES = {"default (0.5, 0.75, 1)": (0.5, 0.75, 1.0),
+#: Candidate bands (shares of the transfer's offset) for ``keep_outside_bands``: three up to the offset
+#: (``KEEP_OUTSIDE_BANDS``, Rig to Body's), bands above the offset (vertices that the basis and every key at 1 hold
+#: farther out than the offset kept that far; ``SHAPE_KEY_BANDS`` is the default), and a fine ladder up to three
+#: offsets (near the per-vertex limit of the rule).
+REMEDIES = {"three to the offset (0.5, 0.75, 1)": KEEP_OUTSIDE_BANDS,
             "above the offset (..., 1.25, 1.5, 2)": (0.5, 0.75, 1.0, 1.25, 1.5, 2.0),
+            "default (..., 1.1, 1.2, 1.35, 1.5, 2)": SHAPE_KEY_BANDS,
             "fine ladder to 3 offsets (26 bands)": tuple(np.round(np.linspace(0.5, 3.0, 26), 3))}
 
 
