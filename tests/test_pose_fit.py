@@ -13,7 +13,8 @@ from garment_transfer import (Rig, bvh_rotations, every_split, fit_to_pose, inpa
                               mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
                               read_obj, read_skeleton, read_weights, transfer_garment, write_obj)
 from garment_transfer.pipeline import self_contact
-from garment_transfer.pipeline.pose_fit import crossing_counts
+from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, crossing_counts
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,4 +100,18 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
     assert row["crossings_outside_contact"] == 0 and isinstance(data["warnings"], list)
     written = read_obj(row["out"])
     assert np.array_equal(written.face_vertices, rest.face_vertices)      # the garment's own faces
+    # The figures are those of the file as written, against the pose file as given, under every split.
+    # The pose is the rest body's mesh posed: its own crossings are counted on the rest body's triangles (the
+    # pose file, read alone, may split a quad the other way).
+    rest_body = read_obj(paths["rest"])
+    posed = rest_body.with_vertices(read_obj(paths["pose"]).V)
+    offset = row["offset"]
+    contact, own = self_contact(posed.V, posed.F, CONTACT_RINGS, rest_body.V, CONTACT_GAP * offset)
+    B, G = every_split(posed), every_split(written)
+    free, at = B[~contact[B].any(axis=1)], B[contact[B].any(axis=1)]
+    assert row["crossings_outside_contact"] == sum(crossing_counts(written.V, G, posed.V, free))
+    assert row["crossings_at_contact"] == sum(crossing_counts(written.V, G, posed.V, at))
+    assert row["body_self_crossings"] == own
+    inside = TriangleSurface(posed.V, posed.F).signed_distance(written.V)[0] < 0
+    assert row["penetrating_vertices"] == int(inside.sum())
     assert json.loads((out / "poses.json").read_text())["shapes"] == [row]

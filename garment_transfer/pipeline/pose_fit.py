@@ -239,19 +239,43 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
             V, outside = W, after
             if not outside:
                 break
-    info["crossings_outside_contact"] = int(outside)
-    at_contact = body_F[contact[body_F].any(axis=1)]
-    info["crossings_at_contact"] = int(sum(crossing_counts(V, garment_F, body.V, at_contact))
-                                       if at_contact.size else 0)
-    inside = int((TriangleSurface(body.V, body.F).signed_distance(V)[0] < 0).sum())
-    if outside:
-        info["warnings"].append(f"{outside} garment-body crossings are left in {name} away from where the body "
-                                "crosses itself")
-    if info["crossings_at_contact"]:
-        info["warnings"].append(f"{info['crossings_at_contact']} garment-body crossings in {name} where the body "
-                                f"crosses itself or closes on itself ({body_self} crossings of its own): no "
-                                "garment can be outside both surfaces there")
+    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
+    info.update(crossings_outside_contact=int(outside), crossings_at_contact=at)
+    info["warnings"] += pose_warnings(int(outside), at, int(body_self), name)
     return V, inside
+
+
+def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact):
+    """The garment's crossings with the body's triangles at its own contact (each edge once, both ways), and the
+    garment vertices inside the body."""
+    at_contact = body_F[contact[body_F].any(axis=1)]
+    at = int(sum(crossing_counts(V, garment_F, body.V, at_contact))) if at_contact.size else 0
+    return at, int((TriangleSurface(body.V, body.F).signed_distance(V)[0] < 0).sum())
+
+
+def pose_warnings(outside, at_contact, body_self, name):
+    """What a pose fit leaves, said in words."""
+    warnings = []
+    if outside:
+        warnings.append(f"{outside} garment-body crossings are left in {name} away from where the body crosses itself")
+    if at_contact:
+        warnings.append(f"{at_contact} garment-body crossings in {name} where the body crosses itself or closes on "
+                        f"itself ({body_self} crossings of its own): no garment can be outside both surfaces there")
+    return warnings
+
+
+def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose"):
+    """The pose fit's figures of garment positions ``V`` (a file as written, read back) on the posed body, as
+    ``clear_posed_body`` counts them: ``crossings_outside_contact``, ``crossings_at_contact`` (under every split
+    of both), ``penetrating_vertices``, ``body_self_crossings`` and ``warnings``."""
+    contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    body_F = kept_split(body)
+    garment_F = kept_triangle_readings(kept_split(garment))
+    V = np.asarray(V, dtype=np.float64)
+    outside = int(sum(crossing_counts(V, garment_F, body.V, body_F[~contact[body_F].any(axis=1)])))
+    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
+    return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
+            "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
 
 
 def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None):
@@ -304,14 +328,12 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         out = outs[name]
         write_obj(out, garment, result.V, inputs=[rest_body_path, *posed_body_paths],
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
-        info = result.info
-        rows.append({"target": name, "target_body": paths[name], "out": str(out),
-                     "penetrating_vertices": result.penetrating_vertices,
-                     "crossings_outside_contact": info["crossings_outside_contact"],
-                     "crossings_at_contact": info["crossings_at_contact"],
-                     "body_self_crossings": info["body_self_crossings"], "offset": info["offset"],
-                     "seconds": result.seconds})
-        warnings += info["warnings"]
+        # The figures of the file as written, against that pose as given.
+        counts = posed_counts(read_obj(out).V, garment, rest.with_vertices(poses[name], name=name),
+                              float(result.info["offset"]), rest_V=rest.V, name=str(out))
+        warnings += counts.pop("warnings")
+        rows.append({"target": name, "target_body": paths[name], "out": str(out), **counts,
+                     "offset": result.info["offset"], "seconds": result.seconds})
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
                "faces": garment.n_faces, "poses": True, "shapes": rows, "seconds": seconds,
