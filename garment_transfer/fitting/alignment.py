@@ -27,6 +27,20 @@ ASPECT_FACTOR = 1.6
 SCREEN_SAMPLES = 500
 SCREEN_MARGIN = 1.5
 
+#: Which way a body faces, from its feet: along its long axis, the end whose lowest ``FEET_SLAB`` of the
+#: height spreads wider (two feet, not one head) by ``FEET_SPREAD`` times is the feet; their points lie
+#: ahead of the shins' (``SHIN_SLAB``) by the toes. The distances of a front-to-back turn of a body differ
+#: little (the belly of a heavy body fits the back of a slim one about as well as its front): measured on
+#: the procedural mannequins, the closest pose turned the heavy and the apple one round, so the garment
+#: came out back to front. A pose whose toes point within ``FACING_LIMIT`` degrees of the source's is
+#: kept; beyond it, the pose turned round the long axis is fitted instead. Feet that lie ahead of the
+#: shins by less than ``TOES_MIN`` of the height (a body without feet) decide nothing.
+FEET_SLAB = 0.05
+SHIN_SLAB = (0.06, 0.14)
+FEET_SPREAD = 1.8
+TOES_MIN = 0.015
+FACING_LIMIT = 90.0
+
 
 @dataclass
 class Similarity:
@@ -255,6 +269,61 @@ def _refine_rigid(source_surface, target_surface, Ps, Pt, scale, R, t, iteration
     return R, t
 
 
+def toe_direction(P, axis):
+    """Where a body's toes point: a unit vector across ``axis``, or None when it has no clear feet.
+
+    Parameters
+    ----------
+    P : (k,3) float
+        Points spread evenly over the body's surface (``surface_samples``).
+    axis : (3,) float
+        The body's long axis (unit; either sign).
+
+    Returns
+    -------
+    (3,) float64 or None
+        From the shins' mean point to the feet's, across the axis, made unit; None when neither end of
+        the axis spreads ``FEET_SPREAD`` times wider than the other, or the feet lie less than
+        ``TOES_MIN`` of the height ahead of the shins.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    h = P @ axis
+    height = float(h.max() - h.min())
+    if not height > 0:
+        return None
+    ends = []
+    for sign in (1.0, -1.0):
+        up = sign * h
+        low = up.min()
+        feet = P[up <= low + FEET_SLAB * height]
+        across = (feet - feet.mean(axis=0)) - np.outer((feet - feet.mean(axis=0)) @ axis, axis)
+        ends.append((float(np.linalg.norm(across, axis=1).mean()), up, low))
+    wide, narrow = sorted(ends, key=lambda e: -e[0])
+    if not wide[0] >= FEET_SPREAD * narrow[0]:
+        return None
+    _, up, low = wide
+    feet = P[up <= low + FEET_SLAB * height]
+    shins = P[(up >= low + SHIN_SLAB[0] * height) & (up <= low + SHIN_SLAB[1] * height)]
+    if shins.shape[0] == 0:
+        return None
+    toes = feet.mean(axis=0) - shins.mean(axis=0)
+    toes -= (toes @ axis) * axis
+    length = float(np.linalg.norm(toes))
+    if length < TOES_MIN * height:
+        return None
+    return toes / length
+
+
+def facing_angle(Ps, X, axis):
+    """Degrees between the toes of two bodies in one frame (samples Ps of the source, X of the target
+    brought into its frame; ``axis`` the source's long axis), or None when either has no clear feet."""
+    a, b = toe_direction(Ps, axis), toe_direction(X, axis)
+    if a is None or b is None:
+        return None
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+
+
 def align(source: Mesh, target: Mesh, samples=2000, refine=True):
     """The similarity that brings the target body into the source body's frame.
 
@@ -276,8 +345,10 @@ def align(source: Mesh, target: Mesh, samples=2000, refine=True):
         Target frame to source frame.
     info : dict
         ``size_ratio``, ``units_scale``, ``snapped`` (whether the scale is a known unit ratio),
-        ``rms`` (two-way RMS distance of the coarse pose, in source units) and the principal
-        ``aspect`` of both bodies.
+        ``rms`` (two-way RMS distance of the coarse pose, in source units), the principal
+        ``aspect`` of both bodies, ``facing_degrees`` (between the two bodies' toes, ``facing_angle``;
+        left out when either has no clear feet) and ``turned_round`` (the closest pose faced the other way
+        and was turned round by the toes).
     """
     cs, Cs, _ = surface_moments(source.V, source.F)
     ct, Ct, _ = surface_moments(target.V, target.F)
@@ -314,7 +385,20 @@ def align(source: Mesh, target: Mesh, samples=2000, refine=True):
         if best is None or rms < best[2]:
             best = (R, t, rms)
     R, t, rms = _rigid_icp(P, src_tree, Ps, best[0], best[1], iterations=30)
+    # A front-to-back turn fits about as closely: the toes decide (``FACING_LIMIT``).
+    axis = Es[:, 0]
+    facing = facing_angle(Ps, P @ R.T + t, axis)
+    info["turned_round"] = False
+    if facing is not None and facing > FACING_LIMIT:
+        half = 2.0 * np.outer(axis, axis) - np.eye(3)      # half a turn about the long axis
+        R2, t2, rms2 = _rigid_icp(P, src_tree, Ps, half @ R, half @ (t - cs) + cs, iterations=30)
+        facing2 = facing_angle(Ps, P @ R2.T + t2, axis)
+        if facing2 is not None and facing2 <= FACING_LIMIT:
+            R, t, rms, facing = R2, t2, rms2, facing2
+            info["turned_round"] = True
     info["rms"] = rms
+    if facing is not None:
+        info["facing_degrees"] = facing
     t = t - scale * (R @ ct)
     if not refine:
         return Similarity(scale, R, t), info
