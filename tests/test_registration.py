@@ -91,7 +91,8 @@ def standing_points(toes, feet=True):
     across = np.cross([0.0, 0.0, 1.0], toes)
     P = []
     a = np.linspace(0.0, 2 * np.pi, 60, endpoint=False)
-    for centre, radius, z0, z1 in ((-1.2, 0.4, 0.0, 5.0), (1.2, 0.4, 0.0, 5.0), (0.0, 1.6, 5.0, 8.5), (0.0, 0.5, 8.5, 10.0)):
+    parts = ((-1.2, 0.4, 0.0, 5.0), (1.2, 0.4, 0.0, 5.0), (0.0, 1.6, 5.0, 8.5), (0.0, 0.5, 8.5, 10.0))
+    for centre, radius, z0, z1 in parts:
         A, Z = np.meshgrid(a, np.linspace(z0, z1, 40))
         ring = np.cos(A.ravel())[:, None] * toes + np.sin(A.ravel())[:, None] * across
         P.append(centre * across + radius * ring + np.outer(Z.ravel(), [0, 0, 1]))
