@@ -297,14 +297,41 @@ def fit_current_pose(context, obj, body):
     outcome = fit_to_pose(rest, posed.V, cloth, name=f"frame {frame}")
     result = convert.new_result_object(obj, outcome.V, fitted_name(obj, frame), context.evaluated_depsgraph_get(),
                                        False, scene=context.scene, view_layer=context.view_layer)
-    for mod in [m for m in result.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]:
-        result.modifiers.remove(mod)
+    try:
+        for mod in [m for m in result.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]:
+            result.modifiers.remove(mod)
+        counts = measured_pose_counts(context, result, cloth, rest, posed, outcome, result.name)
+    except BaseException:
+        convert.remove_results([result])
+        raise
+    outcome.info.update(counts)
+    result[FIGURES] = {k: v for k, v in counts.items() if k != "warnings"}
     return result, outcome
+
+
+#: The custom property of a fitted or baked object that holds its figures, measured on it as Blender has it.
+FIGURES = "garment_transfer_figures"
+
+
+def measured_pose_counts(context, result, cloth, rest, posed, outcome, name):
+    """The pose fit's figures (``posed_counts``) of the new object as Blender has it at the current frame
+    (evaluated, in world space, its 32-bit coordinates), against the body as posed there; a refining modifier
+    kept on it (Subdivision) is measured before it."""
+    from ..garment_transfer import posed_counts
+
+    context.view_layer.update()
+    depsgraph = context.evaluated_depsgraph_get()
+    written = convert.core_mesh_from_object(result, depsgraph, True, "result")
+    if written.n_vertices != cloth.n_vertices:
+        written = convert.core_mesh_from_object(result, depsgraph, False, "result")
+    return posed_counts(written.V, cloth, posed, float(outcome.info["offset"]), rest_V=rest.V, name=name,
+                        contact=outcome.contact)
 
 
 def bake_steps(context, obj, body, start, end):
     """Fit the garment to every frame from ``start`` to ``end``: a generator of fractions done; its value
-    (``StopIteration.value``) is ``(frames, positions, warnings, seconds)``. The scene's frame is put back."""
+    (``StopIteration.value``) is ``(frames, positions, fits, seconds)``, ``fits`` what ``measure_baked`` needs:
+    the rest body, the garment, and per frame the posed body and the fit. The scene's frame is put back."""
     from ..garment_transfer import MeshError, fit_to_pose, prepare_garment
 
     if body_armature(body) is None:
@@ -318,17 +345,41 @@ def bake_steps(context, obj, body, start, end):
     try:
         rest, _, cloth = rest_and_posed(context, obj, body)
         prepared = prepare_garment(rest, cloth)
-        positions, warnings = [], []
+        positions, fits = [], {"rest": rest, "garment": cloth, "frames": []}
         for i, frame in enumerate(frames):
             scene.frame_set(frame)
             posed = convert.core_mesh_from_object(body, context.evaluated_depsgraph_get(), True, "body")
             outcome = fit_to_pose(rest, posed.V, cloth, prepared=prepared, name=f"frame {frame}")
             positions.append(outcome.V)
-            warnings += outcome.info["warnings"]
+            fits["frames"].append((posed, outcome))
             yield (i + 1) / len(frames)
     finally:
         scene.frame_set(frame_before)
-    return frames, positions, warnings, time.perf_counter() - t
+    return frames, positions, fits, time.perf_counter() - t
+
+
+def measure_baked(context, baked, frames, fits):
+    """The pose fit's figures of the baked object as Blender plays it back, frame by frame (evaluated, in world
+    space), against the body posed at that frame: ``{"frames": [counts per frame], "warnings": [...]}``; also
+    kept on the object (``FIGURES``). The scene's frame is put back."""
+    scene = context.scene
+    frame_before = scene.frame_current
+    rows, warnings = [], []
+    try:
+        for frame, (posed, outcome) in zip(frames, fits["frames"]):
+            scene.frame_set(frame)
+            counts = measured_pose_counts(context, baked, fits["garment"], fits["rest"], posed, outcome,
+                                          f"{baked.name} at frame {frame}")
+            warnings += counts.pop("warnings")
+            rows.append({"frame": frame, **counts})
+    finally:
+        scene.frame_set(frame_before)
+    baked[FIGURES] = {"frames": len(rows),
+                      "frames_with_crossings": sum(1 for r in rows if r["crossings_outside_contact"]),
+                      "crossings_outside_contact": sum(r["crossings_outside_contact"] for r in rows),
+                      "crossings_at_contact": sum(r["crossings_at_contact"] for r in rows),
+                      "penetrating_vertices": sum(r["penetrating_vertices"] for r in rows)}
+    return {"frames": rows, "warnings": warnings}
 
 
 def baked_object(context, obj, frames, positions):
@@ -503,16 +554,22 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
         self._steps = bake_steps(context, settings.result, settings.target_body, self.frame_start, end)
 
     def _finish(self, context, outcome):
-        frames, positions, warnings, seconds = outcome
+        frames, positions, fits, seconds = outcome
         settings = context.scene.garment_transfer
+        result = None
         try:
             result = baked_object(context, settings.result, frames, positions)
+            measured = measure_baked(context, result, frames, fits)
         except Exception as exc:
+            if result is not None:
+                convert.remove_results([result])
             return report_failure(self, exc)
+        figures = result[FIGURES]
         self.report({'INFO'}, f"{result.name}: {len(frames)} frames fitted in {seconds:.1f} s "
-                              f"({seconds / len(frames):.2f} s a frame)")
-        if warnings:
-            self.report({'WARNING'}, f"{len(warnings)} frames left crossings; the first: {warnings[0]}")
+                              f"({seconds / len(frames):.2f} s a frame); as played back, "
+                              f"{figures['frames_with_crossings']} frames cross the body away from its own contact")
+        if measured["warnings"]:
+            self.report({'WARNING'}, f"{len(measured['warnings'])} warnings; the first: {measured['warnings'][0]}")
         return {'FINISHED'}
 
     def execute(self, context):

@@ -181,16 +181,19 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result = transfer_garment(rest_body, posed, garment, prepared=prepared, offset=offset,
                               resolve_crossings=False, check_pose=False)
     t = time.perf_counter()
+    result.contact = self_contact(posed.V, posed.F, contact_rings, rest_body.V,
+                                  CONTACT_GAP * float(result.info["offset"]))
     result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
                                                              resolve_crossings=resolve_crossings,
-                                                             contact_rings=contact_rings, name=name)
+                                                             contact_rings=contact_rings, name=name,
+                                                             contact=result.contact)
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     return result
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
-                     contact_rings=CONTACT_RINGS, name="pose"):
+                     contact_rings=CONTACT_RINGS, name="pose", contact=None):
     """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
 
     Parameters
@@ -209,6 +212,8 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         Only count (False).
     contact_rings : int
     name : str
+    contact : tuple, optional
+        ``self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)``, when made already.
 
     Returns
     -------
@@ -217,7 +222,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         Garment vertices inside the posed body.
     """
     offset = float(info["offset"])
-    contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    if contact is None:
+        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    contact, body_self = contact
     body_F = kept_split(body)
     free_F = body_F[~contact[body_F].any(axis=1)]
     garment_F = kept_triangle_readings(kept_split(garment))
@@ -264,11 +271,16 @@ def pose_warnings(outside, at_contact, body_self, name):
     return warnings
 
 
-def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose"):
-    """The pose fit's figures of garment positions ``V`` (a file as written, read back) on the posed body, as
-    ``clear_posed_body`` counts them: ``crossings_outside_contact``, ``crossings_at_contact`` (under every split
-    of both), ``penetrating_vertices``, ``body_self_crossings`` and ``warnings``."""
-    contact, body_self = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose",
+                 contact=None):
+    """The pose fit's figures of garment positions ``V`` (a file as written, read back; an object as Blender has
+    it) on the posed body, as ``clear_posed_body`` counts them: ``crossings_outside_contact``,
+    ``crossings_at_contact`` (under every split of both), ``penetrating_vertices``, ``body_self_crossings`` and
+    ``warnings``. ``contact``: the body's own contact when made already (``TransferResult.contact`` of the fit
+    to this body)."""
+    if contact is None:
+        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    contact, body_self = contact
     body_F = kept_split(body)
     garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
@@ -330,7 +342,7 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
         # The figures of the file as written, against that pose as given.
         counts = posed_counts(read_obj(out).V, garment, rest.with_vertices(poses[name], name=name),
-                              float(result.info["offset"]), rest_V=rest.V, name=str(out))
+                              float(result.info["offset"]), rest_V=rest.V, name=str(out), contact=result.contact)
         warnings += counts.pop("warnings")
         rows.append({"target": name, "target_body": paths[name], "out": str(out), **counts,
                      "offset": result.info["offset"], "seconds": result.seconds})

@@ -116,6 +116,9 @@ class TransferResult:
         source, for checking the result as written (``result_check.check_result``).
     obstacle : Obstacle or None
         The target body as the crossing pass binned it (``obstacle.Obstacle``), when it ran.
+    contact : tuple or None
+        A pose fit's (``pose_fit.fit_to_pose``): the posed body's own contact, ``(contact (n,) bool, crossings
+        int)`` as ``pose_fit.self_contact`` gives it, for counting the result as written (``posed_counts``).
     """
 
     V: np.ndarray
@@ -124,6 +127,7 @@ class TransferResult:
     info: dict = field(default_factory=dict)
     prepared: "PreparedGarment | None" = field(default=None, repr=False)
     obstacle: object = field(default=None, repr=False)
+    contact: object = field(default=None, repr=False)
 
 
 @dataclass

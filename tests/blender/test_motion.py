@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import import_obj, world_vertices
 
-from garment_transfer import (Rig, bvh_rotations, fit_to_pose, read_bvh, read_joints, read_obj, read_skeleton,
-                              read_weights, transfer_garment)
+from garment_transfer import (Rig, bvh_rotations, fit_to_pose, posed_counts, read_bvh, read_joints, read_obj,
+                              read_skeleton, read_weights, transfer_garment)
 
 # Blender's OBJ import of a Y-up file in decimetres (conftest.import_obj): world = 0.1 * C @ file.
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -204,6 +204,16 @@ def test_fit_to_pose_and_bake(character):
     # average of the core's fit (the kick moves the cloth by decimetres).
     assert np.linalg.norm(world_vertices(fitted) - expected.V, axis=1).mean() < 1e-3
     assert not [m for m in fitted.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]
+    # Its figures are those of the object as Blender has it, against the body as posed, counted here afresh.
+    posed_body = rest_body.with_vertices(evaluated_world(body))
+    offset = expected.info["offset"]
+
+    def counted():
+        own = posed_counts(evaluated_world(fitted), cloth, posed_body, offset, rest_V=rest_body.V)
+        return {k: v for k, v in own.items() if k != "warnings"}
+
+    assert fitted[rigging.FIGURES].to_dict() == counted()
+    assert counted()["crossings_outside_contact"] == 0
     # Bake three frames: rest at 1, the kick at 3, keyed in between.
     for bone in armature.pose.bones:
         bone.keyframe_insert("location", frame=3)
@@ -225,6 +235,17 @@ def test_fit_to_pose_and_bake(character):
     bpy.context.scene.frame_set(3)
     assert [round(k.value, 6) for k in keys[1:]] == [0.0, 0.0, 1.0]
     assert np.linalg.norm(evaluated_world(baked) - expected.V, axis=1).mean() < 1e-3   # frame 3: the kick's fit
+    # The bake's figures: counted on the baked object as it plays back, frame by frame.
+    played = []
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        played.append(posed_counts(evaluated_world(baked), cloth, rest_body.with_vertices(evaluated_world(body)),
+                                   offset, rest_V=rest_body.V))
+    figures = baked[rigging.FIGURES].to_dict()
+    assert figures["frames"] == 3
+    for key in ("crossings_outside_contact", "crossings_at_contact", "penetrating_vertices"):
+        assert figures[key] == sum(p[key] for p in played)
+    assert figures["frames_with_crossings"] == sum(1 for p in played if p["crossings_outside_contact"])
 
 
 def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_nothing(character):
