@@ -141,6 +141,27 @@ def test_binned_boxes_moved_are_found_where_they_are():
     assert {tuple(p) for p in box_pairs(qlo, qhi, lo2, hi2).tolist()} == want
 
 
+def test_binned_boxes_of_every_size_touching_and_points_pair_as_brute_force_does():
+    rng = np.random.default_rng(7)
+    # Sizes over six orders of magnitude, points (no size), and boxes that only touch: a face exactly on
+    # another's (closed boxes overlap there), in coordinates far from the origin.
+    size = 10.0 ** rng.uniform(-6, 0, (400, 1)) * rng.random((400, 3))
+    lo = 1e3 + rng.random((400, 3))
+    hi = lo + size
+    hi[:20] = lo[:20]
+    lo[20:40, 0] = hi[40:60, 0]
+    hi[20:40, 0] = lo[20:40, 0] + size[20:40, 0]
+    g = BoxGrid(lo, hi)
+    want = {(i, j) for i, j in itertools.combinations(range(400), 2)
+            if np.all(lo[i] <= hi[j]) and np.all(lo[j] <= hi[i])}
+    got = g.self_pairs()
+    assert {tuple(p) for p in got.tolist()} == want and len(got) == len(want)
+    assert np.all(got[:, 0] < got[:, 1])
+    both = {tuple(p) for p in g.query(lo, hi).tolist()}
+    assert both == want | {(j, i) for i, j in want} | {(i, i) for i in range(400)}
+    assert len(BoxGrid(lo[:1], hi[:1]).self_pairs()) == 0 and len(g.query(lo[:0], hi[:0])) == 0
+
+
 def test_merged_readings_keep_each_part():
     a, b = readings_of(grid(3, 3)), readings_of(grid(2, 4))
     m = merge_readings([(9, a), (8, b)])

@@ -135,6 +135,38 @@ class BoxGrid:
         return np.stack([i[own], j[own]], axis=1)
 
 
+    def self_pairs(self):
+        """Pairs of distinct binned boxes that overlap, each once as ``(i, j)`` with ``i < j``: (k,2) int64.
+
+        The boxes against themselves without a query: every two entries of one cell are a candidate, kept in
+        the cell of the lower corner of the two boxes' overlap (half the candidates of ``query`` with the
+        binned boxes, which gives each pair both ways and each box with itself).
+        """
+        if self.size < 2:
+            return np.zeros((0, 2), np.int64)
+        key, item = self.key, self.item
+        starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        counts = np.diff(np.r_[starts, key.size])
+        many = counts > 1
+        starts, counts = starts[many], counts[many]
+        # The cell's entries a < b: for each a, the entries after it.
+        first = np.repeat(starts, counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+        after = np.repeat(starts + counts, counts) - first - 1
+        a = np.repeat(first, after)
+        b = a + 1 + (np.arange(after.sum()) - np.repeat(np.cumsum(after) - after, after))
+        i, j, cell_key = item[a], item[b], key[a]
+        corner = []
+        for axis in range(3):
+            lo_i, lo_j = self.lo_axes[axis][i], self.lo_axes[axis][j]
+            overlap = (lo_i <= self.hi_axes[axis][j]) & (lo_j <= self.hi_axes[axis][i])
+            i, j, cell_key = i[overlap], j[overlap], cell_key[overlap]
+            corner = [c[overlap] for c in corner] + [np.maximum(lo_i[overlap], lo_j[overlap])]
+        c = [np.clip(np.floor((corner[axis] - self.origin[axis]) / self.cell).astype(np.int64), 0,
+                     self.dims[axis] - 1) for axis in range(3)]
+        own = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2] == cell_key
+        return np.sort(np.stack([i[own], j[own]], axis=1), axis=1)
+
+
 def box_pairs(lo_a, hi_a, lo_b, hi_b, cell=None):
     """Pairs of overlapping axis-aligned boxes, one from each set, each pair once.
 

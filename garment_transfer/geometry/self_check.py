@@ -89,8 +89,8 @@ class SelfCheck:
         """Every self-intersecting pair of V: (k,2) (edge, triangle) indices into ``R.E``, ``R.F``, sorted."""
         V = np.asarray(V, dtype=np.float64)
         self._sync(V)
-        pairs = self.grid.query(self.grid.lo, self.grid.hi)
-        return self._test(V, self._apart(pairs), self._near_overlapping(V))
+        pairs = self._apart(self.grid.self_pairs())
+        return self._test(V, np.concatenate([pairs, pairs[:, ::-1]]), self._near_overlapping(V))
 
     def local(self, V, moved):
         """The self-intersecting pairs of V with a ``moved`` ((n,) bool) vertex in the edge or the triangle,

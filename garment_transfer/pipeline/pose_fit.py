@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from ..files import check_outputs, write_json_atomic
 from ..geometry import clearance
 from ..geometry.intersections import crossings, self_intersections
+from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
@@ -229,16 +230,17 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     free_F = body_F[~contact[body_F].any(axis=1)]
     garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
-    outside = sum(crossing_counts(V, garment_F, body.V, free_F))
+    # The body without its own contact, binned once for every count and pass of this pose.
+    free = Obstacle(body.V, free_F, cell=edge_length(V, garment_F))
+    outside = free_count(V, garment_F, free)
     info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
     info.setdefault("warnings", [])
     if resolve_crossings and outside:
         # The pass sees the body without its own contact: there the garment cannot be outside both surfaces.
-        surface = TriangleSurface(body.V, free_F)
         info["crossing_pass"] = []
         for _ in range(PASSES):
-            W, sep = clearance.separate(V, garment_F, body.V, free_F, offset, surface=surface, keep_offset=False)
-            after = sum(crossing_counts(W, garment_F, body.V, free_F))
+            W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False)
+            after = free_count(W, garment_F, free)
             info["crossing_pass"].append({"before": int(outside), "after": int(after), "rounds": sep["rounds"],
                                           "moved_vertices": sep["moved_vertices"]})
             if after >= outside:
@@ -250,6 +252,13 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     info.update(crossings_outside_contact=int(outside), crossings_at_contact=at)
     info["warnings"] += pose_warnings(int(outside), at, int(body_self), name)
     return V, inside
+
+
+def free_count(V, garment_F, free: Obstacle):
+    """Garment edges through the body and body edges through the garment (each edge once), against an
+    ``Obstacle`` of the body's triangles away from its own contact: ``crossing_counts``' sum."""
+    c = garment_crossings(V, garment_F, free)
+    return int(c["a_edges_through_b"] + c["b_edges_through_a"])
 
 
 def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact):
@@ -284,7 +293,8 @@ def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_r
     body_F = kept_split(body)
     garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
-    outside = int(sum(crossing_counts(V, garment_F, body.V, body_F[~contact[body_F].any(axis=1)])))
+    free_F = body_F[~contact[body_F].any(axis=1)]
+    outside = free_count(V, garment_F, Obstacle(body.V, free_F, cell=edge_length(V, garment_F)))
     at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
     return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
             "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
