@@ -45,8 +45,7 @@ CONTACT_RINGS = 2
 #: Two body parts pressed closer than this many cloth offsets (and farther apart at rest) are contact too: no
 #: cloth fits between them.
 CONTACT_GAP = 4.0
-#: Crossing passes at most, each from the last one's result (a pass counts only near what it moved; the count
-#: over the whole garment after it may find crossings it left).
+#: Crossing passes at most, each from the last one's result, while each leaves fewer crossings than the last.
 PASSES = 3
 
 
@@ -240,7 +239,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         info["crossing_pass"] = []
         for _ in range(PASSES):
             W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False)
-            after = free_count(W, garment_F, free)
+            # The pass's own count is exact (what it moved checked again against the same binned body): a clean
+            # pass needs no count of the whole garment; one that leaves pairs is counted again by edges.
+            after = free_count(W, garment_F, free) if sep["crossings_after"] else 0
             info["crossing_pass"].append({"before": int(outside), "after": int(after), "rounds": sep["rounds"],
                                           "moved_vertices": sep["moved_vertices"]})
             if after >= outside:
