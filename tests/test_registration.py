@@ -104,16 +104,21 @@ def standing_points(toes, feet=True):
     return np.concatenate(P)
 
 
-def test_toe_direction_points_where_the_feet_point_and_nowhere_without_feet():
+def test_toe_shift_is_how_far_the_feet_lie_ahead_and_nothing_without_feet():
+    # Two feet of 20 x 9 x 5 points from 0.4 behind the shin's axis to 1.6 ahead (their mean 0.6 ahead), with the
+    # 4 rings of each leg's 60 points at their height (mean 0): the lowest 5% of the height 10; the shins above
+    # have their mean on the axes. So the feet lie 1800 * 0.6 / 2280 ahead: a share of 10.
+    expected = 1800 * 0.6 / 2280 / 10
     for angle in (0.0, 2.0, 4.0):
         toes = np.array([np.cos(angle), np.sin(angle), 0.0])
         P = standing_points(toes)
         for axis in ((0, 0, 1.0), (0, 0, -1.0)):
-            assert np.allclose(alignment.toe_direction(P, np.array(axis)), toes, atol=1e-9)
-        # Turned round the long axis: toes the other way; the same body: the same way.
-        assert alignment.facing_angle(P, P * [-1, -1, 1], np.array([0.0, 0, 1])) == pytest.approx(180.0, abs=1e-5)
-        assert alignment.facing_angle(P, P, np.array([0.0, 0, 1])) == pytest.approx(0.0, abs=1e-5)
-    assert alignment.toe_direction(standing_points(np.array([1.0, 0, 0]), feet=False), np.array([0, 0, 1.0])) is None
+            assert alignment.toe_shift(P, np.array(axis), toes) == pytest.approx(expected, abs=1e-12)
+            assert alignment.toe_shift(P, np.array(axis), -toes) == pytest.approx(-expected, abs=1e-12)
+            across = np.cross([0.0, 0, 1], toes)
+            assert alignment.toe_shift(P, np.array(axis), across) is None          # nothing ahead sideways
+    assert alignment.toe_shift(standing_points(np.array([1.0, 0, 0]), feet=False), np.array([0, 0, 1.0]),
+                               np.array([1.0, 0, 0])) is None
 
 
 @pytest.mark.parametrize("name", ["heavy", "apple"])
@@ -123,17 +128,16 @@ def test_a_heavy_body_of_another_family_is_not_fitted_back_to_front(source, mann
     # ankles the crossing pass could not clear. The toes decide.
     target = mannequins[name]
     reg = register(source, target, cache=False)
-    axis = np.array([0.0, 0.0, 1.0])        # the mannequins stand along z
+    up, front = np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0])     # the mannequins: Z up, facing -y
     fitted = alignment.surface_samples(reg.V, source.F, 4000, seed=0)[0]
     given = alignment.surface_samples(target.V, target.F, 4000, seed=0)[0]
-    toes = alignment.toe_direction(given, axis)
-    assert toes[1] < -0.9                   # the mannequins face -y
-    assert alignment.toe_direction(fitted, axis) @ toes > 0.7
+    assert alignment.toe_shift(given, up, front) > 0
+    assert alignment.toe_shift(fitted, up, front) > 0
     # Her nose (the front of her head, +z in MakeHuman's frame) lands on the front of the target's head.
     head = source.V[:, 1] > source.V[:, 1].max() - 2.0
     nose = np.flatnonzero(head)[np.argmax(source.V[head, 2])]
     assert reg.V[nose, 1] < target.V[target.V[:, 2] > 1.45, 1].mean() - 0.05
-    assert reg.quality["turned_round"] == 1.0 and reg.quality["facing_degrees"] < 90.0
+    assert reg.quality["turned_round"] == 1.0 and reg.quality["toes_source"] * reg.quality["toes_target"] > 0
 
 
 def test_units_scale_snaps_only_near_a_unit_ratio():
@@ -307,6 +311,25 @@ def test_a_sphere_is_refused_naming_the_figure(source):
     V, F = icosphere(4, radius=8.0)
     with pytest.raises(RegistrationError, match="sphere.*aspect ratio"):
         register(source, mesh_from_triangles(V, F, name="sphere"), cache=False)
+
+
+def test_a_body_without_feet_is_fitted_and_said_to_be_undecided(source, pear, caplog):
+    # Cut off above the ankles: nothing tells its front from its back but the closest fit.
+    height = np.ptp(pear.V[:, 1])
+    keep = np.all(pear.V[pear.F, 1] > pear.V[:, 1].min() + 0.12 * height, axis=1)
+    used, F = np.unique(pear.F[keep], return_inverse=True)
+    cut = mesh_from_triangles(pear.V[used], F.reshape(-1, 3), name="pear_without_feet")
+    assert alignment.toe_shift(alignment.surface_samples(cut.V, cut.F, 4000)[0], np.array([0.0, 1, 0]),
+                               np.array([0.0, 0, 1])) is None
+    with caplog.at_level("WARNING", logger="garment_transfer.fitting.registration"):
+        reg = register(source, cut, cache=False, check=False)
+    assert "toes_target" not in reg.quality and reg.quality["turned_round"] == 0.0
+    said = [r.getMessage() for r in caplog.records]
+    assert any("pear_without_feet: no feet found" in m and "back to front" in m for m in said)
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="garment_transfer.fitting.registration"):
+        register(source, pear.with_vertices(pear.V + 1.0, name="pear_moved"), cache=False, check=False)
+    assert not caplog.records                                   # feet on both: nothing to say
 
 
 def test_another_pose_is_refused_naming_the_figure(source, tmp_path):

@@ -28,18 +28,19 @@ SCREEN_SAMPLES = 500
 SCREEN_MARGIN = 1.5
 
 #: Which way a body faces, from its feet: along its long axis, the end whose lowest ``FEET_SLAB`` of the
-#: height spreads wider (two feet, not one head) by ``FEET_SPREAD`` times is the feet; their points lie
-#: ahead of the shins' (``SHIN_SLAB``) by the toes. The distances of a front-to-back turn of a body differ
-#: little (the belly of a heavy body fits the back of a slim one about as well as its front): measured on
-#: the procedural mannequins, the closest pose turned the heavy and the apple one round, so the garment
-#: came out back to front. A pose whose toes point within ``FACING_LIMIT`` degrees of the source's is
-#: kept; beyond it, the pose turned round the long axis is fitted instead. Feet that lie ahead of the
-#: shins by less than ``TOES_MIN`` of the height (a body without feet) decide nothing.
+#: height spreads wider (two feet, not one head) by ``FEET_SPREAD`` times is the feet; their points lie ahead
+#: of the shins' (``SHIN_SLAB``) by the toes, along the body's front-to-back axis (the principal axis of least
+#: extent of a standing person). The distances of a front-to-back turn of a body differ little (the belly of a
+#: heavy body fits the back of a slim one about as well as its front): measured on the procedural mannequins,
+#: the closest pose turned the heavy and the apple one round, so the garment came out back to front. A pose
+#: whose toes point the other way from the source's is turned half round the long axis. Feet ahead of the
+#: shins by less than ``TOES_MIN`` of the height decide nothing: measured, bodies with feet 0.027-0.058 (the
+#: MakeHuman bodies, the mannequins, re-meshed and posed ones), a body cut off above the ankles, the knees or
+#: the shins at most 0.013.
 FEET_SLAB = 0.05
 SHIN_SLAB = (0.06, 0.14)
 FEET_SPREAD = 1.8
-TOES_MIN = 0.015
-FACING_LIMIT = 90.0
+TOES_MIN = 0.02
 
 
 @dataclass
@@ -269,8 +270,9 @@ def _refine_rigid(source_surface, target_surface, Ps, Pt, scale, R, t, iteration
     return R, t
 
 
-def toe_direction(P, axis):
-    """Where a body's toes point: a unit vector across ``axis``, or None when it has no clear feet.
+def toe_shift(P, axis, depth):
+    """How far a body's feet lie ahead of its shins along ``depth``, as a share of its height; None when it has
+    no clear feet.
 
     Parameters
     ----------
@@ -278,13 +280,14 @@ def toe_direction(P, axis):
         Points spread evenly over the body's surface (``surface_samples``).
     axis : (3,) float
         The body's long axis (unit; either sign).
+    depth : (3,) float
+        Its front-to-back axis (unit; the sign says which way counts as ahead).
 
     Returns
     -------
-    (3,) float64 or None
-        From the shins' mean point to the feet's, across the axis, made unit; None when neither end of
-        the axis spreads ``FEET_SPREAD`` times wider than the other, or the feet lie less than
-        ``TOES_MIN`` of the height ahead of the shins.
+    float or None
+        Signed; None when neither end of the axis spreads ``FEET_SPREAD`` times wider than the other, or the
+        shift is under ``TOES_MIN``.
     """
     P = np.asarray(P, dtype=np.float64)
     axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
@@ -307,21 +310,8 @@ def toe_direction(P, axis):
     shins = P[(up >= low + SHIN_SLAB[0] * height) & (up <= low + SHIN_SLAB[1] * height)]
     if shins.shape[0] == 0:
         return None
-    toes = feet.mean(axis=0) - shins.mean(axis=0)
-    toes -= (toes @ axis) * axis
-    length = float(np.linalg.norm(toes))
-    if length < TOES_MIN * height:
-        return None
-    return toes / length
-
-
-def facing_angle(Ps, X, axis):
-    """Degrees between the toes of two bodies in one frame (samples Ps of the source, X of the target
-    brought into its frame; ``axis`` the source's long axis), or None when either has no clear feet."""
-    a, b = toe_direction(Ps, axis), toe_direction(X, axis)
-    if a is None or b is None:
-        return None
-    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+    shift = float((feet.mean(axis=0) - shins.mean(axis=0)) @ np.asarray(depth, dtype=np.float64)) / height
+    return shift if abs(shift) >= TOES_MIN else None
 
 
 def align(source: Mesh, target: Mesh, samples=2000, refine=True):
@@ -346,9 +336,10 @@ def align(source: Mesh, target: Mesh, samples=2000, refine=True):
     info : dict
         ``size_ratio``, ``units_scale``, ``snapped`` (whether the scale is a known unit ratio),
         ``rms`` (two-way RMS distance of the coarse pose, in source units), the principal
-        ``aspect`` of both bodies, ``facing_degrees`` (between the two bodies' toes, ``facing_angle``;
-        left out when either has no clear feet) and ``turned_round`` (the closest pose faced the other way
-        and was turned round by the toes).
+        ``aspect`` of both bodies, ``toes_source``, ``toes_target`` (how far each body's feet lie ahead
+        of its shins along the source's front-to-back axis, as shares of the height, ``toe_shift``: the same
+        sign when they face the same way; left out when either has no clear feet) and ``turned_round`` (the
+        closest pose faced the other way and was turned round by the toes).
     """
     cs, Cs, _ = surface_moments(source.V, source.F)
     ct, Ct, _ = surface_moments(target.V, target.F)
@@ -385,20 +376,22 @@ def align(source: Mesh, target: Mesh, samples=2000, refine=True):
         if best is None or rms < best[2]:
             best = (R, t, rms)
     R, t, rms = _rigid_icp(P, src_tree, Ps, best[0], best[1], iterations=30)
-    # A front-to-back turn fits about as closely: the toes decide (``FACING_LIMIT``).
-    axis = Es[:, 0]
-    facing = facing_angle(Ps, P @ R.T + t, axis)
+    # A front-to-back turn fits about as closely: the toes decide (``toe_shift``), along the source's long axis
+    # and its axis of least extent.
+    axis, depth = Es[:, 0], Es[:, 2]
+    toes = toe_shift(Ps, axis, depth)
+    toes_target = None if toes is None else toe_shift(P @ R.T + t, axis, depth)
     info["turned_round"] = False
-    if facing is not None and facing > FACING_LIMIT:
+    if toes_target is not None and toes * toes_target < 0:
         half = 2.0 * np.outer(axis, axis) - np.eye(3)      # half a turn about the long axis
         R2, t2, rms2 = _rigid_icp(P, src_tree, Ps, half @ R, half @ (t - cs) + cs, iterations=30)
-        facing2 = facing_angle(Ps, P @ R2.T + t2, axis)
-        if facing2 is not None and facing2 <= FACING_LIMIT:
-            R, t, rms, facing = R2, t2, rms2, facing2
+        turned = toe_shift(P @ R2.T + t2, axis, depth)
+        if turned is not None and toes * turned > 0:
+            R, t, rms, toes_target = R2, t2, rms2, turned
             info["turned_round"] = True
     info["rms"] = rms
-    if facing is not None:
-        info["facing_degrees"] = facing
+    if toes_target is not None:
+        info.update(toes_source=toes, toes_target=toes_target)
     t = t - scale * (R @ ct)
     if not refine:
         return Similarity(scale, R, t), info

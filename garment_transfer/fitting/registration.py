@@ -348,6 +348,7 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
         if hit is not None:
             if check:
                 check_quality(hit.quality, source.name, target.name, limits)
+            warn_facing(hit.quality, source.name, target.name)
             return hit
 
     seconds = {}
@@ -394,6 +395,15 @@ def register(source: Mesh, target: Mesh, *, cache=True, check=True, limits=None,
     log.info("registered %s onto %s in %.2f s: %s", source.name, target.name, seconds["total"], quality)
     if check:
         check_quality(quality, source.name, target.name, limits)
+    warn_facing(quality, source.name, target.name)
     if folder:
         save_cached(folder, key, *reg.cache_entry())
     return reg
+
+
+def warn_facing(quality, source_name, target_name):
+    """Say when the toes could not tell which way the bodies face (``alignment.toe_shift``): the closest pose
+    was kept, and a body turned front to back fits about as closely."""
+    if "toes_source" not in quality:
+        log.warning("%s: no feet found on it or on %s to tell which way it faces; the closest fit was kept: check "
+                    "that the result is not back to front", target_name, source_name)
