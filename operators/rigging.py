@@ -325,7 +325,7 @@ def measured_pose_counts(context, result, cloth, rest, posed, outcome, name):
     if written.n_vertices != cloth.n_vertices:
         written = convert.core_mesh_from_object(result, depsgraph, False, "result")
     return posed_counts(written.V, cloth, posed, float(outcome.info["offset"]), rest_V=rest.V, name=name,
-                        contact=outcome.contact)
+                        contact=outcome.contact, free=outcome.obstacle)
 
 
 def bake_steps(context, obj, body, start, end):

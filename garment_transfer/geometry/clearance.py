@@ -476,7 +476,7 @@ def restore_source_shape(V, F, E, source_V, pairs, radius, body=None, clear=0.0)
 
 
 def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
-             keep_offset=True, source_V=None, source_pairs=None):
+             keep_offset=True, source_V=None, source_pairs=None, crossings=None):
     """Remove every crossing between a garment and a body, keeping the folds.
 
     Parameters
@@ -510,6 +510,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     source_pairs : (k,2) int, or a callable that returns them, optional
         The source's own self-intersecting pairs (``SelfCheck(source_V, G).all(source_V)``), when known (a
         callable is asked only when they are needed).
+    crossings : dict, optional
+        ``obstacle.garment_crossings(V, F, body_F)`` when ``body_F`` is an ``Obstacle`` and they were counted
+        already (a caller that counts before deciding to clear).
 
     Returns
     -------
@@ -540,7 +543,7 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     V_start = V.copy()
     start_pairs = check.all(V)
     V, info, state = clear_body(V, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
-                                known=(None, (None, None, start_pairs)))
+                                known=(None, (crossings if obstacle is body_F else None, None, start_pairs)))
     info["self_intersections_before"] = int(start_pairs.shape[0])
     if source_V is None:
         pairs = state[2]

@@ -170,7 +170,9 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     TransferResult
         ``info`` adds ``crossings_outside_contact`` and ``crossings_at_contact`` (garment edges through the
         body plus body edges through the garment, under every split of both), ``body_self_crossings``,
-        ``contact_vertices`` and ``warnings``.
+        ``contact_vertices`` and ``warnings``; ``contact`` is the posed body's own contact, ``obstacle`` the
+        posed body away from it as the pass binned it (``free_body``), both for counting the result as written
+        (``posed_counts``).
     """
     name = name or "pose"
     posed = rest_body.with_vertices(posed_V, name=name)
@@ -183,17 +185,26 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     t = time.perf_counter()
     result.contact = self_contact(posed.V, posed.F, contact_rings, rest_body.V,
                                   CONTACT_GAP * float(result.info["offset"]))
+    result.obstacle = free_body(posed, result.contact[0], garment, result.V)
     result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
                                                              resolve_crossings=resolve_crossings,
                                                              contact_rings=contact_rings, name=name,
-                                                             contact=result.contact)
+                                                             contact=result.contact, free=result.obstacle)
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     return result
 
 
+def free_body(body: Mesh, contact, garment: Mesh, V):
+    """The posed body's triangles of every split away from its own ``contact`` ((n,) bool), binned once for the
+    counts and passes of one pose (an ``Obstacle``; its cells sized for the garment's edges at V)."""
+    body_F = kept_split(body)
+    return Obstacle(body.V, body_F[~contact[body_F].any(axis=1)],
+                    cell=edge_length(np.asarray(V, dtype=np.float64), kept_triangle_readings(kept_split(garment))))
+
+
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
-                     contact_rings=CONTACT_RINGS, name="pose", contact=None):
+                     contact_rings=CONTACT_RINGS, name="pose", contact=None, free=None):
     """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
 
     Parameters
@@ -214,6 +225,8 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     name : str
     contact : tuple, optional
         ``self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)``, when made already.
+    free : Obstacle, optional
+        ``free_body(body, contact[0], garment, V)``, when made already.
 
     Returns
     -------
@@ -226,22 +239,24 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
     contact, body_self = contact
     body_F = kept_split(body)
-    free_F = body_F[~contact[body_F].any(axis=1)]
     garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
     # The body without its own contact, binned once for every count and pass of this pose.
-    free = Obstacle(body.V, free_F, cell=edge_length(V, garment_F))
-    outside = free_count(V, garment_F, free)
+    if free is None:
+        free = free_body(body, contact, garment, V)
+    c = garment_crossings(V, garment_F, free)
+    outside = edges_crossing(c)
     info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
     info.setdefault("warnings", [])
     if resolve_crossings and outside:
         # The pass sees the body without its own contact: there the garment cannot be outside both surfaces.
         info["crossing_pass"] = []
         for _ in range(PASSES):
-            W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False)
+            W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False, crossings=c)
             # The pass's own count is exact (what it moved checked again against the same binned body): a clean
             # pass needs no count of the whole garment; one that leaves pairs is counted again by edges.
-            after = free_count(W, garment_F, free) if sep["crossings_after"] else 0
+            c = garment_crossings(W, garment_F, free) if sep["crossings_after"] else None
+            after = 0 if c is None else edges_crossing(c)
             info["crossing_pass"].append({"before": int(outside), "after": int(after), "rounds": sep["rounds"],
                                           "moved_vertices": sep["moved_vertices"]})
             if after >= outside:
@@ -255,10 +270,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     return V, inside
 
 
-def free_count(V, garment_F, free: Obstacle):
-    """Garment edges through the body and body edges through the garment (each edge once), against an
-    ``Obstacle`` of the body's triangles away from its own contact: ``crossing_counts``' sum."""
-    c = garment_crossings(V, garment_F, free)
+def edges_crossing(c):
+    """Garment edges through the body and body edges through the garment (each edge once) of a ``crossings``
+    answer: ``crossing_counts``' sum."""
     return int(c["a_edges_through_b"] + c["b_edges_through_a"])
 
 
@@ -282,20 +296,22 @@ def pose_warnings(outside, at_contact, body_self, name):
 
 
 def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose",
-                 contact=None):
+                 contact=None, free=None):
     """The pose fit's figures of garment positions ``V`` (a file as written, read back; an object as Blender has
     it) on the posed body, as ``clear_posed_body`` counts them: ``crossings_outside_contact``,
     ``crossings_at_contact`` (under every split of both), ``penetrating_vertices``, ``body_self_crossings`` and
-    ``warnings``. ``contact``: the body's own contact when made already (``TransferResult.contact`` of the fit
-    to this body)."""
+    ``warnings``. ``contact``, ``free``: the body's own contact and the body away from it, when made already
+    (``TransferResult.contact`` and ``obstacle`` of the fit to this body; ``free`` is used only when it is of
+    these very body positions)."""
     if contact is None:
         contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
     contact, body_self = contact
     body_F = kept_split(body)
     garment_F = kept_triangle_readings(kept_split(garment))
     V = np.asarray(V, dtype=np.float64)
-    free_F = body_F[~contact[body_F].any(axis=1)]
-    outside = free_count(V, garment_F, Obstacle(body.V, free_F, cell=edge_length(V, garment_F)))
+    if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
+        free = free_body(body, contact, garment, V)
+    outside = edges_crossing(garment_crossings(V, garment_F, free))
     at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
     return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
             "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
@@ -353,7 +369,8 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
         # The figures of the file as written, against that pose as given.
         counts = posed_counts(read_obj(out).V, garment, rest.with_vertices(poses[name], name=name),
-                              float(result.info["offset"]), rest_V=rest.V, name=str(out), contact=result.contact)
+                              float(result.info["offset"]), rest_V=rest.V, name=str(out), contact=result.contact,
+                              free=result.obstacle)
         warnings += counts.pop("warnings")
         rows.append({"target": name, "target_body": paths[name], "out": str(out), **counts,
                      "offset": result.info["offset"], "seconds": result.seconds})
