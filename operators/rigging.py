@@ -324,8 +324,9 @@ def measured_pose_counts(context, result, cloth, rest, posed, outcome, name):
     written = convert.core_mesh_from_object(result, depsgraph, True, "result")
     if written.n_vertices != cloth.n_vertices:
         written = convert.core_mesh_from_object(result, depsgraph, False, "result")
-    return posed_counts(written.V, cloth, posed, float(outcome.info["offset"]), rest_V=rest.V, name=name,
-                        contact=outcome.contact, free=outcome.obstacle)
+    # The posed body as the fit read it: the rest body's polygons (the same mesh) at the posed positions.
+    return posed_counts(written.V, cloth, rest.with_vertices(posed.V, name=posed.name), float(outcome.info["offset"]),
+                        rest_V=rest.V, name=name, contact=outcome.contact, free=outcome.obstacle)
 
 
 def bake_steps(context, obj, body, start, end):
