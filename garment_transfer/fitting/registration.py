@@ -79,7 +79,7 @@ log = logging.getLogger(__name__)
 
 
 #: Bumped whenever the algorithm or its defaults change, so old cache entries are not reused.
-ALGORITHM_VERSION = 11
+ALGORITHM_VERSION = 12
 
 #: Limits of an acceptable fit, as shares of the target's height (a 1.7 m body: 1% = 17 mm).
 #: Measured fits of MakeHuman bodies onto each other and onto the procedural mannequins stay below
