@@ -575,15 +575,23 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
     # Tries start from the latest shape that still has pairs to undo (``base``); the best result
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     base = best = (V, pairs, new, state, info["crossings_after"], info["near_after"], 0, 0)
+    given = None    # the pairs beyond the source's that the pass was given (not its own)
     for attempt in range(PREPASS_TRIES + RESTORE_TRIES):
         if best[4] == 0 and best[2].shape[0] == 0:
             break   # clean: no crossing, nothing the source lacks (pairs closer than the clearance may be left)
         V_b, pairs_b, new_b, state_b = base[:4]
         # Each radius is tried with the cloth left where it is, then moved out as one piece: first the shape it
-        # had before the pass (closer to where it is, bent over this body), then the source's, larger each time.
-        shape, step = (V_start, attempt) if attempt < PREPASS_TRIES else (source_V, attempt - PREPASS_TRIES)
+        # had before the pass (closer to where it is, bent over this body) around the pairs the pass made, then
+        # the source's around every pair, larger each time.
+        shape, step, seeds = source_V, attempt - PREPASS_TRIES, new_b
+        if attempt < PREPASS_TRIES:
+            if given is None:
+                given = tangles.beyond(start_pairs)
+            shape, step, seeds = V_start, attempt, new_b[~_rows_in(new_b, given)]
+            if seeds.shape[0] == 0:
+                continue
         radius = (step // 2 + 1) * RESTORE_RADIUS * offset
-        W = restore_source_shape(V_b, G.F, G.E, shape, new_b, radius,
+        W = restore_source_shape(V_b, G.F, G.E, shape, seeds, radius,
                                  obstacle.surface if attempt % 2 else None, offset)
         W, again, state_w = clear_body(W, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                                        known=(V_b, state_b))
