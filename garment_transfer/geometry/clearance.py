@@ -33,8 +33,8 @@ Given the source shape, the pass also undoes the self-intersections that the sou
 layers of cloth closer than the offset (a waistband, a pocket, a fold) are pushed onto the same
 offset surface by the vertex push-out and pass through each other, and the transfer itself can
 press them together. Around each such (edge, triangle) pair the cloth takes the shape it had before the
-pass (``PREPASS_TRIES``: where the pass pushed layers through each other, that shape lacks the pair and is
-bent over this body already), then its source shape, each mapped by the affine map that fits it best to
+pass (where the pass pushed layers through each other, that shape lacks the pair and is bent over this
+body already), then its source shape (``RESTORE_SHAPES``), each mapped by the affine map that fits it best to
 where it is (an invertible affine map keeps which parts meet and which do not), blended into the rest over a
 ring; the body is then cleared again where that moved, and a larger ring is tried if pairs are left. What is
 left is counted (``self_intersections_new``), never hidden.
@@ -80,15 +80,15 @@ GAIN = 0.5
 PROTECT_ROUNDS = 3
 #: Once nothing crosses, the clearance alone gets at most this many rounds (it is best effort).
 CLEARANCE_ROUNDS = 2
-#: Around a self-intersection the source does not have, the cloth within this many offsets (times
-#: the try, up to ``RESTORE_TRIES``) takes its source shape (``restore_source_shape``).
+#: Around a self-intersection the source does not have, the cloth within this many offsets (times the
+#: radius's rank, up to ``RESTORE_RADII``) takes another shape (``restore_source_shape``).
 RESTORE_RADIUS = 2.2
-RESTORE_TRIES = 8
-#: Before those, this many tries at the first radius give the cloth there the shape it had before the pass: a
-#: self-intersection the pass made is undone by the shape without it that is nearest the result (measured on
-#: male suits onto female bodies far from the source: MDC 1.02-1.06x the result without the pass, against
-#: 1.12-1.21x with the source's shape alone).
-PREPASS_TRIES = 2
+RESTORE_RADII = 4
+#: The shapes tried at each radius, each left where it is, then moved out as one piece: the shape the cloth
+#: had before the pass, around the pairs the pass made (it lacks them and is nearest the result: measured on
+#: male suits onto female bodies far from the source, MDC 1.02-1.06x the result without the pass, against
+#: 1.12-1.21x with the source's shape alone), then the source's, around every pair.
+RESTORE_SHAPES = ("before the pass", "source")
 #: A local affine fit whose smallest singular value is under this share of its largest would
 #: flatten the cloth: a similarity is fitted instead.
 FIT_CONDITION = 0.2
@@ -511,9 +511,9 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     source_V : (n,3) float, optional
         The garment's source shape. With it, the self-intersections of the result that the source
         does not have (the transfer pressed close layers of cloth through each other) are undone
-        too: the cloth around them takes the shape it had before the pass (``PREPASS_TRIES``), then its
-        source shape (``restore_source_shape``), and the body is cleared again where that moved it, with a
-        larger radius at each of ``RESTORE_TRIES``.
+        too: the cloth around them takes the shape it had before the pass, then its source shape
+        (``restore_source_shape``, ``RESTORE_SHAPES``), and the body is cleared again where that moved it,
+        with a larger radius at each of ``RESTORE_RADII``.
     source_pairs : (k,2) int, or a callable that returns them, optional
         The source's own self-intersecting pairs (``SelfCheck(source_V, G).all(source_V)``), when known (a
         callable is asked only when they are needed).
@@ -576,23 +576,22 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     base = best = (V, pairs, new, state, info["crossings_after"], info["near_after"], 0, 0)
     given = None    # the pairs beyond the source's that the pass was given (not its own)
-    for attempt in range(PREPASS_TRIES + RESTORE_TRIES):
+    for attempt in range(RESTORE_RADII * len(RESTORE_SHAPES) * 2):
         if best[4] == 0 and best[2].shape[0] == 0:
             break   # clean: no crossing, nothing the source lacks (pairs closer than the clearance may be left)
         V_b, pairs_b, new_b, state_b = base[:4]
-        # Each radius is tried with the cloth left where it is, then moved out as one piece: first the shape it
-        # had before the pass (closer to where it is, bent over this body) around the pairs the pass made, then
-        # the source's around every pair, larger each time.
-        shape, step, seeds = source_V, attempt - PREPASS_TRIES, new_b
-        if attempt < PREPASS_TRIES:
+        # At each radius, each of RESTORE_SHAPES, left where it is, then moved out as one piece.
+        rank, which, moved_out = np.unravel_index(attempt, (RESTORE_RADII, len(RESTORE_SHAPES), 2))
+        shape, seeds = source_V, new_b
+        if RESTORE_SHAPES[which] == "before the pass":
             if given is None:
                 given = tangles.beyond(start_pairs)
-            shape, step, seeds = V_start, attempt, new_b[~_rows_in(new_b, given)]
+            shape, seeds = V_start, new_b[~_rows_in(new_b, given)]
             if seeds.shape[0] == 0:
                 continue
-        radius = (step // 2 + 1) * RESTORE_RADIUS * offset
-        W = restore_source_shape(V_b, G.F, G.E, shape, seeds, radius,
-                                 obstacle.surface if attempt % 2 else None, offset)
+        radius = (rank + 1) * RESTORE_RADIUS * offset
+        W = restore_source_shape(V_b, G.F, G.E, shape, seeds, radius, obstacle.surface if moved_out else None,
+                                 offset)
         W, again, state_w = clear_body(W, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                                        known=(V_b, state_b))
         pairs_w = state_w[2]
