@@ -62,7 +62,7 @@ from .obstacle import Obstacle, as_obstacle, edge_length, faces_touching, garmen
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import closest_on_triangles
 from .readings import Readings, as_readings, group_members
-from .self_check import NO_PAIRS, SelfCheck, beyond_source, unique_pairs
+from .self_check import NO_PAIRS, SELF_CELL, SelfCheck, beyond_source, unique_pairs
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,10 @@ RESTORE_RADII = 4
 #: male suits onto female bodies far from the source, MDC 1.02-1.06x the result without the pass, against
 #: 1.12-1.21x with the source's shape alone), then the source's, around every pair.
 RESTORE_SHAPES = ("before the pass", "source")
+#: The tries end after this many in a row that leave no fewer crossings, pairs the source lacks or close pairs than
+#: the best so far (a garment pressed through the body can tangle it beyond any shape's reach: a suit carried onto
+#: a posed body without the pose fit's contact rule, lab.motion's baseline, tried all 16 for up to 65 s).
+RESTORE_PATIENCE = 8
 #: A local affine fit whose smallest singular value is under this share of its largest would
 #: flatten the cloth: a similarity is fitted instead.
 FIT_CONDITION = 0.2
@@ -378,7 +382,7 @@ class _SourceTangles:
     def pairs(self):
         """The source's own self-intersecting pairs (k,2)."""
         if self.own is None:
-            self.own = SelfCheck(self.S, self.G).all(self.S)
+            self.own = SelfCheck(self.S, self.G, cell=SELF_CELL).all(self.S)
         elif callable(self.own):
             self.own = self.own()
         return self.own
@@ -576,9 +580,12 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
     # (fewest crossings, then pairs the source lacks, then pairs closer than the clearance) is kept.
     base = best = (V, pairs, new, state, info["crossings_after"], info["near_after"], 0, 0)
     given = None    # the pairs beyond the source's that the pass was given (not its own)
+    idle = 0        # tries in a row that did not improve on the best
     for attempt in range(RESTORE_RADII * len(RESTORE_SHAPES) * 2):
         if best[4] == 0 and best[2].shape[0] == 0:
             break   # clean: no crossing, nothing the source lacks (pairs closer than the clearance may be left)
+        if idle >= RESTORE_PATIENCE:
+            break
         V_b, pairs_b, new_b, state_b = base[:4]
         # At each radius, each of RESTORE_SHAPES, left where it is, then moved out as one piece.
         rank, which, moved_out = np.unravel_index(attempt, (RESTORE_RADII, len(RESTORE_SHAPES), 2))
@@ -600,8 +607,9 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
                   attempt + 1, new_w.shape[0], new_b.shape[0], again["crossings_after"], again["near_after"])
         tried = (W, pairs_w, new_w, state_w, again["crossings_after"], again["near_after"],
                  base[6] + again["rounds"], base[7] + again["undone"])
+        idle += 1
         if (tried[4], tried[2].shape[0], tried[5]) < (best[4], best[2].shape[0], best[5]):
-            best = tried
+            best, idle = tried, 0
         if tried[4] <= base[4] and 0 < new_w.shape[0] < new_b.shape[0]:
             base = tried
     V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best

@@ -43,7 +43,7 @@ from .predicates import (  # noqa: F401  (the narrow phase, re-exported: its use
 )
 from .proximity import TriangleSurface, closest_on_triangles
 from .readings import as_readings, mesh_edges  # noqa: F401
-from .self_check import SelfCheck
+from .self_check import SELF_CELL, SelfCheck
 
 def crossings(V_a, F_a, V_b, F_b):
     """Intersections between two meshes, counted both ways, under every reading of their polygons.
@@ -111,7 +111,7 @@ def self_intersections(V, F):
     """
     R = as_readings(F)
     V = np.asarray(V, dtype=np.float64)
-    pairs = SelfCheck(V, R).all(V)
+    pairs = SelfCheck(V, R, cell=SELF_CELL).all(V)
     return int(pairs.shape[0]), R.E[pairs[:, 0]], pairs[:, 1]
 
 

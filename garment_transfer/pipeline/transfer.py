@@ -184,7 +184,8 @@ class PreparedGarment:
         """(k,2) the garment's own self-intersecting pairs on the source body, under every reading (the
         count a result is held to), found on first use."""
         if self._source_pairs is None:
-            self._source_pairs = clearance.SelfCheck(self.garment.V, self.readings()).all(self.garment.V)
+            self._source_pairs = clearance.SelfCheck(self.garment.V, self.readings(),
+                                                     cell=clearance.SELF_CELL).all(self.garment.V)
         return self._source_pairs
 
 
