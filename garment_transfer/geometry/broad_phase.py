@@ -121,19 +121,23 @@ class BoxGrid:
         cell_key = np.repeat(key, count)
         offs = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
         j = self.item[np.repeat(start, count) + offs]
+        return self._owned(i, j, cell_key, [lo[:, k] for k in range(3)], [hi[:, k] for k in range(3)])
+
+    def _owned(self, i, j, cell_key, lo_axes, hi_axes):
+        """The candidates (box i of the boxes given by axis, ``lo_axes``, ``hi_axes``; binned box j), met in the
+        cell ``cell_key``, whose boxes overlap and whose overlap's lower corner lies in that cell: (k,2) int64."""
         # Axis by axis, each test on what the last one kept (most candidates fail the first).
         corner = []
         for axis in range(3):
-            q_lo, q_hi, b_lo = lo[i, axis], hi[i, axis], self.lo_axes[axis][j]
-            overlap = (q_lo <= self.hi_axes[axis][j]) & (b_lo <= q_hi)
+            a_lo, b_lo = lo_axes[axis][i], self.lo_axes[axis][j]
+            overlap = (a_lo <= self.hi_axes[axis][j]) & (b_lo <= hi_axes[axis][i])
             i, j, cell_key = i[overlap], j[overlap], cell_key[overlap]
-            corner = [c[overlap] for c in corner] + [np.maximum(q_lo[overlap], b_lo[overlap])]
+            corner = [c[overlap] for c in corner] + [np.maximum(a_lo[overlap], b_lo[overlap])]
         # The pair belongs to the cell of the lower corner of the overlap box only: no duplicates.
         c = [np.clip(np.floor((corner[axis] - self.origin[axis]) / self.cell).astype(np.int64), 0,
                      self.dims[axis] - 1) for axis in range(3)]
         own = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2] == cell_key
         return np.stack([i[own], j[own]], axis=1)
-
 
     def self_pairs(self):
         """Pairs of distinct binned boxes that overlap, each once as ``(i, j)`` with ``i < j``: (k,2) int64.
@@ -154,17 +158,7 @@ class BoxGrid:
         after = np.repeat(starts + counts, counts) - first - 1
         a = np.repeat(first, after)
         b = a + 1 + (np.arange(after.sum()) - np.repeat(np.cumsum(after) - after, after))
-        i, j, cell_key = item[a], item[b], key[a]
-        corner = []
-        for axis in range(3):
-            lo_i, lo_j = self.lo_axes[axis][i], self.lo_axes[axis][j]
-            overlap = (lo_i <= self.hi_axes[axis][j]) & (lo_j <= self.hi_axes[axis][i])
-            i, j, cell_key = i[overlap], j[overlap], cell_key[overlap]
-            corner = [c[overlap] for c in corner] + [np.maximum(lo_i[overlap], lo_j[overlap])]
-        c = [np.clip(np.floor((corner[axis] - self.origin[axis]) / self.cell).astype(np.int64), 0,
-                     self.dims[axis] - 1) for axis in range(3)]
-        own = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2] == cell_key
-        return np.sort(np.stack([i[own], j[own]], axis=1), axis=1)
+        return np.sort(self._owned(item[a], item[b], key[a], self.lo_axes, self.hi_axes), axis=1)
 
 
 def box_pairs(lo_a, hi_a, lo_b, hi_b, cell=None):

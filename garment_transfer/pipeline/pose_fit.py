@@ -235,15 +235,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         Garment vertices inside the posed body.
     """
     offset = float(info["offset"])
-    if contact is None:
-        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
-    contact, body_self = contact
-    body_F = kept_split(body)
-    garment_F = kept_triangle_readings(kept_split(garment))
-    V = np.asarray(V, dtype=np.float64)
     # The body without its own contact, binned once for every count and pass of this pose.
-    if free is None:
-        free = free_body(body, contact, garment, V)
+    V, garment_F, body_F, (contact, body_self), free = _posed_parts(V, garment, body, offset, rest_V, contact_rings,
+                                                                    contact, free)
     c = garment_crossings(V, garment_F, free)
     outside = edges_crossing(c)
     info.update(body_self_crossings=int(body_self), contact_vertices=int(contact.sum()))
@@ -268,6 +262,19 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     info.update(crossings_outside_contact=int(outside), crossings_at_contact=at)
     info["warnings"] += pose_warnings(int(outside), at, int(body_self), name)
     return V, inside
+
+
+def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, contact, free):
+    """What the pose fit's pass and counts read of garment positions V on a posed body: V as float64, the garment's
+    and the body's triangles of every split, the body's own contact ``(contact, crossings)`` and the body away from
+    it (``free_body``); ``contact`` and ``free`` are made unless given (``free`` only when of these very body
+    positions)."""
+    if contact is None:
+        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+    V = np.asarray(V, dtype=np.float64)
+    if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
+        free = free_body(body, contact[0], garment, V)
+    return V, kept_triangle_readings(kept_split(garment)), kept_split(body), contact, free
 
 
 def edges_crossing(c):
@@ -303,14 +310,8 @@ def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_r
     ``warnings``. ``contact``, ``free``: the body's own contact and the body away from it, when made already
     (``TransferResult.contact`` and ``obstacle`` of the fit to this body; ``free`` is used only when it is of
     these very body positions)."""
-    if contact is None:
-        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
-    contact, body_self = contact
-    body_F = kept_split(body)
-    garment_F = kept_triangle_readings(kept_split(garment))
-    V = np.asarray(V, dtype=np.float64)
-    if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
-        free = free_body(body, contact, garment, V)
+    V, garment_F, body_F, (contact, body_self), free = _posed_parts(V, garment, body, offset, rest_V, contact_rings,
+                                                                    contact, free)
     outside = edges_crossing(garment_crossings(V, garment_F, free))
     at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
     return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
