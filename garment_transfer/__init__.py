@@ -60,7 +60,8 @@ LAYERS = {
                  "held_bands", "all_pairs", "fit_steps",
                  "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
                  "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
-                 "posed_counts", "poses_to_files", "every_split", "transfer_across_rest_poses", "pose_difference"),
+                 "fit_poses", "in_threads", "posed_counts", "poses_to_files", "every_split",
+                 "transfer_across_rest_poses", "pose_difference"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 

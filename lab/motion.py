@@ -42,7 +42,7 @@ from scipy.spatial.transform import Rotation
 
 import garment_transfer as gt
 from garment_transfer.geometry import bind, carry
-from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, self_contact
+from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, POSE_WORKERS, self_contact
 from garment_transfer.pipeline.shape_keys import keep_outside
 
 from .paths import DEMO_DATA, MAKEHUMAN_SOURCE, ROOT, makehuman_folder
@@ -383,6 +383,18 @@ def speed(name="female_casualsuit01", poses=POSES, say=print):
         say(f"{pose:>10}: pose fit {fit:.2f} s (transfer {s['total'] - s['crossings']:.2f}, contact and crossings "
             f"{s['crossings']:.2f}; passes {len(result.info.get('crossing_pass', []))}), baseline {base:.2f} s, "
             f"ratio {fit / base:.2f}; goal 0.3 s: {fit / 0.3:.1f}x")
+    posed = [(pose, rig.pose(body.V, rig.transforms(pose_set(root, skeleton, [pose], kept_back=False)[pose])))
+             for pose in poses]
+    runs = {}
+    for workers in sorted({1, max(2, POSE_WORKERS)}):
+        t = time.perf_counter()
+        runs[workers] = dict(gt.fit_poses(body, posed, garment, prepared=prepared, workers=workers))
+        runs[workers] = (time.perf_counter() - t, runs[workers])
+    (one, first), (many, second) = runs[1], runs[max(runs)]
+    same = all(np.array_equal(first[p].V, second[p].V) for p in first)
+    say(f"the {len(poses)} poses in a row (fit_poses): one at a time {one / len(poses):.2f} s a pose; "
+        f"{max(runs)} at once {many / len(poses):.2f} s a pose ({many / one:.2f}x; the same results: {same}); "
+        f"goal 0.3 s: {many / len(poses) / 0.3:.1f}x")
     return rows
 
 

@@ -317,23 +317,37 @@ def measured_pose_counts(context, result, cloth, rest, posed, outcome, name):
     """The pose fit's figures (``posed_counts``) of the new object as Blender has it at the current frame
     (evaluated, in world space, its 32-bit coordinates), against the body as posed there; a refining modifier
     kept on it (Subdivision) is measured before it."""
-    from ..garment_transfer import posed_counts
+    return _posed_counts(rest, cloth, outcome, name, posed, written_positions(context, result, cloth))
 
+
+def written_positions(context, result, cloth):
+    """The result object's vertices as Blender has it at the current frame (evaluated, world space); before a
+    refining modifier (Subdivision) where it has one."""
     context.view_layer.update()
     depsgraph = context.evaluated_depsgraph_get()
     written = convert.core_mesh_from_object(result, depsgraph, True, "result")
     if written.n_vertices != cloth.n_vertices:
         written = convert.core_mesh_from_object(result, depsgraph, False, "result")
+    return written.V
+
+
+def _posed_counts(rest, cloth, outcome, name, posed, V):
+    from ..garment_transfer import posed_counts
+
     # The posed body as the fit read it: the rest body's polygons (the same mesh) at the posed positions.
-    return posed_counts(written.V, cloth, rest.with_vertices(posed.V, name=posed.name), float(outcome.info["offset"]),
+    return posed_counts(V, cloth, rest.with_vertices(posed.V, name=posed.name), float(outcome.info["offset"]),
                         rest_V=rest.V, name=name, contact=outcome.contact, free=outcome.obstacle)
 
 
 def bake_steps(context, obj, body, start, end):
     """Fit the garment to every frame from ``start`` to ``end``: a generator of fractions done; its value
     (``StopIteration.value``) is ``(frames, positions, fits, seconds)``, ``fits`` what ``measure_baked`` needs:
-    the rest body, the garment, and per frame the posed body and the fit. The scene's frame is put back."""
-    from ..garment_transfer import MeshError, fit_to_pose, prepare_garment
+    the rest body, the garment, and per frame the posed body and the fit. The scene's frame is put back.
+
+    Blender sets each frame and reads the posed body here, in this thread; the fits run a few frames at once in
+    threads beside it (the core's ``fit_poses``). Closing the generator (a cancel) waits for the frames being
+    fitted and drops the others."""
+    from ..garment_transfer import MeshError, fit_poses, prepare_garment
 
     if body_armature(body) is None:
         raise MeshError(body.name, "has no Armature modifier: there is no motion to bake")
@@ -343,17 +357,27 @@ def bake_steps(context, obj, body, start, end):
     frame_before = scene.frame_current
     frames = list(range(start, end + 1))
     t = time.perf_counter()
+    posed_bodies = {}
+
+    def posed_frames():
+        for frame in frames:
+            scene.frame_set(frame)
+            posed = convert.core_mesh_from_object(body, context.evaluated_depsgraph_get(), True, "body")
+            posed_bodies[frame] = posed
+            yield frame, posed.V
+
     try:
         rest, _, cloth = rest_and_posed(context, obj, body)
         prepared = prepare_garment(rest, cloth)
         positions, fits = [], {"rest": rest, "garment": cloth, "frames": []}
-        for i, frame in enumerate(frames):
-            scene.frame_set(frame)
-            posed = convert.core_mesh_from_object(body, context.evaluated_depsgraph_get(), True, "body")
-            outcome = fit_to_pose(rest, posed.V, cloth, prepared=prepared, name=f"frame {frame}")
-            positions.append(outcome.V)
-            fits["frames"].append((posed, outcome))
-            yield (i + 1) / len(frames)
+        fitting = fit_poses(rest, posed_frames(), cloth, prepared=prepared)
+        try:
+            for i, (frame, outcome) in enumerate(fitting):
+                positions.append(outcome.V)
+                fits["frames"].append((posed_bodies.pop(frame), outcome))
+                yield (i + 1) / len(frames)
+        finally:
+            fitting.close()
     finally:
         scene.frame_set(frame_before)
     return frames, positions, fits, time.perf_counter() - t
@@ -362,19 +386,29 @@ def bake_steps(context, obj, body, start, end):
 def measure_baked(context, baked, frames, fits):
     """The pose fit's figures of the baked object as Blender plays it back, frame by frame (evaluated, in world
     space), against the body posed at that frame: ``{"frames": [counts per frame], "warnings": [...]}``; also
-    kept on the object (``FIGURES``). The scene's frame is put back."""
+    kept on the object (``FIGURES``). The scene's frame is put back. Blender plays each frame here; the counts
+    run a few frames at once in threads (the core's ``in_threads``)."""
+    from ..garment_transfer import in_threads
+
     scene = context.scene
     frame_before = scene.frame_current
-    rows, warnings = [], []
+    written = []
     try:
-        for frame, (posed, outcome) in zip(frames, fits["frames"]):
+        for frame in frames:
             scene.frame_set(frame)
-            counts = measured_pose_counts(context, baked, fits["garment"], fits["rest"], posed, outcome,
-                                          f"{baked.name} at frame {frame}")
-            warnings += counts.pop("warnings")
-            rows.append({"frame": frame, **counts})
+            written.append(written_positions(context, baked, fits["garment"]))
     finally:
         scene.frame_set(frame_before)
+
+    def count(k):
+        posed, outcome = fits["frames"][k]
+        return _posed_counts(fits["rest"], fits["garment"], outcome, f"{baked.name} at frame {frames[k]}", posed,
+                             written[k])
+
+    rows, warnings = [], []
+    for frame, counts in zip(frames, in_threads(count, list(range(len(frames))))):
+        warnings += counts.pop("warnings")
+        rows.append({"frame": frame, **counts})
     baked[FIGURES] = {"frames": len(rows),
                       "frames_with_crossings": sum(1 for r in rows if r["crossings_outside_contact"]),
                       "crossings_outside_contact": sum(r["crossings_outside_contact"] for r in rows),

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from meshes import grid, icosphere, random_rotation, require_makehuman
 
-from garment_transfer import (Rig, bvh_rotations, every_split, fit_to_pose, inpainted_weights, mdc,
+from garment_transfer import (Rig, bvh_rotations, every_split, fit_poses, fit_to_pose, inpainted_weights, mdc,
                               mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
                               read_obj, read_skeleton, read_weights, transfer_garment, write_obj)
 from garment_transfer.pipeline import self_contact
@@ -54,6 +54,41 @@ def test_a_body_turned_as_a_whole_turns_the_garment_exactly():
     info = result.info
     assert info["crossings_outside_contact"] == info["crossings_at_contact"] == info["body_self_crossings"] == 0
     assert info["warnings"] == [] and result.penetrating_vertices == 0
+
+
+def test_poses_fitted_at_once_are_each_pose_fitted_alone_read_as_needed_and_stop_when_closed():
+    rng = np.random.default_rng(5)
+    V, F = icosphere(3)
+    body = mesh_from_triangles(V, F, "body")
+    G, GF = icosphere(2, radius=1.05)
+    garment = mesh_from_triangles(G, GF, "garment")
+    # A bulge somewhere else in each pose, the body turned.
+    poses = []
+    for k in range(5):
+        bulge = 1.0 + 0.12 * np.exp(-np.sum((V - V[k * 40]) ** 2, axis=1) / 0.05)
+        poses.append((f"pose {k}", (V * bulge[:, None]) @ random_rotation(rng).T))
+    prepared = prepare_garment(body, garment)
+    alone = {name: fit_to_pose(body, P, garment, prepared=prepared, name=name) for name, P in poses}
+    read = []
+
+    def one_by_one():
+        for name, P in poses:
+            read.append(name)
+            yield name, P
+
+    given = fit_poses(body, one_by_one(), garment, prepared=prepared, workers=2)
+    name, first = next(given)
+    assert name == "pose 0" and np.array_equal(first.V, alone[name].V)
+    assert read == ["pose 0", "pose 1", "pose 2"]                          # at most 2 poses ahead of what is given
+    rest = list(given)
+    assert [n for n, _ in rest] == [n for n, _ in poses[1:]]
+    for n, result in rest:
+        assert np.array_equal(result.V, alone[n].V) and result.info == alone[n].info
+    read.clear()
+    given = fit_poses(body, one_by_one(), garment, prepared=prepared, workers=2)
+    next(given)
+    given.close()                                                          # cancelled: nothing more is read
+    assert read == ["pose 0", "pose 1", "pose 2"]
 
 
 def makehuman_suit():

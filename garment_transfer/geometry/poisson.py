@@ -43,6 +43,7 @@ multigrid for one target and for very large garments (``python -m lab.speed`` me
 from __future__ import annotations
 
 import logging
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -286,10 +287,14 @@ class OrderedFactor:
         Kp = K[order][:, order].tocsc()
         # K is symmetric positive definite: no pivoting needed, and the ordering is ours.
         self.lu = spla.splu(Kp, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        # One factor serves the poses fitted at once in threads (``pose_fit.fit_poses``): one solve at a time.
+        self._lock = threading.Lock()
 
     def solve(self, b):
         x = np.empty_like(b, dtype=np.float64)
-        x[self.order] = self.lu.solve(np.ascontiguousarray(b[self.order], dtype=np.float64))
+        rhs = np.ascontiguousarray(b[self.order], dtype=np.float64)
+        with self._lock:
+            x[self.order] = self.lu.solve(rhs)
         return x
 
 

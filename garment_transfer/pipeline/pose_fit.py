@@ -19,7 +19,10 @@ a reader of the written file may split a quad along either diagonal.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +50,10 @@ CONTACT_RINGS = 2
 CONTACT_GAP = 4.0
 #: Crossing passes at most, each from the last one's result, while each leaves fewer crossings than the last.
 PASSES = 3
+#: Poses fitted at once by ``fit_poses`` (threads): a fit is numpy's, scipy's and libigl's work on whole arrays,
+#: which runs outside Python's lock, so two poses at once on 2 cores take about 0.6 of the time of one after the
+#: other (``python -m lab.motion --speed``).
+POSE_WORKERS = max(1, min(4, os.cpu_count() or 1))
 
 
 def every_split(mesh: Mesh):
@@ -195,6 +202,67 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     return result
 
 
+def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarment | None = None, offset=None,
+              resolve_crossings=True, workers=None):
+    """Fit a garment to many poses of its body, several at once: ``fit_to_pose`` for each, prepared once.
+
+    Parameters
+    ----------
+    rest_body, garment : Mesh
+        As ``fit_to_pose``.
+    poses : iterable of (name, (n,3) float)
+        Each pose's name and body positions. It is read in the caller's thread, one pose at a time and at most
+        ``workers`` poses ahead of what was given back: a generator may make each pose when asked (Blender sets a
+        frame and reads the posed body).
+    prepared : PreparedGarment, optional
+    offset : float, optional
+    resolve_crossings : bool
+    workers : int, optional
+        Poses fitted at once (default ``POSE_WORKERS``; 1: one after the other in the caller's thread).
+
+    Yields
+    ------
+    (name, TransferResult)
+        In the order of ``poses``; each result is what ``fit_to_pose`` gives for that pose alone. Closing the
+        generator (a cancel) drops the poses not begun and waits for those being fitted.
+    """
+    if prepared is None:
+        prepared = prepare_garment(rest_body, garment)
+    workers = POSE_WORKERS if workers is None else max(1, int(workers))
+
+    def fit(name, V):
+        return fit_to_pose(rest_body, V, garment, prepared=prepared, offset=offset,
+                           resolve_crossings=resolve_crossings, name=name)
+
+    if workers == 1:
+        for name, V in poses:
+            yield name, fit(name, V)
+        return
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="pose-fit")
+    pending = deque()
+    try:
+        for name, V in poses:
+            pending.append((name, pool.submit(fit, name, np.array(V, dtype=np.float64))))
+            if len(pending) > workers:
+                name, job = pending.popleft()
+                yield name, job.result()
+        while pending:
+            name, job = pending.popleft()
+            yield name, job.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def in_threads(fn, items, workers=None):
+    """``[fn(x) for x in items]``, ``workers`` at once (default ``POSE_WORKERS``) in threads: for counts of many
+    poses (numpy's work, outside Python's lock)."""
+    workers = POSE_WORKERS if workers is None else max(1, int(workers))
+    if workers == 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(min(workers, len(items)), thread_name_prefix="pose-counts") as pool:
+        return list(pool.map(fn, items))
+
+
 def free_body(body: Mesh, contact, garment: Mesh, V):
     """The posed body's triangles of every split away from its own ``contact`` ((n,) bool), binned once for the
     counts and passes of one pose (an ``Obstacle``; its cells sized for the garment's edges at V)."""
@@ -318,7 +386,8 @@ def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_r
             "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
 
 
-def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None):
+def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None,
+                   workers=None):
     """OBJ files in, OBJ files out: the garment fitted to every pose of its body, prepared once.
 
     Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``.
@@ -334,7 +403,9 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         Made if missing; receives ``<garment>_on_<pose>.obj`` and ``poses.json``.
     offset : float, optional
     progress : callable, optional
-        ``progress(fraction, pose)``.
+        ``progress(fraction, pose)``, as each pose is fitted.
+    workers : int, optional
+        Poses fitted at once (``fit_poses``).
 
     Returns
     -------
@@ -357,23 +428,29 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     prepared = prepare_garment(rest, garment)
     seconds = {"prepare": time.perf_counter() - t}
     results = {}
-    for i, (name, V) in enumerate(poses.items()):
+    for i, (name, result) in enumerate(fit_poses(rest, poses.items(), garment, prepared=prepared, offset=offset,
+                                                  workers=workers)):
         if progress is not None:
-            progress(i / len(poses), name)
-        results[name] = fit_to_pose(rest, V, garment, prepared=prepared, offset=offset, name=name)
+            progress((i + 1) / len(poses), name)
+        results[name] = result
     seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
     Path(out_dir).mkdir(parents=True, exist_ok=True)
-    rows, warnings = [], []
     for name, result in results.items():
-        out = outs[name]
-        write_obj(out, garment, result.V, inputs=[rest_body_path, *posed_body_paths],
+        write_obj(outs[name], garment, result.V, inputs=[rest_body_path, *posed_body_paths],
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
+
+    def written_counts(name):
         # The figures of the file as written, against that pose as given.
-        counts = posed_counts(read_obj(out).V, garment, rest.with_vertices(poses[name], name=name),
-                              float(result.info["offset"]), rest_V=rest.V, name=str(out), contact=result.contact,
-                              free=result.obstacle)
+        result = results[name]
+        return posed_counts(read_obj(outs[name]).V, garment, rest.with_vertices(poses[name], name=name),
+                            float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
+                            contact=result.contact, free=result.obstacle)
+
+    rows, warnings = [], []
+    for name, counts in zip(results, in_threads(written_counts, list(results), workers)):
         warnings += counts.pop("warnings")
-        rows.append({"target": name, "target_body": paths[name], "out": str(out), **counts,
+        result = results[name]
+        rows.append({"target": name, "target_body": paths[name], "out": str(outs[name]), **counts,
                      "offset": result.info["offset"], "seconds": result.seconds})
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
