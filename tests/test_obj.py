@@ -110,3 +110,57 @@ def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch
         write_obj(out, m)
     assert out.read_text() == "previous result\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.obj"]
+
+
+READINGS_CASES = [
+    "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 .5 0\nf 1 2 3 4\nf 2 5 3\n",
+    "v +.5 1. -0\r\nv 1e-3 0 0\r\nv 0 1E+2 0\r\nv 1 1 1\r\nf 1/1/1 2//2 3/3\r\nf 1/ 3 4\r\n",
+    "# tabs\nv\t0\t0\t0\nv 1  0 0\t\nv 0 1 0\nvt 0 0\nvn 0 0 1\ns off\ng g\nf 1 2 3\n",
+    "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nf 1 2 3\n",       # vertex colours
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\n",                       # relative indices
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 2 2 2\nv 3 3 3\nf 1 2 3\nf 2 4 3\n",   # loose vertices (cut off)
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n",                          # vertex 0
+    "v 0 0 1e\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",                         # not a number
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3/4/5/6\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 /2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2/3/ 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 v\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2\nf 1 2 3\n",
+    "v 0 0 0\nv 1 0 0\nv 0 1 0\nfoo 1 2\nf 1 2 3\n",                  # not an OBJ statement
+    "v 0 0 0 v 1 0\nv 0 1 0\nf 1 2 3\n",
+]
+
+
+@pytest.mark.parametrize("content", READINGS_CASES)
+def test_whole_file_reading_equals_line_by_line_reading(tmp_path, content, monkeypatch):
+    """Plain files are read a block at a time (``_read_plain``); the result, or the error, is the line-by-line
+    reading's."""
+    from garment_transfer.geometry import obj
+
+    p = tmp_path / "case.obj"
+    p.write_bytes(content.encode())
+
+    def read():
+        try:
+            return read_obj(p)
+        except MeshError as exc:
+            return str(exc)
+
+    fast = read()
+    monkeypatch.setattr(obj, "_read_plain", lambda raw_lines: None)
+    slow = read()
+    if isinstance(slow, str):
+        assert fast == slow
+    else:
+        for key in ("V", "F", "face_vertices", "face_start", "tri_to_face"):
+            assert np.array_equal(getattr(fast, key), getattr(slow, key))
+        assert fast.obj_lines == slow.obj_lines
+
+
+def test_a_plain_file_is_read_a_block_at_a_time():
+    from garment_transfer.geometry import obj
+
+    lines = QUAD_OBJ.encode().split(b"\n")
+    V, face_vertices, face_start = obj._read_plain(lines)
+    assert V.shape == (6, 3) and face_vertices.tolist() == [0, 1, 2, 3, 1, 4, 5, 2]
+    assert face_start.tolist() == [0, 4, 8]

@@ -152,6 +152,17 @@ def mesh_from_polygons(V, polygons, name="mesh", obj_lines=None) -> Mesh:
         face_start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
         face_vertices = (np.concatenate([np.asarray(p, dtype=np.int64) for p in polygons])
                          if len(polygons) else np.zeros(0, np.int64))
+    return mesh_from_polygon_arrays(V, face_vertices, face_start, name, obj_lines)
+
+
+def mesh_from_polygon_arrays(V, face_vertices, face_start, name="mesh", obj_lines=None) -> Mesh:
+    """``mesh_from_polygons`` of polygons given flat: polygon k is ``face_vertices[face_start[k]:face_start[k+1]]``
+    (int64 arrays)."""
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise MeshError(name, f"vertices must have shape (n, 3), got {V.shape}")
+    face_vertices = np.asarray(face_vertices, dtype=np.int64)
+    face_start = np.asarray(face_start, dtype=np.int64)
     check_polygons(V, face_vertices, face_start, name)
     F, tri_to_face = triangulate(V, face_vertices, face_start)
     return Mesh(V, F, face_vertices, face_start, tri_to_face, name, obj_lines)
