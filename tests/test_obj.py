@@ -133,7 +133,7 @@ READINGS_CASES = [
 
 @pytest.mark.parametrize("content", READINGS_CASES)
 def test_whole_file_reading_equals_line_by_line_reading(tmp_path, content, monkeypatch):
-    """Plain files are read a block at a time (``_read_plain``); the result, or the error, is the line-by-line
+    """Plain files are read a block at a time (``plain_arrays``); the result, or the error, is the line-by-line
     reading's."""
     from garment_transfer.geometry import obj
 
@@ -147,7 +147,7 @@ def test_whole_file_reading_equals_line_by_line_reading(tmp_path, content, monke
             return str(exc)
 
     fast = read()
-    monkeypatch.setattr(obj, "_read_plain", lambda raw_lines: None)
+    monkeypatch.setattr(obj, "plain_arrays", lambda raw_lines: None)
     slow = read()
     if isinstance(slow, str):
         assert fast == slow
@@ -161,6 +161,6 @@ def test_a_plain_file_is_read_a_block_at_a_time():
     from garment_transfer.geometry import obj
 
     lines = QUAD_OBJ.encode().split(b"\n")
-    V, face_vertices, face_start = obj._read_plain(lines)
+    V, face_vertices, face_start = obj.plain_arrays(lines)
     assert V.shape == (6, 3) and face_vertices.tolist() == [0, 1, 2, 3, 1, 4, 5, 2]
     assert face_start.tolist() == [0, 4, 8]

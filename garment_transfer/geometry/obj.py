@@ -107,7 +107,7 @@ def read_obj(path, name=None) -> Mesh:
                               f"({_show(lines[-1])} has no line break): it looks cut off. If it is "
                               "complete, end it with a line break")
     raw_lines = data.split(b"\n")
-    plain = _read_plain(raw_lines)
+    plain = plain_arrays(raw_lines)
     if plain is not None:
         V, face_vertices, face_start = plain
         top = int(face_vertices.max())
@@ -154,7 +154,7 @@ def read_obj(path, name=None) -> Mesh:
     return mesh_from_polygons(V, polys, name=name, obj_lines=lines)
 
 
-def _read_plain(raw_lines):
+def plain_arrays(raw_lines):
     """``(V, face_vertices, face_start)`` of a file whose every ``v`` and ``f`` line is plain (numbers only; positive
     indices, with or without ``/vt/vn``) and whose other lines are blank, comments or statements other than
     ``v``, ``f``, ``l`` and ``p``: nearly every file. The v lines and the f lines are each checked and converted
