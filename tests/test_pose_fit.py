@@ -150,3 +150,14 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
     inside = TriangleSurface(posed.V, posed.F).signed_distance(written.V)[0] < 0
     assert row["penetrating_vertices"] == int(inside.sum())
     assert json.loads((out / "poses.json").read_text())["shapes"] == [row]
+    # One pose at a time writes the same file; --workers without --poses is a usage error.
+    alone = tmp_path / "alone"
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--poses", "--workers", "1",
+                        "--source-body", paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"],
+                        "--out", alone], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert (alone / "suit_on_standing01.obj").read_bytes() == Path(row["out"]).read_bytes()
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--workers", "2", "--source-body",
+                        paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"], "--out",
+                        tmp_path / "never"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and "--workers is for --poses" in p.stderr and not (tmp_path / "never").exists()

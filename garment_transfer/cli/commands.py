@@ -174,7 +174,7 @@ def cmd_register(args):
 def cmd_shapes(args):
     if args.poses:
         summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
-                                 progress=stderr_progress("poses") if args.verbose else None)
+                                 progress=stderr_progress("poses") if args.verbose else None, workers=args.workers)
         emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
                              f"{s['crossings_at_contact']} where the body crosses itself"
                              for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
@@ -406,6 +406,9 @@ def build_parser():
     h.add_argument("--poses", action="store_true",
                    help="the targets are the source body posed: fit the garment to each pose (the crossing pass "
                         "leaves out where the body crosses itself, and counts it apart); writes DIR/poses.json")
+    h.add_argument("--workers", type=number_option(int, 1, what="a whole number"), default=None,
+                   help="with --poses: poses fitted at once, in threads (default: the cores, at most 4); every "
+                        "pose's result is the same whatever the number")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
 
@@ -533,6 +536,8 @@ def main(argv=None):
                 parser.error("--field-share and --no-placement are for a garment fit model given with --model")
         if args.command == "train":
             _check_train_options(parser, args)
+        if args.command == "shapes" and args.workers is not None and not args.poses:
+            parser.error("--workers is for --poses (the poses fitted at once)")
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
         check_command_paths(args)
