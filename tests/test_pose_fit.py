@@ -42,12 +42,16 @@ def test_self_contact_finds_where_a_body_crosses_itself():
     assert none == 0 and not apart.any()
 
 
+def sphere_body_and_garment():
+    """A round body and a round garment over it: (V, body, G, garment)."""
+    V, F = icosphere(3)
+    G, GF = icosphere(2, radius=1.05)
+    return V, mesh_from_triangles(V, F, "body"), G, mesh_from_triangles(G, GF, "garment")
+
+
 def test_a_body_turned_as_a_whole_turns_the_garment_exactly():
     rng = np.random.default_rng(2)
-    V, F = icosphere(3)
-    body = mesh_from_triangles(V, F, "body")
-    G, GF = icosphere(2, radius=1.05)
-    garment = mesh_from_triangles(G, GF, "garment")
+    V, body, G, garment = sphere_body_and_garment()
     R = random_rotation(rng)
     result = fit_to_pose(body, V @ R.T + [0.3, 0, 0], garment, name="turned")
     assert np.allclose(result.V, G @ R.T + [0.3, 0, 0], atol=1e-9)
@@ -58,10 +62,7 @@ def test_a_body_turned_as_a_whole_turns_the_garment_exactly():
 
 def test_poses_fitted_at_once_are_each_pose_fitted_alone_read_as_needed_and_stop_when_closed():
     rng = np.random.default_rng(5)
-    V, F = icosphere(3)
-    body = mesh_from_triangles(V, F, "body")
-    G, GF = icosphere(2, radius=1.05)
-    garment = mesh_from_triangles(G, GF, "garment")
+    V, body, _, garment = sphere_body_and_garment()
     # A bulge somewhere else in each pose, the body turned.
     poses = []
     for k in range(5):
