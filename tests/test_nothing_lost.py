@@ -146,7 +146,7 @@ COMMANDS = {
                                       "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
                       {"--source-body": "source.obj", "--target-body": "target.obj",
                        "--garment": "clothes/garment.obj"},
-                      {"--out": "folder"}, {"--offset", "--margin", "--no-fix", "--poses", "--json"}),
+                      {"--out": "folder"}, {"--offset", "--margin", "--no-fix", "--poses", "--workers", "--json"}),
     "weights": Command(lambda w, out: ["weights", "--body", w / "source.obj", "--weights", w / "weights.json",
                                        "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
                        {"--body": "source.obj", "--weights": "weights.json", "--garment": "clothes/garment.obj"},
