@@ -164,3 +164,58 @@ def test_a_plain_file_is_read_a_block_at_a_time():
     V, face_vertices, face_start = obj.plain_arrays(lines)
     assert V.shape == (6, 3) and face_vertices.tolist() == [0, 1, 2, 3, 1, 4, 5, 2]
     assert face_start.tolist() == [0, 4, 8]
+
+
+def random_obj_text(rng, vertices):
+    """An OBJ text of mostly plain lines in any order, now and then a word or a line that is not."""
+    numbers = ["0", "1", "-1", "+1", "1.", ".5", "-.5", "1e3", "1E-3", "2.5e+2"]
+    odd_numbers = ["1e", "e1", ".", "-", "1.2.3", "nan", "inf", "0x1", "1_0", "v", "f", "1/2"]
+    indices = ["1", "2", "3", "4", "1/1", "2//2", "3/3/3", "4/"]
+    odd_indices = ["0", "-1", "1/2/3/4", "/2", "01", "x", "9"]
+    others = ["# comment", "", "vt 0 0", "vn 0 0 1", "g a", "s off", "usemtl m", "o x", "vt\t0 0"]
+
+    def word(plain, odd):
+        return str(rng.choice(plain if rng.random() < 0.99 else odd))
+
+    def line():
+        k, blank = rng.random(), str(rng.choice([" ", "  ", "\t"]))
+        if k < 0.45:
+            n = 3 if rng.random() < 0.9 else int(rng.choice([2, 4, 6]))
+            return "v" + blank + blank.join(word(numbers, odd_numbers) for _ in range(n)) + \
+                str(rng.choice([""] * 20 + [" ", "\r", " # c"]))
+        if k < 0.85:
+            n = int(rng.choice([3, 3, 4, 5] * 10 + [2]))
+            return "f" + blank + blank.join(word(indices, odd_indices) for _ in range(n))
+        return str(rng.choice(others * 5 + ["l 1 2", "p 1", "bogus 1", "vp 1", " v 1 2 3"]))
+
+    lines = [f"v {x:.3f} {y:.3f} {z:.3f}" for x, y, z in rng.random((vertices, 3))]
+    lines += [line() for _ in range(int(rng.integers(1, 10)))]
+    return "\n".join(str(s) for s in rng.permutation(lines)) + str(rng.choice(["\n", "", "\r\n"]))
+
+
+def test_whole_file_reading_equals_line_by_line_reading_on_random_files(tmp_path, monkeypatch):
+    from garment_transfer.geometry import obj
+
+    rng = np.random.default_rng(7)
+    p = tmp_path / "random.obj"
+
+    def read():
+        try:
+            return read_obj(p)
+        except MeshError as exc:
+            return str(exc)
+
+    whole = 0
+    for _ in range(400):
+        p.write_text(random_obj_text(rng, int(rng.integers(3, 8))))
+        whole += obj.plain_arrays(p.read_bytes().split(b"\n")) is not None
+        fast = read()
+        with monkeypatch.context() as m:
+            m.setattr(obj, "plain_arrays", lambda raw_lines: None)
+            slow = read()
+        if isinstance(fast, str) or isinstance(slow, str):
+            assert fast == slow
+        else:
+            for key in ("V", "F", "face_vertices", "face_start"):
+                assert np.array_equal(getattr(fast, key), getattr(slow, key))
+    assert whole >= 25                      # the whole-file reading was taken on many of them
