@@ -432,6 +432,9 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                                                   workers=workers)):
         if progress is not None:
             progress((i + 1) / len(poses), name)
+        # The binned body (about 20 MB a pose for a MakeHuman body) is not kept for every pose: the count of the
+        # file written bins it again (the same counts).
+        result.obstacle = None
         results[name] = result
     seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
     Path(out_dir).mkdir(parents=True, exist_ok=True)

@@ -227,6 +227,16 @@ def test_fit_to_pose_and_bake(character):
     next(steps)
     steps.close()                                                       # cancelled: nothing made
     assert set(bpy.data.objects) == before and bpy.context.scene.frame_current == 5
+    # Run to the end, a bake keeps of each frame its fit and the body's contact, not the binned body (about 20 MB
+    # a frame): a long action fits in memory.
+    steps = rigging.bake_steps(bpy.context, result, body, 2, 3)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            kept = stop.value[2]["frames"]
+            break
+    assert len(kept) == 2 and all(o.obstacle is None and o.contact is not None for _, o in kept)
     assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3) == {'FINISHED'}
     baked = bpy.data.objects[f"{result.name}_baked"]
     keys = baked.data.shape_keys.key_blocks
