@@ -27,7 +27,8 @@ as Blender's Data Transfer gives them, is the baseline):
   seconds per pose after the first (the garment prepared once).
 
     python -m lab.motion [--fit] [--garments a b ...] [--poses p q ...] [--shared-only] [--json OUT.json]
-    python -m lab.motion --speed      # the pose fit's seconds per pose after the first, beside the baseline
+    python -m lab.motion --speed      # the pose fit's seconds per pose after the first, beside the baseline,
+                                      # then the poses in a row one and two at a time (fit_poses)
 """
 
 from __future__ import annotations
