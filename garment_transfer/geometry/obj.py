@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import MeshError
 from ..files import write_text_atomic
-from .mesh import Mesh, mesh_from_polygon_arrays, mesh_from_polygons
+from .mesh import Mesh, mesh_from_polygon_arrays
 
 #: More than this share of the vertices used by no face means the faces stop early: a file cut off.
 #: (MakeHuman fixtures and demo files: none.)
@@ -43,10 +43,8 @@ _INDEX = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/[+-]?\d*)?)?\Z", re.ASCII)
 # indentation, the keyword and the blank after it), x, blank, y, blank, z, and everything after z.
 _V_LINE = re.compile(rf"(\ufeff*{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
 _FAST_NUMBER = rb"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)"
-_FAST_V_LINE = rb"v(?:[ \t]+" + _FAST_NUMBER + rb"){3,}[ \t\r]*"
-_FAST_F_LINE = rb"f(?:[ \t]+[1-9]\d*(?:/\d*(?:/\d*)?)?){3,}[ \t\r]*"
-_FAST_V = re.compile(_FAST_V_LINE)
-_FAST_F = re.compile(_FAST_F_LINE)
+_FAST_V = re.compile(rb"v(?:[ \t]+" + _FAST_NUMBER + rb"){3,}[ \t\r]*")
+_FAST_F = re.compile(rb"f(?:[ \t]+[1-9]\d*(?:/\d*(?:/\d*)?)?){3,}[ \t\r]*")
 # What a plain v line or f line may hold, and the /vt/vn of a face corner.
 _V_BYTES = b"v0123456789.eE+- \t\r\n"
 _F_BYTES = b"f0123456789/ \t\r\n"
@@ -109,14 +107,7 @@ def read_obj(path, name=None) -> Mesh:
     raw_lines = data.split(b"\n")
     plain = plain_arrays(raw_lines)
     if plain is not None:
-        V, face_vertices, face_start = plain
-        top = int(face_vertices.max())
-        if top >= V.shape[0]:
-            raise MeshError(name, f"a face refers to vertex {top + 1} but the file has {V.shape[0]}")
-        used = np.zeros(V.shape[0], bool)
-        used[face_vertices] = True
-        _say_cut_off(V.shape[0], int(V.shape[0] - used.sum()), face_start.shape[0] - 1, name)
-        return mesh_from_polygon_arrays(V, face_vertices, face_start, name=name, obj_lines=lines)
+        return _mesh_read(*plain, [], name, lines)
     verts, polys, others = [], [], []
     for lineno, (line, raw) in enumerate(zip(lines, raw_lines), 1):
         # Plain v and f lines (nearly all of a file) take a fast path; the rest is read in full.
@@ -144,14 +135,26 @@ def read_obj(path, name=None) -> Mesh:
         raise MeshError(name, "has no vertices (is it an OBJ file?)")
     if not polys:
         raise MeshError(name, "has no faces (a point cloud or lines only)")
-    V = np.asarray(verts, dtype=np.float64)
-    top = max(max(p) for p in polys)
+    sizes = np.fromiter((len(p) for p in polys), dtype=np.int64, count=len(polys))
+    return _mesh_read(np.asarray(verts, dtype=np.float64), np.concatenate(polys).astype(np.int64),
+                      np.concatenate([[0], np.cumsum(sizes)]), others, name, lines)
+
+
+def _mesh_read(V, face_vertices, face_start, others, name, lines):
+    """The Mesh of what a file gave (vertices, its polygons flat, the vertices of its ``l`` and ``p`` elements), once
+    every face's vertex is known to be in the file and the faces do not stop early (a file cut off)."""
+    top = int(face_vertices.max())
     if top >= V.shape[0]:
         raise MeshError(name, f"a face refers to vertex {top + 1} but the file has {V.shape[0]}")
-    _check_cut_off(V.shape[0], polys, others, name)
-    if all(len(p) == len(polys[0]) for p in polys):
-        polys = np.asarray(polys, dtype=np.int64)
-    return mesh_from_polygons(V, polys, name=name, obj_lines=lines)
+    used = np.zeros(V.shape[0], bool)
+    used[face_vertices] = True
+    used[others] = True
+    loose = int(V.shape[0] - used.sum())
+    if loose >= 2 and loose > CUT_OFF_SHARE * V.shape[0]:
+        raise MeshError(name, f"{loose} of its {V.shape[0]} vertices are used by no face: the faces stop early, as "
+                              f"in a file cut off ({face_start.shape[0] - 1} faces read). Export it again (or delete "
+                              "the loose vertices)")
+    return mesh_from_polygon_arrays(V, face_vertices, face_start, name=name, obj_lines=lines)
 
 
 def plain_arrays(raw_lines):
@@ -239,21 +242,6 @@ def _element(fields, n):
             if 0 <= i < n:
                 out.append(i)
     return out
-
-
-def _check_cut_off(n, polys, others, name):
-    used = np.zeros(n, bool)
-    for p in polys:
-        used[p] = True
-    used[others] = True
-    _say_cut_off(n, int(n - used.sum()), len(polys), name)
-
-
-def _say_cut_off(n, loose, faces, name):
-    if loose >= 2 and loose > CUT_OFF_SHARE * n:
-        raise MeshError(name, f"{loose} of its {n} vertices are used by no face: the faces stop early, as "
-                              f"in a file cut off ({faces} faces read). Export it again (or delete "
-                              "the loose vertices)")
 
 
 def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
