@@ -62,7 +62,7 @@ from .obstacle import Obstacle, as_obstacle, edge_length, faces_touching, garmen
 from .penetration import spread_displacement, vertex_adjacency
 from .proximity import closest_on_triangles
 from .readings import Readings, as_readings, group_members
-from .self_check import NO_PAIRS, SELF_CELL, SelfCheck, beyond_source, unique_pairs
+from .self_check import NO_PAIRS, SelfCheck, beyond_source, pairs_in_full, unique_pairs
 
 log = logging.getLogger(__name__)
 
@@ -382,7 +382,7 @@ class _SourceTangles:
     def pairs(self):
         """The source's own self-intersecting pairs (k,2)."""
         if self.own is None:
-            self.own = SelfCheck(self.S, self.G, cell=SELF_CELL).all(self.S)
+            self.own = pairs_in_full(self.S, self.G)
         elif callable(self.own):
             self.own = self.own()
         return self.own

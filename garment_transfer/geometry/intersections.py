@@ -43,7 +43,7 @@ from .predicates import (  # noqa: F401  (the narrow phase, re-exported: its use
 )
 from .proximity import TriangleSurface, closest_on_triangles
 from .readings import as_readings, mesh_edges  # noqa: F401
-from .self_check import SELF_CELL, SelfCheck
+from .self_check import pairs_in_full
 
 def crossings(V_a, F_a, V_b, F_b):
     """Intersections between two meshes, counted both ways, under every reading of their polygons.
@@ -110,8 +110,7 @@ def self_intersections(V, F):
         The triangle of each pair (indices into F, or ``Readings.F``).
     """
     R = as_readings(F)
-    V = np.asarray(V, dtype=np.float64)
-    pairs = SelfCheck(V, R, cell=SELF_CELL).all(V)
+    pairs = pairs_in_full(V, R)
     return int(pairs.shape[0]), R.E[pairs[:, 0]], pairs[:, 1]
 
 

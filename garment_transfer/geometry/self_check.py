@@ -160,6 +160,13 @@ class SelfCheck:
         return unique_pairs(np.concatenate([pairs[~self.touching(pairs, moved)], self.local(V, moved)]))
 
 
+def pairs_in_full(V, R: Readings):
+    """Every self-intersecting pair of a mesh checked once in full: ``SelfCheck.all`` in cells of ``SELF_CELL``;
+    (k,2) (edge, triangle) indices into ``R.E``, ``R.F``, sorted."""
+    V = np.asarray(V, dtype=np.float64)
+    return SelfCheck(V, R, cell=SELF_CELL).all(V)
+
+
 def beyond_source(pairs, R: Readings, source_V, source_pairs):
     """The self-intersecting pairs of a result that count against its source: those its source shape does not
     have (exact test, pair by pair), less those at the source's own tangles while the result has no more pairs

@@ -18,7 +18,7 @@ from ..geometry.mesh import Mesh
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings, garment_distance
 from ..geometry.proximity import TriangleSurface
 from ..geometry.readings import Readings, readings_of
-from ..geometry.self_check import SELF_CELL, SelfCheck, beyond_source
+from ..geometry.self_check import beyond_source, pairs_in_full
 
 #: The keys of a transfer's ``info`` that describe the result as the pass left it in memory; a report of the
 #: result as written gives ``check_result``'s figures instead.
@@ -66,9 +66,9 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         body = Obstacle(target_body.V, B, TriangleSurface(target_body.V, target_body.F), edge_length(V, G))
     surface = body.surface
     c = garment_crossings(V, G, body)
-    pairs = SelfCheck(V, G, cell=SELF_CELL).all(V)
+    pairs = pairs_in_full(V, G)
     if source_pairs is None:
-        source_pairs = SelfCheck(garment.V, G, cell=SELF_CELL).all(garment.V)
+        source_pairs = pairs_in_full(garment.V, G)
     layer = 0
     for V_l, F_l in layers_below:
         cl = crossings(V, G, V_l, F_l)

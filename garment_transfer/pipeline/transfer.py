@@ -37,6 +37,7 @@ from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topol
 from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
+from ..geometry.self_check import pairs_in_full
 from ..fitting.limbs import find_limbs, limb_angles
 from ..learning.placement import anchor_offsets
 from .field_mapping import model_field
@@ -184,8 +185,7 @@ class PreparedGarment:
         """(k,2) the garment's own self-intersecting pairs on the source body, under every reading (the
         count a result is held to), found on first use."""
         if self._source_pairs is None:
-            self._source_pairs = clearance.SelfCheck(self.garment.V, self.readings(),
-                                                     cell=clearance.SELF_CELL).all(self.garment.V)
+            self._source_pairs = pairs_in_full(self.garment.V, self.readings())
         return self._source_pairs
 
 
