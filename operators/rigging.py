@@ -373,9 +373,6 @@ def bake_steps(context, obj, body, start, end):
         fitting = fit_poses(rest, posed_frames(), cloth, prepared=prepared)
         try:
             for i, (frame, outcome) in enumerate(fitting):
-                # The binned body (about 20 MB a frame for a MakeHuman body) is not kept for every frame: the count
-                # of the baked object bins it again (the same counts).
-                outcome.obstacle = None
                 positions.append(outcome.V)
                 fits["frames"].append((posed_bodies.pop(frame), outcome))
                 yield (i + 1) / len(frames)

@@ -223,16 +223,20 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
     Yields
     ------
     (name, TransferResult)
-        In the order of ``poses``; each result is what ``fit_to_pose`` gives for that pose alone. Closing the
-        generator (a cancel) drops the poses not begun and waits for those being fitted.
+        In the order of ``poses``; each result is what ``fit_to_pose`` gives for that pose alone, less the posed body
+        as its pass binned it (``obstacle`` is None: about 20 MB a pose for a MakeHuman body, which a caller keeping
+        many results, a bake, cannot hold; ``posed_counts`` bins it again, the same counts). Closing the generator
+        (a cancel) drops the poses not begun and waits for those being fitted.
     """
     if prepared is None:
         prepared = prepare_garment(rest_body, garment)
     workers = POSE_WORKERS if workers is None else max(1, int(workers))
 
     def fit(name, V):
-        return fit_to_pose(rest_body, V, garment, prepared=prepared, offset=offset,
-                           resolve_crossings=resolve_crossings, name=name)
+        result = fit_to_pose(rest_body, V, garment, prepared=prepared, offset=offset,
+                             resolve_crossings=resolve_crossings, name=name)
+        result.obstacle = None
+        return result
 
     if workers == 1:
         for name, V in poses:
@@ -432,9 +436,6 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                                                   workers=workers)):
         if progress is not None:
             progress((i + 1) / len(poses), name)
-        # The binned body (about 20 MB a pose for a MakeHuman body) is not kept for every pose: the count of the
-        # file written bins it again (the same counts).
-        result.obstacle = None
         results[name] = result
     seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
     Path(out_dir).mkdir(parents=True, exist_ok=True)
@@ -447,7 +448,7 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         result = results[name]
         return posed_counts(read_obj(outs[name]).V, garment, rest.with_vertices(poses[name], name=name),
                             float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
-                            contact=result.contact, free=result.obstacle)
+                            contact=result.contact)
 
     rows, warnings = [], []
     for name, counts in zip(results, in_threads(written_counts, list(results), workers)):
