@@ -369,9 +369,10 @@ def speed(name="female_casualsuit01", poses=POSES, say=print):
     t = time.perf_counter()
     prepared = gt.prepare_garment(body, garment)
     say(f"{name} ({garment.n_vertices} vertices) on {body_name}: prepared once in {time.perf_counter() - t:.2f} s")
+    rotations = pose_set(root, skeleton, list(poses), kept_back=False)
+    posed_bodies = [(pose, rig.pose(body.V, rig.transforms(rotations[pose]))) for pose in poses]
     rows = []
-    for pose in poses:
-        posed = rig.pose(body.V, rig.transforms(pose_set(root, skeleton, [pose], kept_back=False)[pose]))
+    for pose, posed in posed_bodies:
         t = time.perf_counter()
         result = gt.fit_to_pose(body, posed, garment, prepared=prepared, name=pose)
         fit = time.perf_counter() - t
@@ -384,12 +385,10 @@ def speed(name="female_casualsuit01", poses=POSES, say=print):
         say(f"{pose:>10}: pose fit {fit:.2f} s (transfer {s['total'] - s['crossings']:.2f}, contact and crossings "
             f"{s['crossings']:.2f}; passes {len(result.info.get('crossing_pass', []))}), baseline {base:.2f} s, "
             f"ratio {fit / base:.2f}; goal 0.3 s: {fit / 0.3:.1f}x")
-    posed = [(pose, rig.pose(body.V, rig.transforms(pose_set(root, skeleton, [pose], kept_back=False)[pose])))
-             for pose in poses]
     runs = {}
     for workers in sorted({1, max(2, POSE_WORKERS)}):
         t = time.perf_counter()
-        runs[workers] = dict(gt.fit_poses(body, posed, garment, prepared=prepared, workers=workers))
+        runs[workers] = dict(gt.fit_poses(body, posed_bodies, garment, prepared=prepared, workers=workers))
         runs[workers] = (time.perf_counter() - t, runs[workers])
     (one, first), (many, second) = runs[1], runs[max(runs)]
     same = all(np.array_equal(first[p].V, second[p].V) for p in first)
