@@ -18,6 +18,7 @@ from garment_transfer.geometry.intersections import (
     segments_meet_triangles,
     self_intersections,
 )
+from garment_transfer.geometry.predicates import orient3d_filtered, segment_sides, triangle_planes
 from garment_transfer.geometry.proximity import closest_on_triangles
 
 TRI = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -130,6 +131,30 @@ def test_filter_agrees_with_exact_arithmetic():
     exact = np.array([segment_meets_triangle_exact(*x) for x in zip(P, Q, A, B, C)])
     assert np.array_equal(meet, exact)
     assert 0 < meet.sum() < k
+
+
+def test_sides_of_kept_planes_are_the_filtered_orientation():
+    rng = np.random.default_rng(5)
+    k = 4000
+    P, Q, A, B, C = (rng.normal(size=(k, 3)) for _ in range(5))
+    rows = rng.permutation(k)                                       # segment i against triangle rows[i]
+    P[:500] = A[rows[:500]] + 1e-17 * rng.normal(size=(500, 3))     # ends next to the plane
+    P[:250] = A[rows[:250]]                                         # and on it
+    Q[500:800] = 0.5 * (B[rows[500:800]] + C[rows[500:800]])
+    flat = rows[800:900]                                            # triangles of no area, exactly
+    A[flat] = 0.0
+    C[flat] = 2.0 * B[flat]
+    s1, s2 = segment_sides(P, Q, triangle_planes(A, B, C), rows)
+    # The filter's floating-point evaluation with the corner and the point swapped, bit for bit...
+    np.testing.assert_array_equal(s1, -orient3d_filtered(P, B[rows], C[rows], A[rows]))
+    np.testing.assert_array_equal(s2, -orient3d_filtered(Q, B[rows], C[rows], A[rows]))
+    # ... whose certain signs are the point's orientation against the triangle; what it cannot tell is 0.
+    for s, X in ((s1, P), (s2, Q)):
+        ref = orient3d_filtered(A[rows], B[rows], C[rows], X)
+        both = (s != 0) & (ref != 0)
+        assert both.sum() > 3000 and np.array_equal(s[both], ref[both])
+        assert np.all(s[800:900] == 0)
+    assert np.all(s1[:250] == 0)
 
 
 def test_general_position_against_parametric_solution():

