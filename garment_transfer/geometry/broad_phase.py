@@ -78,9 +78,14 @@ class BoxGrid:
         self.lo, self.hi = self.lo.copy(), self.hi.copy()
         item, key = _cell_entries(ilo, ihi, self.dims)
         order = stable_order(key)
-        self.key, self.item = key[order], item[order]
-        self.lo_axes = [np.ascontiguousarray(self.lo[:, k]) for k in range(3)]
-        self.hi_axes = [np.ascontiguousarray(self.hi[:, k]) for k in range(3)]
+        self._entries(key[order], item[order])
+
+    def _entries(self, key, item):
+        """The entries (cell key, box) in the order of their keys, and each entry's box axis by axis: the
+        candidates of one cell are neighbouring entries, so their boxes are read from neighbouring memory."""
+        self.key, self.item = key, item
+        self.entry_lo = [self.lo[item, k] for k in range(3)]
+        self.entry_hi = [self.hi[item, k] for k in range(3)]
 
     def _cells(self, x):
         # Clipped to the grid: a box beyond it is kept in the border cells (clipping keeps the order of
@@ -101,8 +106,6 @@ class BoxGrid:
         if items.size == 0:
             return
         self.lo[items], self.hi[items] = lo, hi
-        for k in range(3):
-            self.lo_axes[k][items], self.hi_axes[k][items] = lo[:, k], hi[:, k]
         gone = np.zeros(self.size, bool)
         gone[items] = True
         keep = ~gone[self.item]
@@ -111,7 +114,7 @@ class BoxGrid:
         item = np.concatenate([self.item[keep], items[which]])
         # Two sorted runs once the new entries are sorted: the stable sort merges them.
         order = np.argsort(key, kind="stable")
-        self.key, self.item = key[order], item[order]
+        self._entries(key[order], item[order])
 
     def query(self, lo, hi):
         """Pairs of overlapping boxes, each once.
@@ -136,28 +139,33 @@ class BoxGrid:
         start = np.searchsorted(self.key, key, side="left")
         count = np.searchsorted(self.key, key, side="right") - start
         keep = count > 0
-        which, key, start, count = which[keep], key[keep], start[keep], count[keep]
+        which, start, count = which[keep], start[keep], count[keep]
         i = np.repeat(which, count)
-        cell_key = np.repeat(key, count)
-        offs = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-        j = self.item[np.repeat(start, count) + offs]
-        return self._owned(i, j, cell_key, [lo[:, k] for k in range(3)], [hi[:, k] for k in range(3)])
+        entry = np.repeat(start, count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+        i, entry = self._owned(i, entry, [lo[:, k] for k in range(3)], [hi[:, k] for k in range(3)])
+        return np.stack([i, self.item[entry]], axis=1)
 
-    def _owned(self, i, j, cell_key, lo_axes, hi_axes):
-        """The candidates (box i of the boxes given by axis, ``lo_axes``, ``hi_axes``; binned box j), met in the
-        cell ``cell_key``, whose boxes overlap and whose overlap's lower corner lies in that cell: (k,2) int64."""
-        # Axis by axis, each test on what the last one kept (most candidates fail the first).
-        corner = []
-        for axis in range(3):
-            a_lo, b_lo = lo_axes[axis][i], self.lo_axes[axis][j]
-            overlap = (a_lo <= self.hi_axes[axis][j]) & (b_lo <= hi_axes[axis][i])
-            i, j, cell_key = i[overlap], j[overlap], cell_key[overlap]
-            corner = [c[overlap] for c in corner] + [np.maximum(a_lo[overlap], b_lo[overlap])]
+    def _owned(self, i, entry, lo_axes, hi_axes):
+        """The candidates (box i of the boxes given by axis, ``lo_axes``, ``hi_axes``; the binned box of entry
+        ``entry``), met in the entry's cell, whose boxes overlap and whose overlap's lower corner lies in that
+        cell: (i (k,), entry (k,))."""
+        # The first axis on every candidate (most fail it), the other two together on what it kept.
+        a_lo, b_lo = lo_axes[0][i], self.entry_lo[0][entry]
+        overlap = (a_lo <= self.entry_hi[0][entry]) & (b_lo <= hi_axes[0][i])
+        i, entry = i[overlap], entry[overlap]
+        corner = [np.maximum(a_lo[overlap], b_lo[overlap])]
+        overlap = np.ones(i.shape[0], bool)
+        for axis in (1, 2):
+            a_lo, b_lo = lo_axes[axis][i], self.entry_lo[axis][entry]
+            overlap &= (a_lo <= self.entry_hi[axis][entry]) & (b_lo <= hi_axes[axis][i])
+            corner.append(np.maximum(a_lo, b_lo))
+        i, entry = i[overlap], entry[overlap]
+        corner = [c[overlap] for c in corner]
         # The pair belongs to the cell of the lower corner of the overlap box only: no duplicates.
         c = [np.clip(np.floor((corner[axis] - self.origin[axis]) / self.cell).astype(np.int64), 0,
                      self.dims[axis] - 1) for axis in range(3)]
-        own = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2] == cell_key
-        return np.stack([i[own], j[own]], axis=1)
+        own = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2] == self.key[entry]
+        return i[own], entry[own]
 
     def self_pairs(self):
         """Pairs of distinct binned boxes that overlap, each once as ``(i, j)`` with ``i < j``: (k,2) int64.
@@ -178,7 +186,9 @@ class BoxGrid:
         after = np.repeat(starts + counts, counts) - first - 1
         a = np.repeat(first, after)
         b = a + 1 + (np.arange(after.sum()) - np.repeat(np.cumsum(after) - after, after))
-        return np.sort(self._owned(item[a], item[b], key[a], self.lo_axes, self.hi_axes), axis=1)
+        # Both boxes read in entry order: a is the first entry's position, b the second's.
+        a, b = self._owned(a, b, self.entry_lo, self.entry_hi)
+        return np.sort(np.stack([item[a], item[b]], axis=1), axis=1)
 
 
 def box_pairs(lo_a, hi_a, lo_b, hi_b, cell=None):
