@@ -45,7 +45,9 @@ after the first full check only what a round moved is checked again (``crossings
 ``near_pairs_again``, ``SelfCheck``: the garment's own parts binned with room to move, binned again
 only when something moved beyond it), and the self-intersections of the current shape are kept from
 round to round, not counted again. Each predicate is the filtered floating-point orient3d, with the
-exact fallback only where the filter cannot decide (``intersections.segments_meet_triangles``).
+exact fallback only where the filter cannot decide (``intersections.segments_meet_triangles``). The checks that
+do not depend on each other (the crossings, the close pairs and the garment's own pairs) run side by side where a
+core is free (``threads.together``).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ from .penetration import spread_displacement, vertex_adjacency
 from .proximity import closest_on_triangles
 from .readings import Readings, as_readings, group_members
 from .self_check import NO_PAIRS, SelfCheck, beyond_source, pairs_in_full, unique_pairs
+from .threads import together
 
 log = logging.getLogger(__name__)
 
@@ -681,11 +684,12 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
         changed = np.any(V_new != V, axis=1)
         moved |= changed
         V = V_new
-        c = crossings_again(V, G, obstacle, c, changed)
+        # The crossings and the close pairs of what moved, side by side where a core is free.
+        c, close = together(lambda: crossings_again(V, G, obstacle, c, changed),
+                            lambda: near_pairs_again(V, G, obstacle, near, close, changed) if keep_offset else None)
         lifts = Lifts()
         last_near = n_near
         if keep_offset:
-            close = near_pairs_again(V, G, obstacle, near, close, changed)
             near_lifts(V, G, obstacle, offset, near, close, lifts)
             n_near = near_count(close)
         log.debug("round %d: %d crossings, %d near, %d vertices moved",
@@ -706,20 +710,26 @@ def _known_state(V, G, obstacle, near, keep_offset, check, known):
     ``clear_body``), checked again where V moved since, found in full where it has not."""
     V_known, (c, close, pairs) = known if known is not None else (None, (None, None, None))
     changed = None if V_known is None else np.any(V != V_known, axis=1)
-    if c is None:
-        c = garment_crossings(V, G, obstacle)
-    elif changed is not None:
-        c = crossings_again(V, G, obstacle, c, changed)
-    if not keep_offset:
-        close = None
-    elif close is None:
-        close = near_pairs(V, G, obstacle, near)
-    elif changed is not None:
-        close = near_pairs_again(V, G, obstacle, near, close, changed)
-    if pairs is None:
-        pairs = check.all(V)
-    elif changed is not None:
-        pairs = check.again(V, pairs, changed)
+
+    def crossed():
+        if c is None:
+            return garment_crossings(V, G, obstacle)
+        return c if changed is None else crossings_again(V, G, obstacle, c, changed)
+
+    def closer():
+        if not keep_offset:
+            return None
+        if close is None:
+            return near_pairs(V, G, obstacle, near)
+        return close if changed is None else near_pairs_again(V, G, obstacle, near, close, changed)
+
+    def own():
+        if pairs is None:
+            return check.all(V)
+        return pairs if changed is None else check.again(V, pairs, changed)
+
+    # Three checks that share nothing that changes, side by side where cores are free.
+    c, close, pairs = together(crossed, closer, own)
     return c, close, pairs
 
 

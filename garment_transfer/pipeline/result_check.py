@@ -19,6 +19,7 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings, garmen
 from ..geometry.proximity import TriangleSurface
 from ..geometry.readings import Readings, readings_of
 from ..geometry.self_check import beyond_source, pairs_in_full
+from ..geometry.threads import together
 
 #: The keys of a transfer's ``info`` that describe the result as the pass left it in memory; a report of the
 #: result as written gives ``check_result``'s figures instead.
@@ -65,23 +66,31 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         B = body_readings if body_readings is not None else readings_of(target_body)
         body = Obstacle(target_body.V, B, TriangleSurface(target_body.V, target_body.F), edge_length(V, G))
     surface = body.surface
-    c = garment_crossings(V, G, body)
-    pairs = pairs_in_full(V, G)
-    if source_pairs is None:
-        source_pairs = pairs_in_full(garment.V, G)
-    layer = 0
-    for V_l, F_l in layers_below:
-        cl = crossings(V, G, V_l, F_l)
-        layer += cl["a_edge_pairs"] + cl["b_edge_pairs"]
-    crossed = c["a_edge_pairs"] + c["b_edge_pairs"] > 0
+
+    def apart():
+        # Measured whatever the crossings (it assumes none): where there are some, 0 is reported instead.
+        return garment_distance(V, G, body), int((surface.signed_distance(V)[0] < 0).sum())
+
+    def crossed():
+        c = garment_crossings(V, G, body)
+        pairs = pairs_in_full(V, G)
+        source = pairs_in_full(garment.V, G) if source_pairs is None else source_pairs
+        layer = 0
+        for V_l, F_l in layers_below:
+            cl = crossings(V, G, V_l, F_l)
+            layer += cl["a_edge_pairs"] + cl["b_edge_pairs"]
+        return c, pairs, source, int(beyond_source(pairs, G, garment.V, source).shape[0]), layer
+
+    # The distances on one core, the crossings of the body, of itself and of the layers under it on another.
+    (distance, inside), (c, pairs, source, new, layer) = together(apart, crossed)
+    if c["a_edge_pairs"] + c["b_edge_pairs"] > 0:
+        distance = 0.0
     return {"garment_edges_through_body": c["a_edges_through_b"],
             "body_edges_through_garment": c["b_edges_through_a"],
             "garment_edge_body_pairs": c["a_edge_pairs"], "body_edge_garment_pairs": c["b_edge_pairs"],
-            "inside_vertices": int((surface.signed_distance(V)[0] < 0).sum()),
-            "self_intersections": int(pairs.shape[0]), "self_intersections_source": int(source_pairs.shape[0]),
-            "self_intersections_new": int(beyond_source(pairs, G, garment.V, source_pairs).shape[0]),
-            "layer_crossings": int(layer),
-            "min_body_distance": 0.0 if crossed else garment_distance(V, G, body)}
+            "inside_vertices": inside, "self_intersections": int(pairs.shape[0]),
+            "self_intersections_source": int(source.shape[0]), "self_intersections_new": new,
+            "layer_crossings": int(layer), "min_body_distance": distance}
 
 
 def result_warnings(check: dict, name: str) -> list:

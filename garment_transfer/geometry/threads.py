@@ -1,0 +1,72 @@
+"""Independent array computations at once, where a core is free.
+
+Most of a check's time is numpy's, scipy's and libigl's work on whole arrays, which runs outside Python's lock:
+two checks that do not depend on each other (a garment's crossings and its close pairs against a body that does
+not move) take about the time of the longer one on two cores. The helper threads are few (the cores but one) and
+shared by the whole process; a call that finds none free runs its work in the caller's thread, so checks that
+already run side by side (poses fitted in threads, a catalogue's workers) do not multiply the threads.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+#: Helper threads for ``together`` (the cores but one, at most 3; none on one core).
+HELPERS = max(0, min(3, (os.cpu_count() or 1) - 1))
+
+_free = threading.BoundedSemaphore(HELPERS) if HELPERS else None
+_pool = None
+_pool_lock = threading.Lock()
+
+
+def _helpers():
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(HELPERS, thread_name_prefix="garment-check")
+        return _pool
+
+
+def together(*calls):
+    """Each call's result, in order: ``[call() for call in calls]``, the first calls on helper threads while
+    helpers are free, the last (and any that found none) in the caller's thread.
+
+    The calls must not depend on each other's effects. An exception in any is raised here, after every call has
+    ended.
+    """
+    futures = []
+    for call in calls[:-1]:
+        if _free is not None and _free.acquire(blocking=False):
+            futures.append(_helpers().submit(_released, call))
+        else:
+            futures.append(None)
+    results, error = [], None
+    # The caller's own share: the last call and those no helper took.
+    mine = {}
+    for i, call in enumerate(calls):
+        if i == len(calls) - 1 or futures[i] is None:
+            try:
+                mine[i] = call()
+            except BaseException as e:      # every call ends before the error is raised
+                error = error or e
+    for i in range(len(calls)):
+        if i in mine:
+            results.append(mine[i])
+            continue
+        try:
+            results.append(futures[i].result())
+        except BaseException as e:
+            error = error or e
+            results.append(None)
+    if error is not None:
+        raise error
+    return results
+
+
+def _released(call):
+    try:
+        return call()
+    finally:
+        _free.release()

@@ -1,0 +1,68 @@
+"""``geometry.threads.together``: the calls' results in order, every call ended before an error is raised, and
+the work done in the caller's thread when no helper is free."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from garment_transfer.geometry.threads import HELPERS, together
+
+
+def test_results_in_order_as_one_after_the_other():
+    rng = np.random.default_rng(0)
+    A = [rng.random((300, 300)) for _ in range(3)]
+    got = together(*(lambda a=a: a @ a.T for a in A))
+    for a, g in zip(A, got):
+        np.testing.assert_array_equal(g, a @ a.T)
+    assert together(lambda: 1) == [1]
+
+
+def test_an_error_is_raised_after_every_call_has_ended():
+    ended = []
+
+    def slow():
+        time.sleep(0.2)
+        ended.append("slow")
+        return 1
+
+    def broken():
+        raise ValueError("the second call")
+
+    with pytest.raises(ValueError, match="the second call"):
+        together(slow, broken)
+    assert ended == ["slow"]
+    with pytest.raises(ValueError, match="the second call"):
+        together(broken, slow)
+    assert ended == ["slow", "slow"]
+    # The helpers are free again: a later call still gets one (where the machine has more than one core).
+    names = together(lambda: threading.current_thread().name, lambda: threading.current_thread().name)
+    assert names[1] == threading.current_thread().name
+    assert (names[0] != names[1]) == (HELPERS > 0)
+
+
+def test_no_free_helper_runs_the_work_in_the_callers_thread():
+    here = threading.current_thread().name
+    if HELPERS == 0:
+        assert together(lambda: threading.current_thread().name, lambda: 0)[0] == here
+        return
+    # Every helper busy (inside calls of their own): a nested call runs everything where it is.
+    release = threading.Event()
+    started = threading.Semaphore(0)
+
+    def busy():
+        started.release()
+        release.wait(5)
+        return together(lambda: threading.current_thread().name, lambda: threading.current_thread().name)
+
+    outer = threading.Thread(target=lambda: results.append(together(*([busy] * HELPERS), lambda: None)))
+    results = []
+    outer.start()
+    for _ in range(HELPERS):
+        assert started.acquire(timeout=5)
+    assert together(lambda: threading.current_thread().name, lambda: 0)[0] == here
+    release.set()
+    outer.join(5)
+    for nested in results[0][:HELPERS]:
+        assert nested[0] == nested[1]          # each helper ran its nested calls itself
