@@ -336,7 +336,8 @@ def _posed_counts(rest, cloth, outcome, name, posed, V):
 
     # The posed body as the fit read it: the rest body's polygons (the same mesh) at the posed positions.
     return posed_counts(V, cloth, rest.with_vertices(posed.V, name=posed.name), float(outcome.info["offset"]),
-                        rest_V=rest.V, name=name, contact=outcome.contact, free=outcome.obstacle)
+                        rest_V=rest.V, name=name, contact=outcome.contact, free=outcome.obstacle,
+                        surface=outcome.surface)
 
 
 def bake_steps(context, obj, body, start, end):

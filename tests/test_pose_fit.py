@@ -85,7 +85,8 @@ def test_poses_fitted_at_once_are_each_pose_fitted_alone_read_as_needed_and_stop
     assert [n for n, _ in rest] == [n for n, _ in poses[1:]]
     for n, result in rest:
         assert np.array_equal(result.V, alone[n].V) and result.info == alone[n].info
-        assert result.obstacle is None and result.contact is not None     # not 20 MB a pose kept
+        assert result.obstacle is None and result.surface is None         # not 25 MB a pose kept
+        assert result.contact is not None and alone[n].surface is not None
     read.clear()
     given = fit_poses(body, one_by_one(), garment, prepared=prepared, workers=2)
     next(given)

@@ -98,7 +98,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     if offset is None:
         offset = OFFSET_SHARE * body_scale(target_body.V)
     result.info.update(offset=float(offset), fix_penetration=bool(fix))
-    result.V, result.penetrating_vertices, result.obstacle = fit_to_body(
+    result.V, result.penetrating_vertices, result.obstacle, result.surface = fit_to_body(
         V, prepared, target_body, offset, fix_penetration=fix, resolve_crossings=resolve,
         source_V=back.apply(garment.V), info=result.info, seconds=result.seconds,
         step=None if progress is None else (lambda f, stage: progress(0.9 + 0.5 * (f - 0.8), stage)))

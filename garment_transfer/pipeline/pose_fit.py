@@ -196,7 +196,8 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
                                                              resolve_crossings=resolve_crossings,
                                                              contact_rings=contact_rings, name=name,
-                                                             contact=result.contact, free=result.obstacle)
+                                                             contact=result.contact, free=result.obstacle,
+                                                             surface=result.surface)
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     return result
@@ -224,9 +225,10 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
     ------
     (name, TransferResult)
         In the order of ``poses``; each result is what ``fit_to_pose`` gives for that pose alone, less the posed body
-        as its pass binned it (``obstacle`` is None: about 20 MB a pose for a MakeHuman body, which a caller keeping
-        many results, a bake, cannot hold; ``posed_counts`` bins it again, the same counts). Closing the generator
-        (a cancel) drops the poses not begun and waits for those being fitted.
+        as its pass binned and searched it (``obstacle`` and ``surface`` are None: about 25 MB a pose for a
+        MakeHuman body, which a caller keeping many results, a bake, cannot hold; ``posed_counts`` bins it again,
+        the same counts). Closing the generator (a cancel) drops the poses not begun and waits for those being
+        fitted.
     """
     if prepared is None:
         prepared = prepare_garment(rest_body, garment)
@@ -235,7 +237,7 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
     def fit(name, V):
         result = fit_to_pose(rest_body, V, garment, prepared=prepared, offset=offset,
                              resolve_crossings=resolve_crossings, name=name)
-        result.obstacle = None
+        result.obstacle = result.surface = None
         return result
 
     if workers == 1:
@@ -276,7 +278,7 @@ def free_body(body: Mesh, contact, garment: Mesh, V):
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
-                     contact_rings=CONTACT_RINGS, name="pose", contact=None, free=None):
+                     contact_rings=CONTACT_RINGS, name="pose", contact=None, free=None, surface=None):
     """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
 
     Parameters
@@ -299,6 +301,8 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         ``self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)``, when made already.
     free : Obstacle, optional
         ``free_body(body, contact[0], garment, V)``, when made already.
+    surface : TriangleSurface, optional
+        Of ``body``'s own triangles, when made already (``TransferResult.surface`` of the transfer to it).
 
     Returns
     -------
@@ -330,7 +334,7 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
             V, outside = W, after
             if not outside:
                 break
-    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
+    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact, surface)
     info.update(crossings_outside_contact=int(outside), crossings_at_contact=at)
     info["warnings"] += pose_warnings(int(outside), at, int(body_self), name)
     return V, inside
@@ -355,12 +359,15 @@ def edges_crossing(c):
     return int(c["a_edges_through_b"] + c["b_edges_through_a"])
 
 
-def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact):
+def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=None):
     """The garment's crossings with the body's triangles at its own contact (each edge once, both ways), and the
-    garment vertices inside the body."""
+    garment vertices inside the body (``surface``: of the body's own triangles, when made already)."""
     at_contact = body_F[contact[body_F].any(axis=1)]
     at = int(sum(crossing_counts(V, garment_F, body.V, at_contact))) if at_contact.size else 0
-    return at, int((TriangleSurface(body.V, body.F).signed_distance(V)[0] < 0).sum())
+    if surface is None or not (surface.V.shape == body.V.shape and np.array_equal(surface.V, body.V)
+                               and np.array_equal(surface.F, body.F)):
+        surface = TriangleSurface(body.V, body.F)
+    return at, int((surface.signed_distance(V)[0] < 0).sum())
 
 
 def pose_warnings(outside, at_contact, body_self, name):
@@ -375,17 +382,17 @@ def pose_warnings(outside, at_contact, body_self, name):
 
 
 def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose",
-                 contact=None, free=None):
+                 contact=None, free=None, surface=None):
     """The pose fit's figures of garment positions ``V`` (a file as written, read back; an object as Blender has
     it) on the posed body, as ``clear_posed_body`` counts them: ``crossings_outside_contact``,
     ``crossings_at_contact`` (under every split of both), ``penetrating_vertices``, ``body_self_crossings`` and
-    ``warnings``. ``contact``, ``free``: the body's own contact and the body away from it, when made already
-    (``TransferResult.contact`` and ``obstacle`` of the fit to this body; ``free`` is used only when it is of
-    these very body positions)."""
+    ``warnings``. ``contact``, ``free``, ``surface``: the body's own contact, the body away from it and its own
+    triangles searched, when made already (``TransferResult.contact``, ``obstacle`` and ``surface`` of the fit to
+    this body; ``free`` and ``surface`` are used only when they are of these very body positions)."""
     V, garment_F, body_F, (contact, body_self), free = _posed_parts(V, garment, body, offset, rest_V, contact_rings,
                                                                     contact, free)
     outside = edges_crossing(garment_crossings(V, garment_F, free))
-    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact)
+    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact, surface)
     return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
             "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
 

@@ -120,6 +120,9 @@ class TransferResult:
     contact : tuple or None
         A pose fit's (``pose_fit.fit_to_pose``): the posed body's own contact, ``(contact (n,) bool, crossings
         int)`` as ``pose_fit.self_contact`` gives it, for counting the result as written (``posed_counts``).
+    surface : TriangleSurface or None
+        The target body's own triangles as the penetration fix searched them (its tree built), for a later count
+        of the vertices inside the same body.
     """
 
     V: np.ndarray
@@ -129,6 +132,7 @@ class TransferResult:
     prepared: "PreparedGarment | None" = field(default=None, repr=False)
     obstacle: object = field(default=None, repr=False)
     contact: object = field(default=None, repr=False)
+    surface: object = field(default=None, repr=False)
 
 
 @dataclass
@@ -409,6 +413,8 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
         Garment vertices inside ``body``.
     obstacle : Obstacle or None
         ``body`` as the crossing pass binned it (None when the pass did not run).
+    surface : TriangleSurface
+        ``body``'s own triangles as the fix searched them.
     """
     info = {} if info is None else info
     seconds = {} if seconds is None else seconds
@@ -427,7 +433,7 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
     seconds["fix"] = time.perf_counter() - t
     info["resolve_crossings"] = bool(fix_penetration and resolve_crossings)
     if not (fix_penetration and resolve_crossings):
-        return V, inside, None
+        return V, inside, None, surface
     if step is not None:
         step(0.9, "crossings")
     t = time.perf_counter()
@@ -442,7 +448,7 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
         V, inside, info["crossings_pass_inside_undone"] = _undo_pushes_inside(V, V_fixed, surface)
         info["inside_after"] = inside
     seconds["crossings"] = time.perf_counter() - t
-    return V, inside, obstacle
+    return V, inside, obstacle, surface
 
 
 def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dict:
@@ -588,9 +594,10 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         info["limb_angles"] = pose
     if prepared.solver is not None:
         info["solver"] = prepared.solver.method
-    V, inside, obstacle = fit_to_body(V, prepared, target_body, offset, fix_penetration=fix_penetration,
-                            resolve_crossings=resolve_crossings, info=info, seconds=seconds, step=step)
+    V, inside, obstacle, surface = fit_to_body(V, prepared, target_body, offset, fix_penetration=fix_penetration,
+                                               resolve_crossings=resolve_crossings, info=info, seconds=seconds,
+                                               step=step)
     seconds["total"] = time.perf_counter() - t0
     step(1.0, "done")
-    return TransferResult(V, seconds, inside, info, prepared, obstacle)
+    return TransferResult(V, seconds, inside, info, prepared, obstacle, surface=surface)
 

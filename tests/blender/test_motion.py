@@ -236,7 +236,7 @@ def test_fit_to_pose_and_bake(character):
         except StopIteration as stop:
             kept = stop.value[2]["frames"]
             break
-    assert len(kept) == 2 and all(o.obstacle is None and o.contact is not None for _, o in kept)
+    assert len(kept) == 2 and all(o.obstacle is None and o.surface is None and o.contact is not None for _, o in kept)
     assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3) == {'FINISHED'}
     baked = bpy.data.objects[f"{result.name}_baked"]
     keys = baked.data.shape_keys.key_blocks
