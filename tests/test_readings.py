@@ -12,7 +12,7 @@ from garment_transfer.geometry.clearance import separate
 from garment_transfer.geometry.intersections import crossings, minimum_distance, self_intersections
 from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
 from garment_transfer.geometry.predicates import edge_triangle_pairs
-from garment_transfer.geometry.readings import merge_readings, readings_of
+from garment_transfer.geometry.readings import merge_readings, readings_of, split_readings, triangle_readings
 from garment_transfer.geometry.self_check import SelfCheck
 
 
@@ -44,6 +44,31 @@ def test_a_quad_is_read_both_ways_and_a_pentagon_every_way():
     q = readings_of(grid(2, 2))
     assert q.n_triangles == 4 and q.n_edges == 6 and (q.diagonal_of >= 0).sum() == 2
     assert np.array_equal(q.split, grid(2, 2).F)
+
+
+def test_one_split_read_by_polygons_finds_the_self_intersections_of_its_triangles():
+    # A sheet of quads and a pentagon and triangles crumpled onto itself: the mesh's own triangles checked with
+    # the polygons' boxes find exactly what a check of those triangles alone finds.
+    rng = np.random.default_rng(11)
+    sheet = grid(9, 8, wave=0.3)
+    quads = sheet.face_vertices.reshape(-1, 4).tolist()
+    polygons = quads[:40] + [quads[40][:3], [quads[40][0], *quads[40][2:]], quads[41] + [quads[50][2]]]
+    polygons += quads[42:50] + quads[51:]
+    V = sheet.V + rng.normal(scale=0.12, size=sheet.V.shape)
+    m = mesh_from_polygons(V, polygons)
+    R = split_readings(m)
+    assert split_readings(m) is R                                          # kept for the mesh's arrays
+    assert np.array_equal(np.sort(R.E, axis=0), np.sort(triangle_readings(m.F).E, axis=0))
+    assert {tuple(t) for t in R.F.tolist()} == {tuple(t) for t in m.F.tolist()} and R.n_triangles == m.n_triangles
+    assert np.all(np.diff(R.face) >= 0) and np.array_equal(R.split, m.F)
+
+    def as_vertices(R, pairs):
+        return {(tuple(sorted(R.E[e])), tuple(sorted(R.F[t]))) for e, t in pairs.tolist()}
+
+    T = triangle_readings(m.F)
+    found = as_vertices(R, SelfCheck(V, R).all(V))
+    assert len(found) > 20 and found == as_vertices(T, SelfCheck(V, T).all(V))
+    assert self_intersections(V, R)[0] == self_intersections(V, T)[0] == len(found)
 
 
 def test_a_crossing_under_the_other_split_of_a_quad_is_counted():

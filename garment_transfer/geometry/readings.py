@@ -321,6 +321,36 @@ def readings_of(mesh) -> Readings:
     return R if R.split is mesh.F else replace(R, split=np.asarray(mesh.F, dtype=np.int64))
 
 
+def split_readings(mesh) -> Readings:
+    """The readings of one triangulation of a mesh's polygons, its own (``Mesh.F``): its triangles and their edges,
+    grouped by the polygon they come from (kept as ``readings_of`` keeps a mesh's).
+
+    A check on them is the check of ``triangle_readings(mesh.F)`` (the same edges and triangles, a pair never
+    counted where its edge and triangle share a vertex, which every pair within a polygon does), with the polygons'
+    boxes for the bins: half as many boxes as triangles on a quad mesh (a posed MakeHuman body's own crossings in
+    0.6 times the time).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    """
+    return _kept_for((mesh.face_vertices, mesh.face_start, mesh.F), lambda: _split_readings(mesh))
+
+
+def _split_readings(mesh) -> Readings:
+    order = stable_order(np.asarray(mesh.tri_to_face, dtype=np.int64))
+    F = np.asarray(mesh.F, dtype=np.int64)[order]
+    face = np.asarray(mesh.tri_to_face, dtype=np.int64)[order]
+    n = int(F.max()) + 1 if F.size else 1
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    key, first = np.unique(e[:, 0] * n + e[:, 1], return_index=True)
+    E = np.stack([key // n, key % n], axis=1)
+    # Each edge's owner: the polygon of a triangle it is a side of (the polygon's box holds it).
+    return Readings(F, face, E, np.full(E.shape[0], -1, np.int64), np.tile(face, 3)[first],
+                    np.asarray(mesh.F, dtype=np.int64), np.asarray(mesh.face_vertices, dtype=np.int64),
+                    np.asarray(mesh.face_start, dtype=np.int64))
+
+
 def kept_triangle_readings(F) -> Readings:
     """``triangle_readings(F)``, kept as ``readings_of`` keeps a mesh's (by the identity of the array ``F``): the
     poses of one character share their triangle arrays, so what a self-intersection check needs of them

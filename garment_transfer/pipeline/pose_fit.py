@@ -36,7 +36,7 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
-from ..geometry.readings import kept_triangle_readings
+from ..geometry.readings import Readings, kept_triangle_readings, split_readings
 from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
@@ -110,7 +110,8 @@ def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
     ----------
     V : (n,3) float
         The posed body.
-    F : (m,3) int
+    F : (m,3) int or Readings
+        Its triangles, or ``readings.split_readings`` of its mesh (the same triangles, checked faster).
     rings : int
     rest_V : (n,3) float, optional
         The body at rest: with ``gap``, two vertices that came closer than ``gap`` and were more than twice
@@ -123,7 +124,8 @@ def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
     pairs : int
         The body's own edge-triangle crossings.
     """
-    R = kept_triangle_readings(F)
+    R = F if isinstance(F, Readings) else kept_triangle_readings(F)
+    F = R.split
     count, edges, triangles = self_intersections(V, R)
     contact = np.zeros(V.shape[0], dtype=bool)
     contact[edges.reshape(-1)] = True
@@ -190,7 +192,7 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result = transfer_garment(rest_body, posed, garment, prepared=prepared, offset=offset,
                               resolve_crossings=False, check_pose=False)
     t = time.perf_counter()
-    result.contact = self_contact(posed.V, posed.F, contact_rings, rest_body.V,
+    result.contact = self_contact(posed.V, split_readings(posed), contact_rings, rest_body.V,
                                   CONTACT_GAP * float(result.info["offset"]))
     result.obstacle = free_body(posed, result.contact[0], garment, result.V)
     result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
@@ -346,7 +348,7 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
     it (``free_body``); ``contact`` and ``free`` are made unless given (``free`` only when of these very body
     positions)."""
     if contact is None:
-        contact = self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)
+        contact = self_contact(body.V, split_readings(body), contact_rings, rest_V, CONTACT_GAP * offset)
     V = np.asarray(V, dtype=np.float64)
     if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
         free = free_body(body, contact[0], garment, V)
