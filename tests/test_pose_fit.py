@@ -14,9 +14,51 @@ from garment_transfer import (Rig, bvh_rotations, every_split, fit_poses, fit_to
                               read_obj, read_skeleton, read_weights, transfer_garment, write_obj)
 from garment_transfer.pipeline import self_contact
 from garment_transfer.geometry.proximity import TriangleSurface
-from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, crossing_counts
+from garment_transfer.geometry.clearance import separate
+from garment_transfer.geometry.obstacle import Obstacle, garment_crossings
+from garment_transfer.geometry.readings import kept_triangle_readings
+from garment_transfer.pipeline.pose_fit import (CONTACT_GAP, CONTACT_RINGS, crossing_counts, free_readings,
+                                                garment_readings, kept_split)
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_pose_fits_readings_by_polygon_are_its_triangles_of_every_split():
+    # A crumpled sheet of quads as the body, part of it in contact; another as the garment through it.
+    rng = np.random.default_rng(3)
+    body = grid(12, 10, size=2.0)
+    body = body.with_vertices(body.V + rng.normal(scale=0.05, size=body.V.shape))
+    cloth = grid(9, 8, size=1.6, wave=0.4)
+    V = cloth.V + [0.2, 0.1, -0.05] + rng.normal(scale=0.03, size=cloth.V.shape)
+    contact = np.zeros(body.V.shape[0], bool)
+    contact[rng.choice(body.V.shape[0], 12, replace=False)] = True
+    body_F = kept_split(body)
+    soup = kept_triangle_readings(body_F[~contact[body_F].any(axis=1)])
+    R = free_readings(body, contact)
+
+    def triangles(F):
+        return sorted(tuple(sorted(t)) for t in F.tolist())
+
+    assert triangles(R.F) == triangles(soup.F) and len(R.F) < 4 * body.n_faces
+    assert np.array_equal(R.E, soup.E) and np.array_equal(R.split, soup.split)
+    G, G_soup = garment_readings(cloth), kept_triangle_readings(kept_split(cloth))
+    assert np.array_equal(G.split, G_soup.split) and np.array_equal(G.E, G_soup.E)
+    assert triangles(G.F) == triangles(G_soup.F)
+
+    def through(G, R):
+        c = garment_crossings(V, G, Obstacle(body.V, R))
+        a = {(tuple(e), tuple(sorted(R.F[t]))) for e, t in zip(c["a_pairs"].tolist(), c["a_triangles"])}
+        b = {(tuple(e), tuple(sorted(G.F[t]))) for e, t in zip(c["b_pairs"].tolist(), c["b_triangles"])}
+        return a, b
+
+    a, b = through(G, R)
+    assert (a, b) == through(G_soup, soup) and len(a) > 5 and len(b) > 5
+    # The pass clears the same crossings either way (the same moves, up to the order of sums).
+    W, info = separate(V, G, body.V, Obstacle(body.V, R), 0.02, keep_offset=False)
+    W_soup, info_soup = separate(V, G_soup, body.V, Obstacle(body.V, soup), 0.02, keep_offset=False)
+    assert info["crossings_before"] == info_soup["crossings_before"] > 10
+    assert info["crossings_after"] == info_soup["crossings_after"]
+    np.testing.assert_allclose(W, W_soup, atol=1e-12)
 
 
 def test_every_split_holds_both_diagonals_and_every_fan():

@@ -23,6 +23,7 @@ import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,7 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
-from ..geometry.readings import Readings, kept_triangle_readings, split_readings
+from ..geometry.readings import Readings, kept_triangle_readings, readings_of, split_readings
 from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
@@ -273,10 +274,26 @@ def in_threads(fn, items, workers=None):
 
 def free_body(body: Mesh, contact, garment: Mesh, V):
     """The posed body's triangles of every split away from its own ``contact`` ((n,) bool), binned once for the
-    counts and passes of one pose (an ``Obstacle``; its cells sized for the garment's edges at V)."""
+    counts and passes of one pose (an ``Obstacle`` of ``free_readings``; its cells sized for the garment's edges
+    at V)."""
+    return Obstacle(body.V, free_readings(body, contact),
+                    cell=edge_length(np.asarray(V, dtype=np.float64), readings_of(garment)))
+
+
+def free_readings(body: Mesh, contact) -> Readings:
+    """The triangles of every split of the body's polygons with no ``contact`` ((n,) bool) corner, and their
+    edges, binned by polygon (a quad's box holds its triangles: a quarter of the boxes of the triangles); the
+    vertex graph and the surface are those triangles in ``kept_split``'s order."""
+    R = readings_of(body)
+    free = ~contact[R.F].any(axis=1)
+    F, face = R.F[free], R.face[free]
+    n = body.V.shape[0]
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    key, first = np.unique(e[:, 0] * n + e[:, 1], return_index=True)
     body_F = kept_split(body)
-    return Obstacle(body.V, body_F[~contact[body_F].any(axis=1)],
-                    cell=edge_length(np.asarray(V, dtype=np.float64), kept_triangle_readings(kept_split(garment))))
+    # Each edge's owner: the polygon of a triangle it is a side of (the polygon's box holds it).
+    return Readings(F, face, np.stack([key // n, key % n], axis=1), np.full(key.shape[0], -1, np.int64),
+                    np.tile(face, 3)[first], body_F[~contact[body_F].any(axis=1)], R.face_vertices, R.face_start)
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
@@ -352,7 +369,13 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
     V = np.asarray(V, dtype=np.float64)
     if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
         free = free_body(body, contact[0], garment, V)
-    return V, kept_triangle_readings(kept_split(garment)), kept_split(body), contact, free
+    return V, garment_readings(garment), kept_split(body), contact, free
+
+
+def garment_readings(garment: Mesh) -> Readings:
+    """The garment's readings as the pose fit checks and clears them: every triangle of every split, binned by
+    polygon (``readings_of``), with every split's triangles as the vertex graph the pass spreads its moves over."""
+    return replace(readings_of(garment), split=kept_split(garment))
 
 
 def edges_crossing(c):
