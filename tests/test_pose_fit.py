@@ -43,6 +43,7 @@ def test_the_pose_fits_readings_by_polygon_are_its_triangles_of_every_split():
     assert np.array_equal(R.E, soup.E) and np.array_equal(R.split, soup.split)
     G, G_soup = garment_readings(cloth), kept_triangle_readings(kept_split(cloth))
     assert np.array_equal(G.split, G_soup.split) and np.array_equal(G.E, G_soup.E)
+    assert garment_readings(cloth.with_vertices(V)) is G                   # kept for every pose: topology made once
     assert triangles(G.F) == triangles(G_soup.F)
 
     def through(G, R):

@@ -321,6 +321,24 @@ def readings_of(mesh) -> Readings:
     return R if R.split is mesh.F else replace(R, split=np.asarray(mesh.F, dtype=np.int64))
 
 
+def readings_with_graph(mesh, split) -> Readings:
+    """``readings_of(mesh)`` with another vertex graph ``split`` (triangles of the mesh's vertices: every split of
+    its polygons, say) for the checks and moves that spread over it; kept as ``readings_of`` keeps a mesh's (by the
+    identity of the arrays), so that what a self-intersection check needs (``Readings.topology``) is made once.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    split : (m,3) int
+    """
+    return _kept_for((mesh.face_vertices, mesh.face_start, split, _GRAPH),
+                     lambda: replace(readings_of(mesh), split=np.asarray(split, dtype=np.int64)))
+
+
+#: Marks the kept readings of ``readings_with_graph`` apart from the others kept for the same arrays.
+_GRAPH = np.zeros(0)
+
+
 def split_readings(mesh) -> Readings:
     """The readings of one triangulation of a mesh's polygons, its own (``Mesh.F``): its triangles and their edges,
     grouped by the polygon they come from (kept as ``readings_of`` keeps a mesh's).

@@ -23,7 +23,6 @@ import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +36,7 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
-from ..geometry.readings import Readings, kept_triangle_readings, readings_of, split_readings
+from ..geometry.readings import Readings, kept_triangle_readings, readings_of, readings_with_graph, split_readings
 from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
@@ -375,7 +374,7 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
 def garment_readings(garment: Mesh) -> Readings:
     """The garment's readings as the pose fit checks and clears them: every triangle of every split, binned by
     polygon (``readings_of``), with every split's triangles as the vertex graph the pass spreads its moves over."""
-    return replace(readings_of(garment), split=kept_split(garment))
+    return readings_with_graph(garment, kept_split(garment))
 
 
 def edges_crossing(c):
