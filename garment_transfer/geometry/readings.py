@@ -158,7 +158,6 @@ def _csr(groups, count):
     return np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=count))]), stable_order(groups)
 
 
-
 def group_members(start, order, P):
     """The members of each group in P (k,) int, given the groups' ``start`` (and ``order``, None when the
     members are in order already): (which (m,) index into P, member (m,))."""
@@ -357,16 +356,36 @@ def split_readings(mesh) -> Readings:
 
 def _split_readings(mesh) -> Readings:
     order = stable_order(np.asarray(mesh.tri_to_face, dtype=np.int64))
-    F = np.asarray(mesh.F, dtype=np.int64)[order]
-    face = np.asarray(mesh.tri_to_face, dtype=np.int64)[order]
+    return polygon_triangles_readings(np.asarray(mesh.F, dtype=np.int64)[order],
+                                      np.asarray(mesh.tri_to_face, dtype=np.int64)[order], mesh.F,
+                                      mesh.face_vertices, mesh.face_start)
+
+
+def polygon_triangles_readings(F, face, split, face_vertices, face_start) -> Readings:
+    """``Readings`` of some triangles of a mesh's polygons (one split, or those of every split kept by a test)
+    and of their edges, binned by polygon: each edge owned by the polygon of a triangle it is a side of, whose box
+    holds it. No edge is taken for a diagonal (``diagonal_of`` -1): the checks leave out every pair whose edge and
+    triangle share a vertex, as each such pair within a polygon does.
+
+    Parameters
+    ----------
+    F : (t,3) int
+        The triangles, grouped by polygon.
+    face : (t,) int
+        Each one's polygon (non-decreasing).
+    split : (m,3) int
+        The vertex graph and the surface (``Readings.split``).
+    face_vertices, face_start : (k,), (p+1,) int
+        The polygons.
+    """
+    F = np.asarray(F, dtype=np.int64)
+    face = np.asarray(face, dtype=np.int64)
     n = int(F.max()) + 1 if F.size else 1
     e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     key, first = np.unique(e[:, 0] * n + e[:, 1], return_index=True)
-    E = np.stack([key // n, key % n], axis=1)
-    # Each edge's owner: the polygon of a triangle it is a side of (the polygon's box holds it).
-    return Readings(F, face, E, np.full(E.shape[0], -1, np.int64), np.tile(face, 3)[first],
-                    np.asarray(mesh.F, dtype=np.int64), np.asarray(mesh.face_vertices, dtype=np.int64),
-                    np.asarray(mesh.face_start, dtype=np.int64))
+    return Readings(F, face, np.stack([key // n, key % n], axis=1), np.full(key.shape[0], -1, np.int64),
+                    np.tile(face, 3)[first], np.asarray(split, dtype=np.int64),
+                    np.asarray(face_vertices, dtype=np.int64), np.asarray(face_start, dtype=np.int64))
 
 
 def kept_triangle_readings(F) -> Readings:

@@ -36,7 +36,8 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface
-from ..geometry.readings import Readings, kept_triangle_readings, readings_of, readings_with_graph, split_readings
+from ..geometry.readings import (Readings, kept_triangle_readings, polygon_triangles_readings, readings_of,
+                                 readings_with_graph, split_readings)
 from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
@@ -285,14 +286,9 @@ def free_readings(body: Mesh, contact) -> Readings:
     vertex graph and the surface are those triangles in ``kept_split``'s order."""
     R = readings_of(body)
     free = ~contact[R.F].any(axis=1)
-    F, face = R.F[free], R.face[free]
-    n = body.V.shape[0]
-    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    key, first = np.unique(e[:, 0] * n + e[:, 1], return_index=True)
     body_F = kept_split(body)
-    # Each edge's owner: the polygon of a triangle it is a side of (the polygon's box holds it).
-    return Readings(F, face, np.stack([key // n, key % n], axis=1), np.full(key.shape[0], -1, np.int64),
-                    np.tile(face, 3)[first], body_F[~contact[body_F].any(axis=1)], R.face_vertices, R.face_start)
+    return polygon_triangles_readings(R.F[free], R.face[free], body_F[~contact[body_F].any(axis=1)],
+                                      R.face_vertices, R.face_start)
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
