@@ -280,15 +280,16 @@ def free_body(body: Mesh, contact, garment: Mesh, V):
                     cell=edge_length(np.asarray(V, dtype=np.float64), readings_of(garment)))
 
 
-def free_readings(body: Mesh, contact) -> Readings:
-    """The triangles of every split of the body's polygons with no ``contact`` ((n,) bool) corner, and their
-    edges, binned by polygon (a quad's box holds its triangles: a quarter of the boxes of the triangles); the
-    vertex graph and the surface are those triangles in ``kept_split``'s order."""
+def free_readings(body: Mesh, contact, at_contact=False) -> Readings:
+    """The triangles of every split of the body's polygons with no ``contact`` ((n,) bool) corner (``at_contact``:
+    those with one), and their edges, binned by polygon (a quad's box holds its triangles: a quarter of the boxes
+    of the triangles); the vertex graph and the surface are those triangles in ``kept_split``'s order."""
     R = readings_of(body)
-    free = ~contact[R.F].any(axis=1)
     body_F = kept_split(body)
-    return polygon_triangles_readings(R.F[free], R.face[free], body_F[~contact[body_F].any(axis=1)],
-                                      R.face_vertices, R.face_start)
+    keep, keep_split = contact[R.F].any(axis=1), contact[body_F].any(axis=1)
+    if not at_contact:
+        keep, keep_split = ~keep, ~keep_split
+    return polygon_triangles_readings(R.F[keep], R.face[keep], body_F[keep_split], R.face_vertices, R.face_start)
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
@@ -382,8 +383,10 @@ def edges_crossing(c):
 def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=None):
     """The garment's crossings with the body's triangles at its own contact (each edge once, both ways), and the
     garment vertices inside the body (``surface``: of the body's own triangles, when made already)."""
-    at_contact = body_F[contact[body_F].any(axis=1)]
-    at = int(sum(crossing_counts(V, garment_F, body.V, at_contact))) if at_contact.size else 0
+    at = 0
+    if contact[body_F].any():
+        near = Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, garment_F))
+        at = edges_crossing(garment_crossings(V, garment_F, near))
     if surface is None or not (surface.V.shape == body.V.shape and np.array_equal(surface.V, body.V)
                                and np.array_equal(surface.F, body.F)):
         surface = TriangleSurface(body.V, body.F)
