@@ -36,30 +36,23 @@ def together(*calls):
     The calls must not depend on each other's effects. An exception in any is raised here, after every call has
     ended.
     """
-    futures = []
-    for call in calls[:-1]:
-        if _free is not None and _free.acquire(blocking=False):
-            futures.append(_helpers().submit(_released, call))
-        else:
-            futures.append(None)
-    results, error = [], None
-    # The caller's own share: the last call and those no helper took.
-    mine = {}
-    for i, call in enumerate(calls):
-        if i == len(calls) - 1 or futures[i] is None:
+    futures = [_helpers().submit(_released, call) if _free is not None and _free.acquire(blocking=False) else None
+               for call in calls[:-1]] + [None]
+    results, error = [None] * len(calls), None
+    # The caller's own share first (the last call and those no helper took), then what the helpers give back:
+    # every call ends before an error is raised.
+    for i, (call, future) in enumerate(zip(calls, futures)):
+        if future is None:
             try:
-                mine[i] = call()
-            except BaseException as e:      # every call ends before the error is raised
+                results[i] = call()
+            except BaseException as e:
                 error = error or e
-    for i in range(len(calls)):
-        if i in mine:
-            results.append(mine[i])
-            continue
-        try:
-            results.append(futures[i].result())
-        except BaseException as e:
-            error = error or e
-            results.append(None)
+    for i, future in enumerate(futures):
+        if future is not None:
+            try:
+                results[i] = future.result()
+            except BaseException as e:
+                error = error or e
     if error is not None:
         raise error
     return results

@@ -363,9 +363,15 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
     if contact is None:
         contact = self_contact(body.V, split_readings(body), contact_rings, rest_V, CONTACT_GAP * offset)
     V = np.asarray(V, dtype=np.float64)
-    if free is None or free.V.shape != body.V.shape or not np.array_equal(free.V, body.V):
+    if not _made_for(free, body):
         free = free_body(body, contact[0], garment, V)
     return V, garment_readings(garment), kept_split(body), contact, free
+
+
+def _made_for(made, body: Mesh) -> bool:
+    """Whether something made of a body (an ``Obstacle``, a ``TriangleSurface``; None: not made) is of these very
+    body positions."""
+    return made is not None and np.array_equal(made.V, body.V)
 
 
 def garment_readings(garment: Mesh) -> Readings:
@@ -387,8 +393,7 @@ def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=Non
     if contact[body_F].any():
         near = Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, garment_F))
         at = edges_crossing(garment_crossings(V, garment_F, near))
-    if surface is None or not (surface.V.shape == body.V.shape and np.array_equal(surface.V, body.V)
-                               and np.array_equal(surface.F, body.F)):
+    if not (_made_for(surface, body) and np.array_equal(surface.F, body.F)):
         surface = TriangleSurface(body.V, body.F)
     return at, int((surface.signed_distance(V)[0] < 0).sum())
 
