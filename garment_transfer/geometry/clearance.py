@@ -15,7 +15,9 @@ spread, stay), and what moved is checked again, exactly. The same bounds keep a 
 body pairs (vertex-triangle both ways, edge-edge) closer than ``CLEARANCE_SHARE`` of the offset are
 lifted to ``CLEARANCE_PUSH`` times that, and crossings are cleared to the same distance, not to the
 whole offset (further lifts only cost the design). It ends when nothing is left or after
-``max_rounds`` (the result says how many are left; it never hides one).
+``max_rounds``; then the round that left the fewest crossings is kept (each round pushes harder, which a
+fold of the body or two body parts closing on the cloth can turn into more crossings), and the result says how
+many are left (it never hides one).
 
 Every check is made on every reading of the polygons (``readings.Readings``: both splits of each quad,
 every diagonal as an edge) of the garment and of the body, so that the result is clean whichever
@@ -53,6 +55,7 @@ core is free (``threads.together``).
 from __future__ import annotations
 
 import logging
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -654,9 +657,10 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
     """``separate`` without the source: the rounds that clear the body and keep the clearance.
 
     ``known`` is ``(V_known, state)`` of an earlier call on this garment (``V_known`` None: the state is
-    V's own; a None in the state: not known): only what moved since is checked again. Returns V, info
-    and the state (crossings, near pairs and self-intersecting pairs of the V returned)."""
-    moved = np.zeros(V.shape[0], bool)
+    V's own; a None in the state: not known): only what moved since is checked again. Returns the best
+    round's V (``_Round.rank``; the input's when no round is better), info and the state (crossings, near
+    pairs and self-intersecting pairs of the V returned)."""
+    V_in = V
     near = CLEARANCE_SHARE * offset if keep_offset else 0.0
     c, close, pairs = _known_state(V, G, obstacle, near, keep_offset, check, known)
     info = {"crossings_before": c["a_edge_pairs"] + c["b_edge_pairs"], "undone": 0}
@@ -667,6 +671,9 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
     info["near_before"] = n_near
     info["clearance"] = near
     rounds = 0
+    # The rounds' best state (fewest crossings, then fewest own pairs; the latest of equals) is what is returned:
+    # where the body folds or closes on the cloth a later, harder push can leave more than an earlier one.
+    best = _Round(V, c, close, pairs, n_near)
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
         crossing_lifts(V, G, obstacle, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
@@ -682,7 +689,6 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
         V_new, undone, pairs = _keep_self_intersections(V, V_new, step, A, check, pairs, guard)
         info["undone"] += undone
         changed = np.any(V_new != V, axis=1)
-        moved |= changed
         V = V_new
         # The crossings and the close pairs of what moved, side by side where a core is free.
         c, close = together(lambda: crossings_again(V, G, obstacle, c, changed),
@@ -694,15 +700,35 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
             n_near = near_count(close)
         log.debug("round %d: %d crossings, %d near, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, int(step.sum()))
+        this = _Round(V, c, close, pairs, n_near)
+        if this.rank() <= best.rank():
+            best = this
         if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and (n_near >= last_near or rounds >= CLEARANCE_ROUNDS):
             break   # clean; only the clearance is left, and it no longer improves or has had its rounds
+    V, c, close, pairs, n_near = best
     info["rounds"] = rounds
     info["crossings_after"] = c["a_edge_pairs"] + c["b_edge_pairs"]
     info["near_after"] = n_near
-    info["moved_vertices"] = int(moved.sum())
+    info["moved_vertices"] = int(np.any(V != V_in, axis=1).sum())
     if info["crossings_after"]:
         log.warning("%d garment-body crossings left after %d rounds", info["crossings_after"], rounds)
     return V, info, (c, close, pairs)
+
+
+class _Round(NamedTuple):
+    """A state of ``clear_body``'s rounds: the garment, its crossings, close pairs, own pairs and close count."""
+    V: np.ndarray
+    c: dict
+    close: dict | None
+    pairs: np.ndarray
+    n_near: int
+
+    def rank(self):
+        """Which of two states is better: fewer edges through the other mesh (garment edges through the body
+        plus body edges through the garment, as the counts of a result are made), then fewer (edge, triangle)
+        pairs, then fewer of the garment's own pairs."""
+        edges = sum(np.unique(self.c[k], axis=0).shape[0] for k in ("a_pairs", "b_pairs"))
+        return edges, self.c["a_edge_pairs"] + self.c["b_edge_pairs"], self.pairs.shape[0]
 
 
 def _known_state(V, G, obstacle, near, keep_offset, check, known):
