@@ -404,3 +404,22 @@ def test_the_round_that_left_the_fewest_crossings_is_kept_when_later_rounds_do_w
     # The first round's garment: one half moved up, nothing pushed down.
     assert np.all(out[:, 2] >= V[:, 2] - 1e-12)
     np.testing.assert_array_equal(out[V[:, 0] > 0], V[V[:, 0] > 0])
+
+
+@pytest.mark.parametrize("gap", [(0.98, 1.003), (0.97, 1.005)])
+def test_the_garments_own_pairs_checked_only_where_it_moves_give_the_same_pass(gap):
+    # The lower of two close sheets crosses the body: lifting it out would push it through the upper one, so
+    # the rounds hold moves back where the cloth would cross itself. Checking the garment's own pairs only where
+    # a round moves it (the pose fit, which reports no count of them) must hold back exactly the same moves.
+    BV, BF = icosphere(3)
+    V, F = two_sheets(z_low=gap[0], z_high=gap[1])
+    full, info = separate(V, F, BV, BF, offset=0.01)
+    assert info["undone"] > 0 and info["crossings_before"] > 0 == info["crossings_after"]
+    around, info_around = separate(V, F, BV, BF, offset=0.01, count_own=False)
+    np.testing.assert_array_equal(around, full)
+    assert {k: info_around[k] for k in ("undone", "rounds", "crossings_after", "moved_vertices")} == \
+        {k: info[k] for k in ("undone", "rounds", "crossings_after", "moved_vertices")}
+    assert "self_intersections_after" in info and "self_intersections_after" not in info_around
+    assert self_intersections(around, F)[0] == info["self_intersections_after"]
+    with pytest.raises(ValueError, match="counted in full"):
+        separate(V, F, BV, BF, offset=0.01, source_V=V, count_own=False)

@@ -492,7 +492,7 @@ def restore_source_shape(V, F, E, source_V, pairs, radius, body=None, clear=0.0)
 
 
 def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rounds=12, surface=None,
-             keep_offset=True, source_V=None, source_pairs=None, crossings=None):
+             keep_offset=True, source_V=None, source_pairs=None, crossings=None, count_own=True):
     """Remove every crossing between a garment and a body, keeping the folds.
 
     Parameters
@@ -530,6 +530,10 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     crossings : dict, optional
         ``obstacle.garment_crossings(V, F, body_F)`` when ``body_F`` is an ``Obstacle`` and they were counted
         already (a caller that counts before deciding to clear).
+    count_own : bool
+        Count the garment's own self-intersections in full (before and after). False (only without
+        ``source_V``): they are checked only where a round moves the cloth, as the rounds need (the same
+        result); the info then has no ``self_intersections_*`` figures.
 
     Returns
     -------
@@ -555,12 +559,21 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
         source_V = np.asarray(source_V, dtype=np.float64)
         if source_V.shape != V.shape:
             raise ValueError(f"source_V must have the garment's shape {V.shape}, got {source_V.shape}")
+    if not count_own and source_V is not None:
+        raise ValueError("the source's self-intersections are undone only with the garment's own counted in full")
     A = vertex_adjacency(V.shape[0], G.split)
     check = SelfCheck(V, G)
     V_start = V.copy()
-    start_pairs = check.all(V)
+    start_pairs = check.all(V) if count_own else _PairsAround(NO_PAIRS, np.zeros(V.shape[0], bool))
     V, info, state = clear_body(V, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                                 known=(None, (crossings if obstacle is body_F else None, None, start_pairs)))
+    if not count_own:
+        info["kept_input"] = False
+        if info["crossings_after"] > info["crossings_before"]:
+            log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
+                        info["crossings_after"], info["crossings_before"])
+            return _as_given(V_start, info)
+        return V, info
     info["self_intersections_before"] = int(start_pairs.shape[0])
     if source_V is None:
         pairs = state[2]
@@ -659,7 +672,7 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
     ``known`` is ``(V_known, state)`` of an earlier call on this garment (``V_known`` None: the state is
     V's own; a None in the state: not known): only what moved since is checked again. Returns the best
     round's V (``_Round.rank``; the input's when no round is better), info and the state (crossings, near
-    pairs and self-intersecting pairs of the V returned)."""
+    pairs and self-intersecting pairs of the V returned: a ``_PairsAround`` when it came as one)."""
     V_in = V
     near = CLEARANCE_SHARE * offset if keep_offset else 0.0
     c, close, pairs = _known_state(V, G, obstacle, near, keep_offset, check, known)
@@ -720,15 +733,16 @@ class _Round(NamedTuple):
     V: np.ndarray
     c: dict
     close: dict | None
-    pairs: np.ndarray
+    pairs: "np.ndarray | _PairsAround"
     n_near: int
 
     def rank(self):
         """Which of two states is better: fewer edges through the other mesh (garment edges through the body
         plus body edges through the garment, as the counts of a result are made), then fewer (edge, triangle)
-        pairs, then fewer of the garment's own pairs."""
+        pairs, then fewer of the garment's own pairs (where they are all known)."""
         edges = sum(np.unique(self.c[k], axis=0).shape[0] for k in ("a_pairs", "b_pairs"))
-        return edges, self.c["a_edge_pairs"] + self.c["b_edge_pairs"], self.pairs.shape[0]
+        own = 0 if isinstance(self.pairs, _PairsAround) else self.pairs.shape[0]
+        return edges, self.c["a_edge_pairs"] + self.c["b_edge_pairs"], own
 
 
 def _known_state(V, G, obstacle, near, keep_offset, check, known):
@@ -752,11 +766,26 @@ def _known_state(V, G, obstacle, near, keep_offset, check, known):
     def own():
         if pairs is None:
             return check.all(V)
-        return pairs if changed is None else check.again(V, pairs, changed)
+        if changed is None:
+            return pairs
+        if isinstance(pairs, _PairsAround):
+            # Around what moved, found again: then known there too.
+            found = check.local(V, changed)
+            kept = pairs.pairs[~check.touching(pairs.pairs, changed)]
+            return _PairsAround(unique_pairs(np.concatenate([kept, found])), pairs.known | changed)
+        return check.again(V, pairs, changed)
 
     # Three checks that share nothing that changes, side by side where cores are free.
     c, close, pairs = together(crossed, closer, own)
     return c, close, pairs
+
+
+class _PairsAround(NamedTuple):
+    """The garment's own self-intersecting pairs known only around some vertices: every pair with a ``known``
+    ((n,) bool) vertex in its edge or its triangle (``separate(..., count_own=False)``: the rounds find them
+    where they move the cloth, and need no others)."""
+    pairs: np.ndarray
+    known: np.ndarray
 
 
 def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, guard=True):
@@ -770,8 +799,9 @@ def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, gua
         The vertices that moved.
     A : (n,n) sparse adjacency
     check : SelfCheck
-    pairs : (k,2) int
-        The self-intersecting pairs of V_old.
+    pairs : (k,2) int or _PairsAround
+        The self-intersecting pairs of V_old (or those around some vertices: those around ``step`` are then
+        found first, where not known).
     guard : bool
         False: the moves are kept as they are (only the pairs are counted again).
 
@@ -780,10 +810,16 @@ def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, gua
     V : (n,3) float64
     undone : int
         Vertices whose move was reduced.
-    pairs : (j,2) int64
-        The self-intersecting pairs of V.
+    pairs : (j,2) int64 or _PairsAround
+        The self-intersecting pairs of V (known around the vertices known before and ``step``).
     """
     G = check.G
+    around = isinstance(pairs, _PairsAround)
+    if around:
+        unknown = step & ~pairs.known
+        found = check.local(V_old, unknown) if unknown.any() else NO_PAIRS
+        known = pairs.known | step
+        pairs = unique_pairs(np.concatenate([pairs.pairs, found]))
     touched = check.touching(pairs, step)
     kept, before = pairs[~touched], pairs[touched]
     undone = 0
@@ -805,7 +841,8 @@ def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, gua
         V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
         # Only the pairs of what was taken back can have changed.
         after = unique_pairs(np.concatenate([after[~check.touching(after, region)], check.local(V_new, region)]))
-    return V_new, undone, unique_pairs(np.concatenate([kept, after]))
+    pairs = unique_pairs(np.concatenate([kept, after]))
+    return V_new, undone, _PairsAround(pairs, known) if around else pairs
 
 
 def _rows_in(a, b):

@@ -337,7 +337,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         # The pass sees the body without its own contact: there the garment cannot be outside both surfaces.
         info["crossing_pass"] = []
         for _ in range(PASSES):
-            W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False, crossings=c)
+            # The garment's own pairs are checked where a round moves it, not counted in full: none is reported.
+            W, sep = clearance.separate(V, garment_F, body.V, free, offset, keep_offset=False, crossings=c,
+                                        count_own=False)
             # The pass's own count is exact (what it moved checked again against the same binned body): a clean
             # pass needs no count of the whole garment; one that leaves pairs is counted again by edges.
             c = garment_crossings(W, garment_F, free) if sep["crossings_after"] else None
