@@ -178,3 +178,15 @@ def test_edge_length_and_degenerate_equal_the_separate_functions():
     assert degenerate[:40].all() and degenerate.sum() >= 40
     h0, none = edge_length_and_degenerate(V, F[:0])
     assert h0 == 0.0 and none.shape == (0,)
+
+
+def test_cross_rows_is_numpys_cross_bit_for_bit():
+    from garment_transfer.geometry.mesh import cross_rows
+
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 1000):
+        a = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-8, 8, size=(n, 1))
+        b = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-8, 8, size=(n, 1))
+        np.testing.assert_array_equal(cross_rows(a, b), np.cross(a, b))
+        np.testing.assert_array_equal(cross_rows(b, -a), np.cross(b, -a))
+    np.testing.assert_array_equal(cross_rows(np.eye(3), np.roll(np.eye(3), -1, axis=0)), np.roll(np.eye(3), 1, axis=0))

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .gradients import inverse_3x3, triangle_frames
+from .mesh import cross_rows
 from .proximity import TriangleSurface
 
 
@@ -104,7 +105,7 @@ def carry(binding: Binding, body_V, body_F):
     many = tri.shape[0] > body_F.shape[0]
     F = body_F if many else body_F[tri]
     x1 = body_V[F[:, 0]]
-    c = np.cross(body_V[F[:, 1]] - x1, body_V[F[:, 2]] - x1)
+    c = cross_rows(body_V[F[:, 1]] - x1, body_V[F[:, 2]] - x1)
     dbl = np.linalg.norm(c, axis=1)
     n = np.divide(c, np.sqrt(dbl)[:, None], out=np.zeros_like(c), where=dbl[:, None] > 0)
     P += binding.local[:, 2:] * (n[tri] if many else n)

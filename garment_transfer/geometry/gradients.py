@@ -8,7 +8,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .mesh import DEGENERATE_AREA
+from .mesh import DEGENERATE_AREA, cross_rows
 
 #: The rest shapes' inverted frames, by digest of the rest shape: a source body goes to many targets
 #: (and its garments to every target), and its frames are the same every time. Kept for meshes of up
@@ -38,7 +38,7 @@ def triangle_frames(V, F):
     x1 = V[F[:, 0]]
     e1 = V[F[:, 1]] - x1
     e2 = V[F[:, 2]] - x1
-    c = np.cross(e1, e2)
+    c = cross_rows(e1, e2)
     dbl = np.linalg.norm(c, axis=1)
     n = np.divide(c, np.sqrt(dbl)[:, None], out=np.zeros_like(c), where=dbl[:, None] > 0)
     return np.stack([e1, e2, n], axis=2), dbl
@@ -143,7 +143,7 @@ def orthonormal_frames(V, F):
     V = np.asarray(V, dtype=np.float64)
     e1 = V[F[:, 1]] - V[F[:, 0]]
     e2 = V[F[:, 2]] - V[F[:, 0]]
-    n = np.cross(e1, e2)
+    n = cross_rows(e1, e2)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     t1 = e1 / np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    return np.stack([t1, np.cross(n, t1), n], axis=1)
+    return np.stack([t1, cross_rows(n, t1), n], axis=1)

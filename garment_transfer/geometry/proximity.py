@@ -44,7 +44,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import Mesh, faces_turned, same_mesh, triangle_normals, turned_around
+from .mesh import Mesh, cross_rows, faces_turned, same_mesh, triangle_normals, turned_around
 
 #: Threads for the numpy part of a query (per-point work on the found triangles); libigl's tree
 #: search runs on all cores by itself.
@@ -401,7 +401,7 @@ class TriangleSurface:
         x0, x1, x2 = (self.V[self.F[:, k]] for k in range(3))
         edges = np.stack([x1 - x0, x2 - x1, x0 - x2])
         # As ``triangle_normals`` computes it (negation is exact).
-        cross = np.cross(edges[0], -edges[2])
+        cross = cross_rows(edges[0], -edges[2])
         dbl = np.linalg.norm(cross, axis=1)
         if self._orientation is None:
             # ``signed_volume`` (about the centroid), from the same cross products.
