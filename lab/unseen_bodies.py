@@ -61,7 +61,9 @@ def _ends_weight(n):
     wrists, ankles and neck down their chains), blended by the weights."""
     bones, weights = _rig()
     ends = np.zeros(n)
-    for name in _descendants(bones, ["wrist.L", "wrist.R", "foot.L", "foot.R", "neck01"]):
+    # In the bones' order by name: a set's order follows Python's string hashing, which changes from run to run,
+    # and so would the sums' last bits.
+    for name in sorted(_descendants(bones, ["wrist.L", "wrist.R", "foot.L", "foot.R", "neck01"])):
         if name in weights:
             v, w = weights[name]
             np.add.at(ends, v, w)
@@ -150,7 +152,7 @@ def _turned(base, body_name, degrees, roots, name):
         # In the front plane (Y up, Z forward): about +Z for the left side (x > 0), -Z for the right.
         a = -np.sign(pivot[0]) * theta * (1.0 if root in ARM_ROOTS else -1.0)
         R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        for bone in _descendants(bones, [root]) & set(weights):
+        for bone in sorted(_descendants(bones, [root]) & set(weights)):
             v, w = weights[bone]
             np.add.at(move, v, w[:, None] * ((V[v] - pivot) @ R.T + pivot - V[v]))
     return base.with_vertices(V + move, name=name)
