@@ -102,6 +102,7 @@ def written_check(path, garment, target_body, result=None):
     written = read_obj(path)
     prepared = None if result is None else result.prepared
     return check_result(garment, written.V, target_body, obstacle=None if result is None else result.obstacle,
+                        surface=None if result is None else result.surface,
                         source_pairs=None if prepared is None else prepared.source_pairs(),
                         readings=None if prepared is None else prepared.readings())
 

@@ -28,7 +28,8 @@ PASS_RESULT_KEYS = ("crossings_after", "near_after", "inside_after", "self_inter
 
 
 def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, readings: Readings | None = None,
-                 body_readings: Readings | None = None, layers_below=(), obstacle: Obstacle | None = None) -> dict:
+                 body_readings: Readings | None = None, layers_below=(), obstacle: Obstacle | None = None,
+                 surface: TriangleSurface | None = None) -> dict:
     """Every figure of the promise, measured on a result.
 
     Parameters
@@ -47,6 +48,9 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         Garments worn under this one, as the user has them.
     obstacle : Obstacle, optional
         ``target_body`` binned already (``TransferResult.obstacle``: the same body, as the crossing pass saw it).
+    surface : TriangleSurface, optional
+        ``target_body``'s own triangles searched already (``TransferResult.surface``: the body the penetration fix
+        searched), for the body binned here when ``obstacle`` is not of it.
 
     Returns
     -------
@@ -60,11 +64,13 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     """
     V = np.asarray(V, dtype=np.float64)
     G = readings if readings is not None else readings_of(garment)
-    if obstacle is not None and obstacle.V.shape == target_body.V.shape and np.array_equal(obstacle.V, target_body.V):
+    if _of(obstacle, target_body.V):
         body = obstacle
     else:
         B = body_readings if body_readings is not None else readings_of(target_body)
-        body = Obstacle(target_body.V, B, TriangleSurface(target_body.V, target_body.F), edge_length(V, G))
+        if not (_of(surface, target_body.V) and np.array_equal(surface.F, target_body.F)):
+            surface = TriangleSurface(target_body.V, target_body.F)
+        body = Obstacle(target_body.V, B, surface, edge_length(V, G))
     surface = body.surface
 
     def apart():
@@ -91,6 +97,12 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
             "inside_vertices": inside, "self_intersections": int(pairs.shape[0]),
             "self_intersections_source": int(source.shape[0]), "self_intersections_new": new,
             "layer_crossings": int(layer), "min_body_distance": distance}
+
+
+def _of(made, V) -> bool:
+    """Whether something made of a body (an ``Obstacle``, a ``TriangleSurface``; None: not made) is of these very
+    body positions V."""
+    return made is not None and made.V.shape == V.shape and np.array_equal(made.V, V)
 
 
 def result_warnings(check: dict, name: str) -> list:
