@@ -1,31 +1,23 @@
 """The figures of a result as written: what the transfer already searched is used only when it is of the body
 given."""
 
-import numpy as np
-from meshes import icosphere
+from meshes import grid, icosphere
 
 from garment_transfer.geometry.intersections import crossings
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.proximity import TriangleSurface
+from garment_transfer.geometry.readings import readings_of
 from garment_transfer.pipeline.result_check import check_result
-
-
-def _sheet_through_sphere(n=6, size=2.4, z=0.97):
-    x, y = np.meshgrid(np.linspace(-size / 2, size / 2, n), np.linspace(-size / 2, size / 2, n))
-    V = np.stack([x.ravel(), y.ravel(), np.full(n * n, z)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    F = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
-                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
-    return V, F
 
 
 def test_a_surface_of_the_body_given_gives_the_same_figures_and_one_of_another_body_is_not_used():
     BV, BF = icosphere(3)
     body = mesh_from_triangles(BV, BF, name="body")
-    V, F = _sheet_through_sphere()
-    garment = mesh_from_triangles(V + [0.0, 0.0, 0.5], F, name="garment")   # its source, clear of the body
+    sheet = grid(nx=6, ny=6, size=2.4)                  # quads over the sphere's top, which pokes through them
+    V = sheet.V + [-1.2, -0.96, 0.97]
+    garment = sheet.with_vertices(V + [0.0, 0.0, 0.5])   # its source, clear of the body
     plain = check_result(garment, V, body)
-    c = crossings(V, F, BV, BF)
+    c = crossings(V, readings_of(garment), BV, BF)
     assert plain["body_edges_through_garment"] == c["b_edges_through_a"] > 0
     assert plain["inside_vertices"] == int((TriangleSurface(BV, BF).signed_distance(V)[0] < 0).sum())
     assert plain["min_body_distance"] == 0.0

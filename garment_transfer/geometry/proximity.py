@@ -348,6 +348,12 @@ def topology(n, F) -> Topology:
     return top
 
 
+def made_of(made, V) -> bool:
+    """Whether something made of a body's positions (a ``TriangleSurface``, an ``obstacle.Obstacle``; None: not
+    made) is of these very positions V."""
+    return made is not None and made.V.shape == np.shape(V) and np.array_equal(made.V, V)
+
+
 class TriangleSurface:
     """A triangle mesh prepared for closest-point and signed-distance queries.
 

@@ -35,7 +35,7 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.readings import (Readings, kept_triangle_readings, polygon_triangles_readings, readings_of,
                                  readings_with_graph, split_readings)
 from .shape_keys import shapes_outputs
@@ -365,15 +365,9 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
     if contact is None:
         contact = self_contact(body.V, split_readings(body), contact_rings, rest_V, CONTACT_GAP * offset)
     V = np.asarray(V, dtype=np.float64)
-    if not _made_for(free, body):
+    if not made_of(free, body.V):
         free = free_body(body, contact[0], garment, V)
     return V, garment_readings(garment), kept_split(body), contact, free
-
-
-def _made_for(made, body: Mesh) -> bool:
-    """Whether something made of a body (an ``Obstacle``, a ``TriangleSurface``; None: not made) is of these very
-    body positions."""
-    return made is not None and np.array_equal(made.V, body.V)
 
 
 def garment_readings(garment: Mesh) -> Readings:
@@ -395,7 +389,7 @@ def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=Non
     if contact[body_F].any():
         near = Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, garment_F))
         at = edges_crossing(garment_crossings(V, garment_F, near))
-    if not (_made_for(surface, body) and np.array_equal(surface.F, body.F)):
+    if not (made_of(surface, body.V) and np.array_equal(surface.F, body.F)):
         surface = TriangleSurface(body.V, body.F)
     return at, int((surface.signed_distance(V)[0] < 0).sum())
 

@@ -16,7 +16,7 @@ import numpy as np
 from ..geometry.intersections import crossings
 from ..geometry.mesh import Mesh
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings, garment_distance
-from ..geometry.proximity import TriangleSurface
+from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.readings import Readings, readings_of
 from ..geometry.self_check import beyond_source, pairs_in_full
 from ..geometry.threads import together
@@ -64,11 +64,11 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     """
     V = np.asarray(V, dtype=np.float64)
     G = readings if readings is not None else readings_of(garment)
-    if _of(obstacle, target_body.V):
+    if made_of(obstacle, target_body.V):
         body = obstacle
     else:
         B = body_readings if body_readings is not None else readings_of(target_body)
-        if not (_of(surface, target_body.V) and np.array_equal(surface.F, target_body.F)):
+        if not (made_of(surface, target_body.V) and np.array_equal(surface.F, target_body.F)):
             surface = TriangleSurface(target_body.V, target_body.F)
         body = Obstacle(target_body.V, B, surface, edge_length(V, G))
     surface = body.surface
@@ -97,12 +97,6 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
             "inside_vertices": inside, "self_intersections": int(pairs.shape[0]),
             "self_intersections_source": int(source.shape[0]), "self_intersections_new": new,
             "layer_crossings": int(layer), "min_body_distance": distance}
-
-
-def _of(made, V) -> bool:
-    """Whether something made of a body (an ``Obstacle``, a ``TriangleSurface``; None: not made) is of these very
-    body positions V."""
-    return made is not None and made.V.shape == V.shape and np.array_equal(made.V, V)
 
 
 def result_warnings(check: dict, name: str) -> list:
