@@ -567,23 +567,21 @@ def separate(V, F, body_V, body_F, offset, *, spread_rings=SPREAD_RINGS, max_rou
     start_pairs = check.all(V) if count_own else _PairsAround(NO_PAIRS, np.zeros(V.shape[0], bool))
     V, info, state = clear_body(V, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                                 known=(None, (crossings if obstacle is body_F else None, None, start_pairs)))
-    if not count_own:
+    if source_V is None:
+        given = {}
+        if count_own:
+            pairs = state[2]
+            info.update(self_intersections_before=int(start_pairs.shape[0]),
+                        self_intersections_after=int(pairs.shape[0]),
+                        self_intersections_added=int(pairs.shape[0] - start_pairs.shape[0]))
+            given["self_intersections_after"] = int(start_pairs.shape[0])
         info["kept_input"] = False
         if info["crossings_after"] > info["crossings_before"]:
             log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
                         info["crossings_after"], info["crossings_before"])
-            return _as_given(V_start, info)
+            return _as_given(V_start, info, **given)
         return V, info
     info["self_intersections_before"] = int(start_pairs.shape[0])
-    if source_V is None:
-        pairs = state[2]
-        info.update(self_intersections_after=int(pairs.shape[0]),
-                    self_intersections_added=int(pairs.shape[0] - start_pairs.shape[0]), kept_input=False)
-        if info["crossings_after"] > info["crossings_before"]:
-            log.warning("the crossings pass left %d crossings (%d before): the garment is kept as it was",
-                        info["crossings_after"], info["crossings_before"])
-            return _as_given(V_start, info, self_intersections_after=int(start_pairs.shape[0]))
-        return V, info
     return _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
                     source_V, source_pairs, info, state)
 

@@ -348,10 +348,11 @@ def topology(n, F) -> Topology:
     return top
 
 
-def made_of(made, V) -> bool:
+def made_of(made, V, F=None) -> bool:
     """Whether something made of a body's positions (a ``TriangleSurface``, an ``obstacle.Obstacle``; None: not
-    made) is of these very positions V."""
-    return made is not None and made.V.shape == np.shape(V) and np.array_equal(made.V, V)
+    made) is of these very positions V (and, given ``F``, of these very triangles: a ``TriangleSurface``'s)."""
+    return (made is not None and made.V.shape == np.shape(V) and np.array_equal(made.V, V)
+            and (F is None or np.array_equal(made.F, F)))
 
 
 class TriangleSurface:

@@ -389,7 +389,7 @@ def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=Non
     if contact[body_F].any():
         near = Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, garment_F))
         at = edges_crossing(garment_crossings(V, garment_F, near))
-    if not (made_of(surface, body.V) and np.array_equal(surface.F, body.F)):
+    if not made_of(surface, body.V, body.F):
         surface = TriangleSurface(body.V, body.F)
     return at, int((surface.signed_distance(V)[0] < 0).sum())
 

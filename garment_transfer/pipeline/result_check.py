@@ -68,7 +68,7 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         body = obstacle
     else:
         B = body_readings if body_readings is not None else readings_of(target_body)
-        if not (made_of(surface, target_body.V) and np.array_equal(surface.F, target_body.F)):
+        if not made_of(surface, target_body.V, target_body.F):
             surface = TriangleSurface(target_body.V, target_body.F)
         body = Obstacle(target_body.V, B, surface, edge_length(V, G))
     surface = body.surface
