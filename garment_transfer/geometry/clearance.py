@@ -685,6 +685,7 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
     # The rounds' best state (fewest crossings, then fewest own pairs; the latest of equals) is what is returned:
     # where the body folds or closes on the cloth a later, harder push can leave more than an earlier one.
     best = _Round(V, c, close, pairs, n_near)
+    best_rank = best.rank()
     while (c["a_edge_pairs"] + c["b_edge_pairs"] or n_near) and rounds < max_rounds:
         rounds += 1
         crossing_lifts(V, G, obstacle, c, (CLEARANCE_PUSH * CLEARANCE_SHARE + GAIN * (rounds - 1)) * offset, lifts)
@@ -712,8 +713,9 @@ def clear_body(V, G: Readings, A, obstacle: Obstacle, offset, spread_rings, max_
         log.debug("round %d: %d crossings, %d near, %d vertices moved",
                   rounds, c["a_edge_pairs"] + c["b_edge_pairs"], n_near, int(step.sum()))
         this = _Round(V, c, close, pairs, n_near)
-        if this.rank() <= best.rank():
-            best = this
+        rank = this.rank()
+        if rank <= best_rank:
+            best, best_rank = this, rank
         if c["a_edge_pairs"] + c["b_edge_pairs"] == 0 and (n_near >= last_near or rounds >= CLEARANCE_ROUNDS):
             break   # clean; only the clearance is left, and it no longer improves or has had its rounds
     V, c, close, pairs, n_near = best
