@@ -13,7 +13,7 @@ from garment_transfer.geometry.intersections import crossings, minimum_distance,
 from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
 from garment_transfer.geometry.predicates import edge_triangle_pairs
 from garment_transfer.geometry.readings import merge_readings, readings_of, split_readings, triangle_readings
-from garment_transfer.geometry.self_check import SelfCheck
+from garment_transfer.geometry.self_check import SelfCheck, overlapping
 
 
 def triangulations(polygon):
@@ -145,6 +145,20 @@ def test_self_check_on_polygons_equals_edges_against_triangles(seed):
     brute, _ = edge_triangle_pairs(W, R.E, W, R.F, same_mesh=True, edge_diagonal_of=R.diagonal_of,
                                    triangle_face=R.face)
     np.testing.assert_array_equal(again, brute)
+
+
+def test_overlapping_boxes_of_edges_and_triangles_as_brute_force_finds_them():
+    rng = np.random.default_rng(5)
+    # Coordinates on a coarse lattice: many boxes touch exactly (closed boxes overlap there).
+    V = rng.integers(0, 6, size=(40, 3)).astype(np.float64)
+    corners = rng.integers(0, 40, size=(5, 3000))
+    lo_e, hi_e = V[corners[:2]].min(axis=0), V[corners[:2]].max(axis=0)
+    lo_t, hi_t = V[corners[2:]].min(axis=0), V[corners[2:]].max(axis=0)
+    want = np.flatnonzero(np.all((lo_e <= hi_t) & (lo_t <= hi_e), axis=1))
+    assert 0 < want.size < 3000
+    np.testing.assert_array_equal(overlapping(V, corners), want)
+    which = np.sort(rng.choice(3000, 700, replace=False))
+    np.testing.assert_array_equal(overlapping(V, corners, which), np.intersect1d(which, want))
 
 
 def test_binned_boxes_moved_are_found_where_they_are():

@@ -144,9 +144,9 @@ class Readings:
         ``touching`` (q,) int64: keys ``a * p + b`` of every ordered pair of polygons that share a vertex (a
         polygon with itself included), sorted; ``near`` (r,2) int64: every (edge, triangle) pair of polygons
         that share a vertex whose edge and triangle share none and are not a diagonal and a triangle of one
-        polygon (the pairs a check of polygons that share no vertex would miss), and ``near_corners`` (r,5)
-        int32: their edge's two vertices and triangle's three; per vertex, its near pairs (``near_start`` (n+1,),
-        ``near_order``) and its polygons (``faces_start`` (n+1,), ``faces_order``).
+        polygon (the pairs a check of polygons that share no vertex would miss), and ``near_corners`` (5,r)
+        int32: their edge's two vertices and triangle's three, a row each; per vertex, its near pairs
+        (``near_start`` (n+1,), ``near_order``) and its polygons (``faces_start`` (n+1,), ``faces_order``).
         """
         if self._topology is None:
             self._topology = dict(self.members(), **_self_topology(self))
@@ -197,7 +197,7 @@ def _self_topology(R: Readings) -> dict:
     n = int(R.face_vertices.max()) + 1 if R.face_vertices.size else 0
     near_start, near_order = _csr(corners.reshape(-1), n)
     faces_start, faces_order = _csr(R.face_vertices, n)
-    return {"touching": touching, "near": near, "near_corners": corners.astype(np.int32),
+    return {"touching": touching, "near": near, "near_corners": np.ascontiguousarray(corners.T, dtype=np.int32),
             # Per vertex: the near pairs and the polygons it is in (``_runs`` reads them).
             "near_start": near_start, "near_order": near_order // 5,
             "faces_start": faces_start, "faces_order": poly_of_corner[faces_order]}

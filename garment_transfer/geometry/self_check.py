@@ -37,6 +37,23 @@ def unique_pairs(pairs):
     return np.stack([key // base, key % base], axis=1)
 
 
+def overlapping(V, corners, which=None):
+    """Which (edge, triangle) pairs have overlapping bounding boxes in V (n,3): indices (k,) int64.
+
+    ``corners`` (5,m) int: each pair's edge's two vertices and triangle's three, a row each; ``which`` (j,)
+    int: test only those pairs (all by default). Tested axis by axis on what the last axis kept (the first
+    axis leaves about half the pairs of neighbouring polygons)."""
+    keep = which
+    for axis in range(3):
+        x = np.ascontiguousarray(V[:, axis])[corners if keep is None else corners[:, keep]]
+        edge_lo, edge_hi = np.minimum(x[0], x[1]), np.maximum(x[0], x[1])
+        tri_lo = np.minimum(np.minimum(x[2], x[3]), x[4])
+        tri_hi = np.maximum(np.maximum(x[2], x[3]), x[4])
+        overlap = (edge_lo <= tri_hi) & (tri_lo <= edge_hi)
+        keep = np.flatnonzero(overlap) if keep is None else keep[overlap]
+    return keep
+
+
 class SelfCheck:
     """The self-intersecting (edge, triangle) pairs of one mesh's readings, in full (``all``) or of what moved
     (``local``).
@@ -116,17 +133,8 @@ class SelfCheck:
         return found[self.touching(found, moved)]
 
     def _near_overlapping(self, V, which=None):
-        """The ``near`` pairs (all, or those listed in ``which``) whose edge's and triangle's boxes overlap,
-        tested axis by axis on what the last axis kept (most neighbours' pairs are apart)."""
-        corners = self.top["near_corners"]
-        keep = np.arange(corners.shape[0]) if which is None else which
-        for axis in range(3):
-            x = V[:, axis][corners[keep]]
-            edge_lo, edge_hi = np.minimum(x[:, 0], x[:, 1]), np.maximum(x[:, 0], x[:, 1])
-            tri_lo = np.minimum(np.minimum(x[:, 2], x[:, 3]), x[:, 4])
-            tri_hi = np.maximum(np.maximum(x[:, 2], x[:, 3]), x[:, 4])
-            keep = keep[(edge_lo <= tri_hi) & (tri_lo <= edge_hi)]
-        return self.top["near"][keep]
+        """The ``near`` pairs (all, or those listed in ``which``) whose edge's and triangle's boxes overlap."""
+        return self.top["near"][overlapping(V, self.top["near_corners"], which)]
 
     def _apart(self, pairs):
         """The polygon pairs (k,2) that share no vertex (the others are in ``near``)."""
@@ -137,18 +145,16 @@ class SelfCheck:
         return pairs[touching[at] != key] if touching.size else pairs
 
     def _test(self, V, polygon_pairs, near):
-        """The pairs that meet among every (edge, triangle) of the polygon pairs and the ``near`` pairs."""
+        """The pairs that meet among every (edge, triangle) of the polygon pairs and the ``near`` pairs (whose
+        boxes overlap: ``_near_overlapping``)."""
         R = self.R
-        cand = np.concatenate([expand_polygon_pairs(R, polygon_pairs[:, 0], polygon_pairs[:, 1]), near])
-        e, t = R.E[cand[:, 0]], R.F[cand[:, 1]]
-        P, Q = V[e[:, 0]], V[e[:, 1]]
-        A, B, C = V[t[:, 0]], V[t[:, 1]], V[t[:, 2]]
+        cand = expand_polygon_pairs(R, polygon_pairs[:, 0], polygon_pairs[:, 1])
+        corners = np.concatenate([R.E[cand[:, 0]].T, R.F[cand[:, 1]].T])
         # Boxes first: most pairs of neighbouring polygons are apart.
-        lo_t, hi_t = np.minimum(np.minimum(A, B), C), np.maximum(np.maximum(A, B), C)
-        overlap = np.all((np.minimum(P, Q) <= hi_t) & (lo_t <= np.maximum(P, Q)), axis=1)
-        k = np.flatnonzero(overlap)
-        meet, _ = segments_meet_triangles(P[k], Q[k], A[k], B[k], C[k])
-        return unique_pairs(cand[k[meet]])
+        cand = np.concatenate([cand[overlapping(V, corners)], near])
+        e, t = R.E[cand[:, 0]], R.F[cand[:, 1]]
+        meet, _ = segments_meet_triangles(V[e[:, 0]], V[e[:, 1]], V[t[:, 0]], V[t[:, 1]], V[t[:, 2]])
+        return unique_pairs(cand[meet])
 
     def touching(self, pairs, moved):
         """(k,) bool: the pairs (k,2) with a ``moved`` vertex in the edge or the triangle."""
