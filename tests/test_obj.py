@@ -219,3 +219,82 @@ def test_whole_file_reading_equals_line_by_line_reading_on_random_files(tmp_path
             for key in ("V", "F", "face_vertices", "face_start"):
                 assert np.array_equal(getattr(fast, key), getattr(slow, key))
     assert whole >= 25                      # the whole-file reading was taken on many of them
+
+
+def sheet_with_normals(rng):
+    """A 4x3 quad sheet in the xy plane, curved along y: smooth normals per vertex (as Blender makes them), one face
+    shaded flat (its own normal, named by its four corners), one vertex's normal tilted by the artist."""
+    x, y = np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 0.8, 4) + 0.01 * rng.random(4))
+    V = np.stack([x, y, 0.2 * np.sin(3 * y)], -1).reshape(-1, 3)
+    idx = np.arange(20).reshape(4, 5)
+    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+    m = mesh_from_polygons(V, quads)
+    smooth = np.zeros((20, 3))
+    for q in quads:
+        n = np.cross(V[q[1]] - V[q[0]], V[q[2]] - V[q[0]]) + np.cross(V[q[2]] - V[q[0]], V[q[3]] - V[q[0]])
+        for c in range(4):
+            e1, e2 = V[q[c - 1]] - V[q[c]], V[q[(c + 1) % 4]] - V[q[c]]
+            angle = np.arccos(e1 @ e2 / np.linalg.norm(e1) / np.linalg.norm(e2))
+            smooth[q[c]] += angle * n / np.linalg.norm(n)
+    smooth /= np.linalg.norm(smooth, axis=1, keepdims=True)
+    flat = np.cross(V[quads[5, 2]] - V[quads[5, 0]], V[quads[5, 3]] - V[quads[5, 1]])
+    tilted = smooth[7] + [0.3, 0.0, 0.0]
+    normals = np.vstack([smooth, flat / np.linalg.norm(flat), tilted / np.linalg.norm(tilted)])
+    lines = [f"v {a:.17g} {b:.17g} {c:.17g}" for a, b, c in V]
+    lines += [f"vn {a:.17g} {b:.17g} {c:.17g}" for a, b, c in normals]
+    for k, q in enumerate(quads):
+        named = [21] * 4 if k == 5 else [22 if i == 7 else i + 1 for i in q]
+        lines.append("f " + " ".join(f"{i + 1}//{j}" for i, j in zip(q, named)))
+    return m, normals, "\n".join(lines) + "\n"
+
+
+def written_normals(path):
+    return np.array([[float(t) for t in ln.split()[1:]] for ln in path.read_text().splitlines()
+                     if ln.startswith("vn ")])
+
+
+def test_the_normals_written_turn_with_the_faces(tmp_path):
+    """A file's normals shade the shape they were written for: written for another shape, each turns with its
+    faces (the smallest rotation of the angle-weighted mean of their normals), a tilted one keeps its tilt."""
+    rng = np.random.default_rng(3)
+    _, normals, text = sheet_with_normals(rng)
+    p = tmp_path / "sheet.obj"
+    p.write_text(text)
+    m = read_obj(p)
+    # Turned about the x axis, square to every normal of the sheet (the smallest rotation of each is this one).
+    t = 0.7
+    R = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+    out = tmp_path / "turned.obj"
+    write_obj(out, m, m.V @ R.T + [0.2, -1.0, 3.0], digits=17)
+    turned = written_normals(out)
+    used = np.arange(22) != 7      # vertex 7's corners name the tilted normal: no face uses its smooth one
+    np.testing.assert_allclose(turned[used], normals[used] @ R.T, atol=1e-12)
+    np.testing.assert_array_equal(turned[7], normals[7])
+    # The rest of the file as it was; the same positions leave every line as it was.
+    assert [ln for ln in out.read_text().splitlines() if ln[:2] not in ("v ", "vn")] == \
+        [ln for ln in text.splitlines() if ln[:2] not in ("v ", "vn")]
+    assert obj_text(m, m.V.copy(), digits=17) == text
+
+
+def test_only_the_normals_of_the_faces_that_turned_change(tmp_path):
+    rng = np.random.default_rng(4)
+    _, normals, text = sheet_with_normals(rng)
+    p = tmp_path / "sheet.obj"
+    p.write_text(text)
+    m = read_obj(p)
+    V = m.V.copy()
+    V[:, 2] += np.where(V[:, 0] > 0.6, 0.5 * (V[:, 0] - 0.6), 0.0)   # the last column of faces bent up
+    out = tmp_path / "bent.obj"
+    write_obj(out, m, V, digits=17)
+    before = [ln for ln in text.splitlines() if ln.startswith("vn ")]
+    after = [ln for ln in out.read_text().splitlines() if ln.startswith("vn ")]
+    # Vertices 0-3 of each row (x <= 0.75) touch only faces left of x = 0.75, all unbent but those at x in
+    # 0.5..0.75 (their corners at x = 0.75 moved): the normals of x < 0.5 and the flat face 5 stay byte for byte.
+    x = m.V[:, 0]
+    for i in range(20):
+        if x[i] < 0.4 and i != 7:
+            assert after[i] == before[i], i
+        if x[i] > 0.9:
+            assert after[i] != before[i], i
+    assert after[20] == before[20]
+    assert np.allclose(np.linalg.norm(written_normals(out), axis=1), 1.0)

@@ -1,9 +1,10 @@
 """Wavefront OBJ reading and writing.
 
 Reading keeps the file's own text, so a result written "like" its source is the source byte for
-byte except for the three coordinates of each ``v`` line: faces, UVs, normals, groups, materials,
-vertex colours (``v x y z r g b``), comments in any encoding, line endings and a byte-order mark all
-stay. Bytes that are not UTF-8 are carried through unchanged (``surrogateescape``).
+byte except for the three coordinates of each ``v`` line, and of each ``vn`` normal whose faces turned
+(``turned_normals``): faces, UVs, groups, materials, vertex colours (``v x y z r g b``), comments in any
+encoding, line endings and a byte-order mark all stay. Bytes that are not UTF-8 are carried through
+unchanged (``surrogateescape``).
 
 What is read (the OBJ format allows any run of spaces and tabs between fields):
 
@@ -42,6 +43,14 @@ _INDEX = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/[+-]?\d*)?)?\Z", re.ASCII)
 # A v line split so that only the three coordinates are replaced when writing: the prefix (any BOM,
 # indentation, the keyword and the blank after it), x, blank, y, blank, z, and everything after z.
 _V_LINE = re.compile(rf"(\ufeff*{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+# A vn line split the same way: its three numbers are replaced when the faces that use it turn.
+_VN_LINE = re.compile(rf"(\ufeff*{_WS}*vn{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+# Whether a text has a vn line at all.
+_ANY_VN = re.compile(rf"^\ufeff*{_WS}*vn{_WS}", re.MULTILINE)
+# A face corner's vertex index and, when it names one, its normal's.
+_CORNER = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/([+-]?\d*))?)?")
+#: A normal that turns by less than this (radians) keeps its line as it was.
+NORMAL_KEPT = 1e-9
 _FAST_NUMBER = rb"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)"
 _FAST_V = re.compile(rb"v(?:[ \t]+" + _FAST_NUMBER + rb"){3,}[ \t\r]*")
 _FAST_F = re.compile(rb"f(?:[ \t]+[1-9]\d*(?:/\d*(?:/\d*)?)?){3,}[ \t\r]*")
@@ -244,12 +253,159 @@ def _element(fields, n):
     return out
 
 
+def _normal_uses(lines):
+    """The file's normals and the face corners that use them, from its text.
+
+    Returns
+    -------
+    rows : (k,) int
+        The line of each ``vn`` record (in order: normal j is ``rows[j]``).
+    split : list
+        Each vn line split by ``_VN_LINE`` (None where it does not split so).
+    N : (k,3) float
+        The normals as written; NaN where a vn line holds no three numbers.
+    corners : (c,) int, start : (p+1,) int
+        The ``f`` lines' vertices (0-based, relative indices resolved): polygon i is ``corners[start[i]:start[i+1]]``.
+    uses : (u,2) int
+        (corner, normal) of every face corner that names a normal there is (``f v/vt/vn``, ``f v//vn``).
+    """
+    rows, split, N, faces, at_v, at_vn = [], [], [], [], [], []
+    n_v = 0
+    for i, line in enumerate(lines):
+        head = line[:2]
+        if head == "v ":
+            n_v += 1
+            continue
+        if head == "vt":
+            continue
+        if head == "f " and "#" not in line:
+            key, fields = "f", line[2:]
+        elif head == "vn" and line[2:3] == " ":
+            key, fields = "vn", None
+        else:
+            key, fields = _statement(line)
+            fields = " ".join(fields or ())
+        if key == "v":
+            n_v += 1
+        elif key == "vn":
+            rows.append(i)
+            m = _VN_LINE.match(line)
+            split.append(m)
+            try:
+                N.append([float(m.group(2)), float(m.group(4)), float(m.group(6))] if m else [np.nan] * 3)
+            except ValueError:
+                N.append([np.nan] * 3)
+        elif key == "f":
+            faces.append(fields)
+            at_v.append(n_v)
+            at_vn.append(len(rows))
+    sizes = np.fromiter((len(f.split()) for f in faces), dtype=np.int64, count=len(faces))
+    # Each corner's vertex and normal (``v``, ``v/vt``, ``v//vn``, ``v/vt/vn``; no normal: 0, never an index).
+    words = _CORNER.findall(" ".join(faces))
+    if len(words) != int(sizes.sum()):     # a corner read otherwise than the faces were: no normal is turned
+        return (np.asarray(rows, dtype=np.int64), split, np.asarray(N, dtype=np.float64).reshape(-1, 3),
+                np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros((0, 2), np.int64))
+    corners = np.array([w[0] for w in words], dtype=np.int64).reshape(-1)
+    named = np.array([w[1] or "0" for w in words], dtype=np.int64).reshape(-1)
+    corners = np.where(corners > 0, corners - 1, np.repeat(np.asarray(at_v, dtype=np.int64), sizes) + corners)
+    k = len(rows)
+    normal = np.where(named > 0, named - 1, np.repeat(np.asarray(at_vn, dtype=np.int64), sizes) + named)
+    use = (named != 0) & (normal >= 0) & (normal < k)
+    return (np.asarray(rows, dtype=np.int64), split, np.asarray(N, dtype=np.float64).reshape(-1, 3), corners,
+            np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            np.stack([np.flatnonzero(use), normal[use]], axis=1))
+
+
+def polygon_normals(V, corners, start):
+    """(p,3) each polygon's area vector in V (the fan of its corners from the first: Newell's normal, twice the
+    area of a flat polygon); polygon i is ``corners[start[i]:start[i+1]]``."""
+    p = start.shape[0] - 1
+    owner = np.repeat(np.arange(p), np.diff(start))
+    first = V[corners[start[owner]]]
+    nxt = np.arange(corners.shape[0]) + 1
+    nxt[start[1:] - 1] = start[:-1]
+    c = np.cross(V[corners] - first, V[corners[nxt]] - first)
+    return np.stack([np.bincount(owner, weights=c[:, k], minlength=p) for k in range(3)], axis=1)
+
+
+def _mean_normals(V, corners, start, uses, count):
+    """(count,3) the mean of the unit normals of the polygons at each normal's corners, weighted by the corners'
+    angles (as Blender and most tools make smooth normals), not made unit; and (u,) bool: the uses that count
+    (a polygon and a corner of non-zero size)."""
+    corner, k = uses[:, 0], uses[:, 1]
+    poly = np.searchsorted(start, corner, side="right") - 1
+    n = polygon_normals(V, corners, start)[poly]
+    length = np.linalg.norm(n, axis=1)
+    first, size = start[poly], start[poly + 1] - start[poly]
+    at = corners[corner]
+    e1 = V[corners[first + (corner - first - 1) % size]] - V[at]
+    e2 = V[corners[first + (corner - first + 1) % size]] - V[at]
+    l1, l2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
+    ok = (length > 0) & (l1 > 0) & (l2 > 0) & np.isfinite(length)
+    angle = np.zeros(corner.shape[0])
+    angle[ok] = np.arccos(np.clip(np.einsum("ij,ij->i", e1[ok], e2[ok]) / (l1[ok] * l2[ok]), -1.0, 1.0))
+    weighted = np.zeros_like(n)
+    weighted[ok] = n[ok] / length[ok, None] * angle[ok, None]
+    total = np.stack([np.bincount(k, weights=weighted[:, j], minlength=count) for j in range(3)], axis=1)
+    return total, ok
+
+
+def turned_normals(N, V_from, V_to, corners, start, uses):
+    """Normals turned with the faces that use them, from ``V_from`` to ``V_to``.
+
+    Each normal turns by the smallest rotation that takes the mean normal of its faces at its corners
+    (angle-weighted, as Blender and most tools make smooth normals) in ``V_from`` to that in ``V_to``: a normal of
+    the smooth shading becomes the smooth normal of the new shape, a flat one its face's new normal, and one the
+    artist tilted from its faces keeps its tilt.
+
+    Parameters
+    ----------
+    N : (k,3) float
+        The normals (NaN rows: none to turn).
+    V_from, V_to : (n,3) float
+    corners : (c,) int, start : (p+1,) int
+        The polygons: polygon i is ``corners[start[i]:start[i+1]]``.
+    uses : (u,2) int
+        (corner, normal): the normal each face corner names.
+
+    Returns
+    -------
+    (k,3) float64
+        The turned normals, unit; NaN where none can be made (no corner uses it, one of its faces has no size, or
+        its row is NaN).
+    """
+    out = np.full(N.shape, np.nan)
+    if uses.shape[0] == 0:
+        return out
+    a, ok_a = _mean_normals(V_from, corners, start, uses, N.shape[0])
+    b, ok_b = _mean_normals(V_to, corners, start, uses, N.shape[0])
+    la, lb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    used = np.bincount(uses[:, 1], minlength=N.shape[0]) > 0
+    counted = np.bincount(uses[:, 1], weights=ok_a & ok_b, minlength=N.shape[0])
+    good = used & (counted == np.bincount(uses[:, 1], minlength=N.shape[0])) & (la > 0) & (lb > 0)
+    good &= np.isfinite(N).all(axis=1)
+    a, b, v = a[good] / la[good, None], b[good] / lb[good, None], N[good]
+    c = np.einsum("ij,ij->i", a, b)
+    w = np.cross(a, b)
+    # Rodrigues' rotation about a x b by the angle between a and b; a normal whose faces turned over takes theirs.
+    over = 1.0 + c <= 1e-12
+    turned = (v * c[:, None] + np.cross(w, v)
+              + w * (np.einsum("ij,ij->i", w, v) / np.where(over, 1.0, 1.0 + c))[:, None])
+    turned[over] = b[over]
+    length = np.linalg.norm(turned, axis=1)
+    out[np.flatnonzero(good)[length > 0]] = turned[length > 0] / length[length > 0, None]
+    return out
+
+
 def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
     """OBJ text of ``mesh`` with vertex positions ``V`` (default: the mesh's own).
 
     A mesh read from a file gets that file's text back with only the three coordinates of each
-    ``v`` line replaced (``header`` is not added: nothing else changes). Others get ``# header``
-    and plain ``v``/``f`` lines with their original polygons. ``digits``: significant digits per coordinate.
+    ``v`` line replaced, and those of each ``vn`` line whose faces turned (``turned_normals``: a normal
+    written for the source's shape would shade the new one wrongly in any reader that uses the file's
+    normals, as Blender's importer does); ``header`` is not added: nothing else changes. Others get
+    ``# header`` and plain ``v``/``f`` lines with their original polygons. ``digits``: significant digits per
+    coordinate.
     """
     fmt = f"%.{digits}g"
     V = mesh.V if V is None else np.asarray(V, dtype=np.float64)
@@ -267,12 +423,32 @@ def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
             out.append(line)
         if k != len(V):
             raise MeshError(mesh.name, f"its text has {k} vertex lines for {len(V)} vertices; read it again")
-        return "\n".join(out)
+        text = "\n".join(out)
+        if not np.array_equal(V, mesh.V) and _ANY_VN.search(text):
+            _turn_normal_lines(out, mesh.obj_lines, mesh.V, V, fmt)
+            text = "\n".join(out)
+        return text
     out = [f"# {header}"] if header else []
     out += ["v " + " ".join(fmt % c for c in v) for v in V]
     for p in mesh.polygons():
         out.append("f " + " ".join(str(int(i) + 1) for i in p))
     return "\n".join(out) + "\n"
+
+
+def _turn_normal_lines(out, lines, V_from, V_to, fmt):
+    """Replace, in ``out`` (the text's lines), the numbers of each vn line whose normal turned with its faces."""
+    rows, split, N, corners, start, uses = _normal_uses(lines)
+    if corners.size and (corners.min() < 0 or corners.max() >= V_from.shape[0]):
+        return
+    turned = turned_normals(N, V_from, V_to, corners, start, uses)
+    length = np.linalg.norm(N, axis=1)
+    unit = N / np.where(length > 0, length, 1.0)[:, None]
+    # The angle between the normal as written and as turned (its chord for small angles).
+    moved = np.isfinite(turned).all(axis=1) & ~(np.linalg.norm(turned - unit, axis=1) < NORMAL_KEPT)
+    for j in np.flatnonzero(moved):
+        m = split[j]
+        x, y, z = turned[j]
+        out[rows[j]] = m.group(1) + fmt % x + m.group(3) + fmt % y + m.group(5) + fmt % z + m.group(7)
 
 
 def write_obj(path, mesh: Mesh, V=None, header=None, inputs=(), digits=9):
