@@ -203,6 +203,21 @@ def test_serial_run_matches_the_core_writes_a_summary_and_a_rerun_does_no_work(d
     assert [r["mdc"] for r in again.records] == [r["mdc"] for r in summary.records]
 
 
+def test_a_garment_file_with_latin1_comments_and_a_material_library(dataset, tmp_path):
+    """The result keeps the file's bytes (a Latin-1 comment) and names its material library from where it is."""
+    folder = dataset / "garments" / "top"
+    (folder / "cloth.mtl").write_text("newmtl cotton\nKd 0.8 0.1 0.1\n")
+    data = (folder / "round.obj").read_bytes()
+    (folder / "round.obj").write_bytes(b"# caf\xe9 cr\xe8me\nmtllib cloth.mtl\nusemtl cotton\n" + data)
+    out = tmp_path / "out"
+    summary = run_batch(read_catalogue(dataset, source="round"), out, workers=1)
+    assert summary.ok and summary.counts["done"] == 9
+    written = (out / "top" / "tall.obj").read_bytes().split(b"\n")
+    assert written[0] == b"# caf\xe9 cr\xe8me" and written[2] == b"usemtl cotton"
+    library = written[1].decode().removeprefix("mtllib ")
+    assert (out / "top" / library).resolve() == (folder / "cloth.mtl").resolve()
+
+
 def test_a_changed_setting_or_input_redoes_only_what_it_touches(dataset, tmp_path):
     out = tmp_path / "out"
     run_batch(read_catalogue(dataset, source="round"), out, workers=1)

@@ -298,3 +298,31 @@ def test_only_the_normals_of_the_faces_that_turned_change(tmp_path):
             assert after[i] != before[i], i
     assert after[20] == before[20]
     assert np.allclose(np.linalg.norm(written_normals(out), axis=1), 1.0)
+
+
+def test_material_libraries_are_named_from_where_the_result_is_written(tmp_path):
+    """A reader looks for an OBJ's material libraries beside the file it reads: a result written into another
+    folder names the source's libraries from there (its textures stay where the library names them)."""
+    src = tmp_path / "garments" / "suit"
+    src.mkdir(parents=True)
+    (src / "cloth.mtl").write_text("newmtl cotton\nKd 0.8 0.1 0.1\n")
+    (src / "trim and lining.mtl").write_text("newmtl lining\n")
+    (src / "extra.mtl").write_text("newmtl extra\n")
+    text = QUAD_OBJ.replace("o piece\n", "mtllib cloth.mtl\nmtllib trim and lining.mtl\nmtllib cloth.mtl extra.mtl "
+                                         "# two\nmtllib missing.mtl\nmtllib /nowhere/abs.mtl\r\n")
+    (src / "suit.obj").write_text(text)
+    m = read_obj(src / "suit.obj")
+    out = tmp_path / "results" / "pear"
+    out.mkdir(parents=True)
+    write_obj(out / "suit_on_pear.obj", m, m.V + 1.0)
+    lines = (out / "suit_on_pear.obj").read_bytes().decode().split("\n")
+    assert lines[1:6] == ["mtllib ../../garments/suit/cloth.mtl", "mtllib ../../garments/suit/trim and lining.mtl",
+                         "mtllib ../../garments/suit/cloth.mtl ../../garments/suit/extra.mtl # two",
+                         "mtllib missing.mtl", "mtllib /nowhere/abs.mtl\r"]
+    assert (out / "../../garments/suit/trim and lining.mtl").is_file()
+    assert [ln for ln in lines if not ln.startswith(("mtllib", "v "))] == \
+        [ln for ln in text.split("\n") if not ln.startswith(("mtllib", "v "))]
+    # Written beside its source, nothing is renamed.
+    write_obj(src / "moved.obj", m, m.V + 1.0)
+    assert [ln for ln in (src / "moved.obj").read_bytes().decode().split("\n") if ln.startswith("mtllib")] == \
+        [ln for ln in text.split("\n") if ln.startswith("mtllib")]

@@ -241,8 +241,8 @@ def cmd_transfer_outfit(args):
     t = time.perf_counter()
     on = f"{os.path.basename(args.target_body)} ({args.method})"
     texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
-                                   f"{len(garments)}) on {on}")
-             for k, (g, V, f) in enumerate(zip(garments, result.V, args.garment))]
+                                   f"{len(garments)}) on {on}", path=p)
+             for k, (g, V, f, p) in enumerate(zip(garments, result.V, args.garment, paths))]
     write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model])
     write = time.perf_counter() - t
     t = time.perf_counter()

@@ -42,6 +42,8 @@ class Mesh:
     obj_lines : list of str or None
         The OBJ text the mesh was read from (for writing results with the same
         UVs, groups and materials); None for meshes built in memory.
+    obj_folder : str or None
+        The folder of that file (its material libraries are found from there); None for meshes built in memory.
     """
 
     V: np.ndarray
@@ -51,6 +53,7 @@ class Mesh:
     tri_to_face: np.ndarray
     name: str = "mesh"
     obj_lines: list | None = field(default=None, repr=False)
+    obj_folder: str | None = field(default=None, repr=False)
 
     @property
     def n_vertices(self) -> int:
@@ -76,7 +79,7 @@ class Mesh:
             raise MeshError(name or self.name,
                             f"expected vertices of shape {self.V.shape}, got {V.shape}")
         return Mesh(V, self.F, self.face_vertices, self.face_start, self.tri_to_face,
-                    name or self.name, self.obj_lines)
+                    name or self.name, self.obj_lines, self.obj_folder)
 
 
 def triangulate(V, face_vertices, face_start):

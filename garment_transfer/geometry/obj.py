@@ -45,6 +45,10 @@ _INDEX = re.compile(r"([+-]?\d+)(?:/[+-]?\d*(?:/[+-]?\d*)?)?\Z", re.ASCII)
 _V_LINE = re.compile(rf"(\ufeff*{_WS}*v{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
 # A vn line split the same way: its three numbers are replaced when the faces that use it turn.
 _VN_LINE = re.compile(rf"(\ufeff*{_WS}*vn{_WS}+)(\S+)({_WS}+)(\S+)({_WS}+)([^ \t\r\f\v#]+)(.*)\Z", re.DOTALL)
+# Whether a text has an mtllib line; an mtllib line split: the keyword (and what is before it), the library names,
+# and the blanks and any comment after them.
+_ANY_MTLLIB = re.compile(rf"^\ufeff*{_WS}*mtllib{_WS}", re.MULTILINE)
+_MTLLIB_LINE = re.compile(rf"(\ufeff*{_WS}*mtllib{_WS}+)([^#]*?)({_WS}*(?:#.*)?)\Z", re.DOTALL)
 # Whether a text has a vn line at all.
 _ANY_VN = re.compile(rf"^\ufeff*{_WS}*vn{_WS}", re.MULTILINE)
 # A face corner's vertex index and, when it names one, its normal's.
@@ -116,7 +120,7 @@ def read_obj(path, name=None) -> Mesh:
     raw_lines = data.split(b"\n")
     plain = plain_arrays(raw_lines)
     if plain is not None:
-        return _mesh_read(*plain, [], name, lines)
+        return _in_folder(_mesh_read(*plain, [], name, lines), path)
     verts, polys, others = [], [], []
     for lineno, (line, raw) in enumerate(zip(lines, raw_lines), 1):
         # Plain v and f lines (nearly all of a file) take a fast path; the rest is read in full.
@@ -145,8 +149,13 @@ def read_obj(path, name=None) -> Mesh:
     if not polys:
         raise MeshError(name, "has no faces (a point cloud or lines only)")
     sizes = np.fromiter((len(p) for p in polys), dtype=np.int64, count=len(polys))
-    return _mesh_read(np.asarray(verts, dtype=np.float64), np.concatenate(polys).astype(np.int64),
-                      np.concatenate([[0], np.cumsum(sizes)]), others, name, lines)
+    return _in_folder(_mesh_read(np.asarray(verts, dtype=np.float64), np.concatenate(polys).astype(np.int64),
+                                 np.concatenate([[0], np.cumsum(sizes)]), others, name, lines), path)
+
+
+def _in_folder(mesh, path):
+    mesh.obj_folder = os.path.dirname(os.path.abspath(path))
+    return mesh
 
 
 def _mesh_read(V, face_vertices, face_start, others, name, lines):
@@ -397,14 +406,16 @@ def turned_normals(N, V_from, V_to, corners, start, uses):
     return out
 
 
-def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
+def obj_text(mesh: Mesh, V=None, header=None, digits=9, path=None) -> str:
     """OBJ text of ``mesh`` with vertex positions ``V`` (default: the mesh's own).
 
     A mesh read from a file gets that file's text back with only the three coordinates of each
     ``v`` line replaced, and those of each ``vn`` line whose faces turned (``turned_normals``: a normal
     written for the source's shape would shade the new one wrongly in any reader that uses the file's
-    normals, as Blender's importer does); ``header`` is not added: nothing else changes. Others get
-    ``# header`` and plain ``v``/``f`` lines with their original polygons. ``digits``: significant digits per
+    normals, as Blender's importer does); ``header`` is not added. Given ``path``, where the text is written,
+    its ``mtllib`` lines name the material libraries the file had from the folder of ``path``
+    (``relinked_libraries``: a reader looks for them beside the file it reads). Nothing else changes. Others
+    get ``# header`` and plain ``v``/``f`` lines with their original polygons. ``digits``: significant digits per
     coordinate.
     """
     fmt = f"%.{digits}g"
@@ -427,12 +438,45 @@ def obj_text(mesh: Mesh, V=None, header=None, digits=9) -> str:
         if not np.array_equal(V, mesh.V) and _ANY_VN.search(text):
             _turn_normal_lines(out, mesh.obj_lines, mesh.V, V, fmt)
             text = "\n".join(out)
+        if path is not None and mesh.obj_folder is not None and _ANY_MTLLIB.search(text):
+            here = os.path.dirname(os.path.abspath(path))
+            lines = [relinked_libraries(line, mesh.obj_folder, here) for line in text.split("\n")]
+            text = "\n".join(lines)
         return text
     out = [f"# {header}"] if header else []
     out += ["v " + " ".join(fmt % c for c in v) for v in V]
     for p in mesh.polygons():
         out.append("f " + " ".join(str(int(i) + 1) for i in p))
     return "\n".join(out) + "\n"
+
+
+def relinked_libraries(line, folder, here):
+    """An ``mtllib`` line of a file in ``folder`` written into the folder ``here``: each material library that is
+    a file, relative to ``folder``, named from ``here`` (relative, with ``/``; absolute where no relative path
+    exists, as across Windows drives). Any other line, a library named by an absolute path or one not found, and
+    a file written into its own folder are left as they were.
+
+    A name with blanks (the rest of the line, when that is a file) is one library; otherwise the blanks separate
+    several, as the OBJ format has it."""
+    m = _MTLLIB_LINE.match(line)
+    if m is None or os.path.normcase(os.path.abspath(folder)) == os.path.normcase(os.path.abspath(here)):
+        return line
+    whole = m.group(2)
+    names = [whole] if os.path.isfile(os.path.join(folder, whole)) else whole.split()
+    moved = []
+    for name in names:
+        target = os.path.join(folder, name)
+        if os.path.isabs(name) or not os.path.isfile(target):
+            moved.append(name)
+            continue
+        target = os.path.abspath(target)
+        try:
+            moved.append(os.path.relpath(target, here).replace(os.sep, "/"))
+        except ValueError:
+            moved.append(target.replace(os.sep, "/"))
+    if moved == names:
+        return line
+    return m.group(1) + " ".join(moved) + m.group(3)
 
 
 def _turn_normal_lines(out, lines, V_from, V_to, fmt):
@@ -456,4 +500,4 @@ def write_obj(path, mesh: Mesh, V=None, header=None, inputs=(), digits=9):
 
     ``inputs``: files the output must not be; the mesh's own file (its name) is always one.
     """
-    write_text_atomic(path, obj_text(mesh, V, header, digits), inputs=(mesh.name, *inputs))
+    write_text_atomic(path, obj_text(mesh, V, header, digits, path=path), inputs=(mesh.name, *inputs))

@@ -748,9 +748,9 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                                       target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
                                       interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
             reference = _read_garment(t.reference) if t.reference is not None else None
-            text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} "
-                                                      f"({s.method})").encode("utf-8")
             obj_path, json_path = result_paths(out, job.name, t.name)
+            text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} ({s.method})",
+                            path=obj_path).encode("utf-8", errors="surrogateescape")
             write_atomic(obj_path, text)
             # Measured on the file as written and read back, against the target as given (the record, written
             # last, is what marks the pair done). Without a reference: the design (MDC) and penetration only;
