@@ -314,7 +314,11 @@ def remove_objects(objects):
             bpy.data.meshes.remove(data)
 
 
-def export_obj(obj, path, args):
+def export_obj(obj, path, args, garment_file=None):
+    """Write the result ``obj`` to ``path`` in the input files' units and axes (Blender's exporter); given the
+    garment's file, as that file with the new positions (the core's writer: its materials, groups, smoothing,
+    UVs and comments kept, its normals turned with the cloth, its material libraries named from ``path``),
+    where the export has the garment's polygons in its vertex order."""
     import bpy
 
     inputs = [args.source_body, *(args.target_body or []), *(args.garment or []), args.model, args.catalogue]
@@ -327,6 +331,21 @@ def export_obj(obj, path, args):
                               global_scale=1.0 / args.scale, up_axis=args.up,
                               forward_axis=args.forward, export_materials=False,
                               export_normals=False, export_uv=True, export_triangulated_mesh=False)
+        if garment_file is not None:
+            _as_garment_file(tmp, path, garment_file)
+
+
+def _as_garment_file(tmp, path, garment_file):
+    """Rewrite the export ``tmp`` as the garment's own file with the exported positions, where its polygons are
+    the garment file's (the same vertices in the same order)."""
+    import numpy as np
+
+    from garment_transfer.geometry.obj import obj_text, read_obj
+
+    exported, garment = read_obj(tmp, name=str(path)), read_obj(garment_file)
+    if (exported.V.shape == garment.V.shape and np.array_equal(exported.face_start, garment.face_start)
+            and np.array_equal(exported.face_vertices, garment.face_vertices)):
+        tmp.write_bytes(obj_text(garment, exported.V, path=path).encode("utf-8", errors="surrogateescape"))
 
 
 def run(args, log, records=None, jobs=None):
@@ -396,7 +415,7 @@ def run(args, log, records=None, jobs=None):
         for target, name, label in targets:
             stop_if_interrupted()
             record, result = transfer_pair(garment, target, label, args, log,
-                                           job.output(args.out, name), job.method)
+                                           job.output(args.out, name), job.method, job.garment)
             if args.catalogue:
                 record.update(garment=job.name, target=name)
             records.append(record)
@@ -410,8 +429,8 @@ def run(args, log, records=None, jobs=None):
     return records
 
 
-def transfer_pair(garment, target, label, args, log, output, method):
-    """Transfer one garment to one target with the operator and export the result.
+def transfer_pair(garment, target, label, args, log, output, method, garment_file=None):
+    """Transfer one garment to one target with the operator and export the result (as ``export_obj``).
 
     Returns
     -------
@@ -436,7 +455,7 @@ def transfer_pair(garment, target, label, args, log, output, method):
     result = settings.result
     output.parent.mkdir(parents=True, exist_ok=True)
     try:
-        export_obj(result, output, args)
+        export_obj(result, output, args, garment_file)
     except InputError as exc:
         record["error"] = str(exc)
         log(f"FAILED {garment.name} -> {target.name}: {record['error']}")

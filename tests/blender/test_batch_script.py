@@ -99,3 +99,35 @@ def test_batch_catalogue_and_file_options_do_not_mix(tmp_path):
                            str(tmp_path / "nothing.toml"), "--out", str(tmp_path / "o")],
                           capture_output=True, encoding="utf-8", timeout=120)
     assert proc.returncode == 1 and "nothing.toml: catalogue not found" in proc.stderr
+
+
+def test_batch_results_are_the_garment_file_with_its_materials_groups_and_comments(makehuman, tmp_path):
+    """A result is the garment's own file with the new positions: its material library (named from the results
+    folder), materials, groups, smoothing and comments in any encoding, as the core batch writes it."""
+    folder = tmp_path / "garments"
+    folder.mkdir()
+    (folder / "cloth.mtl").write_text("newmtl cotton\nKd 0.8 0.1 0.1\n")
+    data = (makehuman / "garments" / GARMENT / "female_average.obj").read_bytes()
+    first_face = data.index(b"\nf ") + 1
+    garment = folder / "suit.obj"
+    garment.write_bytes(b"# caf\xe9 (Latin-1)\nmtllib cloth.mtl\n" + data[:first_face]
+                        + b"g suit\nusemtl cotton\ns 1\n" + data[first_face:])
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts" / "batch_transfer.py"), "--",
+                           "--source-body", str(makehuman / "bodies" / "female_average.obj"),
+                           "--target-body", str(makehuman / "bodies" / "female_pear.obj"),
+                           "--garment", str(garment), "--out", str(out), "--scale", "0.1"],
+                          capture_output=True, encoding="utf-8", errors="replace", timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    written = (out / "suit_on_female_pear.obj").read_bytes().split(b"\n")
+    source = garment.read_bytes().split(b"\n")
+    assert [ln for ln in written if not ln.startswith((b"v ", b"mtllib"))] == \
+        [ln for ln in source if not ln.startswith((b"v ", b"mtllib"))]
+    assert written[1] == b"mtllib ../garments/cloth.mtl"
+    from garment_transfer.geometry.obj import read_obj
+    from garment_transfer.pipeline.transfer import transfer_garment
+
+    expected = transfer_garment(read_obj(makehuman / "bodies" / "female_average.obj"),
+                                read_obj(makehuman / "bodies" / "female_pear.obj"), read_obj(garment)).V
+    gap = np.linalg.norm(read_obj(out / "suit_on_female_pear.obj").V - expected, axis=1)
+    assert np.percentile(gap, 99) < 1e-3 and gap.max() < 0.1, gap.max()
