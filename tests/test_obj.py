@@ -322,6 +322,13 @@ def test_material_libraries_are_named_from_where_the_result_is_written(tmp_path)
     assert (out / "../../garments/suit/trim and lining.mtl").is_file()
     assert [ln for ln in lines if not ln.startswith(("mtllib", "v "))] == \
         [ln for ln in text.split("\n") if not ln.startswith(("mtllib", "v "))]
+    # Into a folder through a link to it: named from where the file really is, as a reader opens "../".
+    elsewhere = tmp_path / "deep" / "down" / "real"
+    elsewhere.mkdir(parents=True)
+    (tmp_path / "link").symlink_to(elsewhere, target_is_directory=True)
+    write_obj(tmp_path / "link" / "linked.obj", m, m.V + 1.0)
+    library = (elsewhere / "linked.obj").read_text().split("\n")[1].removeprefix("mtllib ")
+    assert (elsewhere / library).resolve() == (src / "cloth.mtl").resolve()
     # Written beside its source, nothing is renamed.
     write_obj(src / "moved.obj", m, m.V + 1.0)
     assert [ln for ln in (src / "moved.obj").read_bytes().decode().split("\n") if ln.startswith("mtllib")] == \

@@ -459,7 +459,9 @@ def relinked_libraries(line, folder, here):
     A name with blanks (the rest of the line, when that is a file) is one library; otherwise the blanks separate
     several, as the OBJ format has it."""
     m = _MTLLIB_LINE.match(line)
-    if m is None or os.path.normcase(os.path.abspath(folder)) == os.path.normcase(os.path.abspath(here)):
+    # Real paths: a reader resolves "../" from the folder the file really is in.
+    here = os.path.realpath(here)
+    if m is None or os.path.normcase(os.path.realpath(folder)) == os.path.normcase(here):
         return line
     whole = m.group(2)
     names = [whole] if os.path.isfile(os.path.join(folder, whole)) else whole.split()
@@ -469,7 +471,7 @@ def relinked_libraries(line, folder, here):
         if os.path.isabs(name) or not os.path.isfile(target):
             moved.append(name)
             continue
-        target = os.path.abspath(target)
+        target = os.path.realpath(target)
         try:
             moved.append(os.path.relpath(target, here).replace(os.sep, "/"))
         except ValueError:
