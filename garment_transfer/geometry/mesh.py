@@ -410,3 +410,84 @@ def vertex_areas(V, F):
     """(n,) a third of the area of the triangles around each vertex."""
     _, a = triangle_normals(V, F)
     return corner_sums(F, a / 3.0, V.shape[0])
+
+
+def polygon_normals(V, corners, start):
+    """(p,3) each polygon's area vector in V (the fan of its corners from the first: Newell's normal, twice the
+    area of a flat polygon); polygon i is ``corners[start[i]:start[i+1]]``."""
+    p = start.shape[0] - 1
+    owner = np.repeat(np.arange(p), np.diff(start))
+    first = V[corners[start[owner]]]
+    nxt = np.arange(corners.shape[0]) + 1
+    nxt[start[1:] - 1] = start[:-1]
+    c = cross_rows(V[corners] - first, V[corners[nxt]] - first)
+    return np.stack([np.bincount(owner, weights=c[:, k], minlength=p) for k in range(3)], axis=1)
+
+
+def _mean_normals(V, corners, start, uses, count):
+    """(count,3) the mean of the unit normals of the polygons at each normal's corners, weighted by the corners'
+    angles (as Blender and most tools make smooth normals), not made unit; and (u,) bool: the uses that count
+    (a polygon and a corner of non-zero size)."""
+    corner, k = uses[:, 0], uses[:, 1]
+    poly = np.searchsorted(start, corner, side="right") - 1
+    n = polygon_normals(V, corners, start)[poly]
+    length = np.linalg.norm(n, axis=1)
+    first, size = start[poly], start[poly + 1] - start[poly]
+    at = corners[corner]
+    e1 = V[corners[first + (corner - first - 1) % size]] - V[at]
+    e2 = V[corners[first + (corner - first + 1) % size]] - V[at]
+    l1, l2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
+    ok = (length > 0) & (l1 > 0) & (l2 > 0) & np.isfinite(length)
+    angle = np.zeros(corner.shape[0])
+    angle[ok] = np.arccos(np.clip(np.einsum("ij,ij->i", e1[ok], e2[ok]) / (l1[ok] * l2[ok]), -1.0, 1.0))
+    weighted = np.zeros_like(n)
+    weighted[ok] = n[ok] / length[ok, None] * angle[ok, None]
+    total = np.stack([np.bincount(k, weights=weighted[:, j], minlength=count) for j in range(3)], axis=1)
+    return total, ok
+
+
+def turned_normals(N, V_from, V_to, corners, start, uses):
+    """Normals turned with the faces that use them, from ``V_from`` to ``V_to``.
+
+    Each normal turns by the smallest rotation that takes the mean normal of its faces at its corners
+    (angle-weighted, as Blender and most tools make smooth normals) in ``V_from`` to that in ``V_to``: a normal of
+    the smooth shading becomes the smooth normal of the new shape, a flat one its face's new normal, and one the
+    artist tilted from its faces keeps its tilt.
+
+    Parameters
+    ----------
+    N : (k,3) float
+        The normals (NaN rows: none to turn).
+    V_from, V_to : (n,3) float
+    corners : (c,) int, start : (p+1,) int
+        The polygons: polygon i is ``corners[start[i]:start[i+1]]``.
+    uses : (u,2) int
+        (corner, normal): the normal each face corner names.
+
+    Returns
+    -------
+    (k,3) float64
+        The turned normals, unit; NaN where none can be made (no corner uses it, one of its faces has no size, or
+        its row is NaN).
+    """
+    out = np.full(N.shape, np.nan)
+    if uses.shape[0] == 0:
+        return out
+    a, ok_a = _mean_normals(V_from, corners, start, uses, N.shape[0])
+    b, ok_b = _mean_normals(V_to, corners, start, uses, N.shape[0])
+    la, lb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    used = np.bincount(uses[:, 1], minlength=N.shape[0]) > 0
+    counted = np.bincount(uses[:, 1], weights=ok_a & ok_b, minlength=N.shape[0])
+    good = used & (counted == np.bincount(uses[:, 1], minlength=N.shape[0])) & (la > 0) & (lb > 0)
+    good &= np.isfinite(N).all(axis=1)
+    a, b, v = a[good] / la[good, None], b[good] / lb[good, None], N[good]
+    c = np.einsum("ij,ij->i", a, b)
+    w = cross_rows(a, b)
+    # Rodrigues' rotation about a x b by the angle between a and b; a normal whose faces turned over takes theirs.
+    over = 1.0 + c <= 1e-12
+    turned = (v * c[:, None] + cross_rows(w, v)
+              + w * (np.einsum("ij,ij->i", w, v) / np.where(over, 1.0, 1.0 + c))[:, None])
+    turned[over] = b[over]
+    length = np.linalg.norm(turned, axis=1)
+    out[np.flatnonzero(good)[length > 0]] = turned[length > 0] / length[length > 0, None]
+    return out
