@@ -333,3 +333,39 @@ def test_material_libraries_are_named_from_where_the_result_is_written(tmp_path)
     write_obj(src / "moved.obj", m, m.V + 1.0)
     assert [ln for ln in (src / "moved.obj").read_bytes().decode().split("\n") if ln.startswith("mtllib")] == \
         [ln for ln in text.split("\n") if ln.startswith("mtllib")]
+
+
+def test_any_file_with_normals_is_written_moved_with_only_its_vertices_and_normals_changed(tmp_path):
+    """Normals named every way a face corner can (v//vn, v/vt/vn, relative, out of range, none), in files of odd
+    lines: written with moved positions, nothing fails, only v and vn lines change, and a changed normal is unit."""
+    rng = np.random.default_rng(11)
+    forms = ["{v}//{n}", "{v}/1/{n}", "{v}", "{v}/1", "{v}//-1", "-1//{n}", "{v}//9", "{v}//{n} # c"]
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    written = changed = 0
+    for k in range(400):
+        n = int(rng.integers(3, 8))
+        text = random_obj_text(rng, n) if rng.random() < 0.3 else "\n".join(
+            f"v {a:.3f} {b:.3f} {c:.3f}" for a, b, c in rng.random((n, 3))) + "\ns 1\n# x"
+        extra = [f"vn {a:.3f} {b:.3f} {c:.3f}" for a, b, c in rng.normal(size=(3, 3))]
+        extra += ["f " + " ".join(str(rng.choice(forms)).format(v=int(rng.integers(1, 4)), n=int(rng.integers(1, 4)))
+                                  for _ in range(3)) for _ in range(3)]
+        lines = text.split("\n") + ["f " + " ".join(str(i + 1) for i in range(n))]     # every vertex used
+        at = int(rng.integers(0, len(lines) + 1))
+        lines[at:at] = extra
+        p = tmp_path / f"case{k}.obj"
+        lines.append("")
+        p.write_text("\n".join(lines))
+        try:
+            m = read_obj(p)
+        except MeshError:
+            continue
+        out = obj_text(m, m.V @ turn.T + 1.0).split("\n")
+        written += 1
+        assert len(out) == len(lines)
+        for old, new in zip(lines, out):
+            if old.lstrip().startswith("vn") and new != old:
+                changed += 1
+                assert abs(np.linalg.norm([float(x) for x in new.split()[1:4]]) - 1.0) < 1e-8
+            elif not old.lstrip().startswith("v"):
+                assert new == old
+    assert written > 100 and changed > 40
