@@ -12,7 +12,8 @@ dataset folder, with each garment's source body, targets, method and settings):
 
 Every (garment, target) pair goes through the add-on's own operator (bpy.ops.garment_transfer.transfer)
 and is written to DIR/<garment>_on_<target>.obj (with a catalogue: DIR/<garment>/<target>.obj, the
-core batch's layout), in the input files' axes and units. A file that cannot
+core batch's layout), in the input files' axes and units, as the garment's own file with the new positions
+(its materials, groups and comments kept, its material libraries named from there). A file that cannot
 be read or a pair that fails is reported and skipped; the run goes on, writes DIR/summary.json, and
 exits with 1 if anything failed (0 otherwise, 2 for bad arguments). Before Blender reads anything, every
 output (each result, the summary, --blend) is checked against every file the run reads, with the core's
