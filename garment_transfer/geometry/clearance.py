@@ -770,9 +770,7 @@ def _known_state(V, G, obstacle, near, keep_offset, check, known):
             return pairs
         if isinstance(pairs, _PairsAround):
             # Around what moved, found again: then known there too.
-            found = check.local(V, changed)
-            kept = pairs.pairs[~check.touching(pairs.pairs, changed)]
-            return _PairsAround(unique_pairs(np.concatenate([kept, found])), pairs.known | changed)
+            return _PairsAround(check.again(V, pairs.pairs, changed), pairs.known | changed)
         return check.again(V, pairs, changed)
 
     # Three checks that share nothing that changes, side by side where cores are free.
@@ -840,7 +838,7 @@ def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, gua
         V_new = V_new.copy()
         V_new[region] = V_old[region] + keep * (V_new[region] - V_old[region])
         # Only the pairs of what was taken back can have changed.
-        after = unique_pairs(np.concatenate([after[~check.touching(after, region)], check.local(V_new, region)]))
+        after = check.again(V_new, after, region)
     pairs = unique_pairs(np.concatenate([kept, after]))
     return V_new, undone, _PairsAround(pairs, known) if around else pairs
 

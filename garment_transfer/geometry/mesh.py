@@ -476,9 +476,10 @@ def turned_normals(N, V_from, V_to, corners, start, uses):
     a, ok_a = _mean_normals(V_from, corners, start, uses, N.shape[0])
     b, ok_b = _mean_normals(V_to, corners, start, uses, N.shape[0])
     la, lb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
-    used = np.bincount(uses[:, 1], minlength=N.shape[0]) > 0
+    # Every use of a normal counts (a face of no size at one of its corners leaves it as it was).
+    uses_of = np.bincount(uses[:, 1], minlength=N.shape[0])
     counted = np.bincount(uses[:, 1], weights=ok_a & ok_b, minlength=N.shape[0])
-    good = used & (counted == np.bincount(uses[:, 1], minlength=N.shape[0])) & (la > 0) & (lb > 0)
+    good = (uses_of > 0) & (counted == uses_of) & (la > 0) & (lb > 0)
     good &= np.isfinite(N).all(axis=1)
     a, b, v = a[good] / la[good, None], b[good] / lb[good, None], N[good]
     c = np.einsum("ij,ij->i", a, b)
