@@ -269,23 +269,23 @@ def unique_labels(paths):
 
 def check_obj(path):
     """Read ``path`` with the core's OBJ reader: the checks of the command line (NaN, damaged lines, a
-    cut-off file, ...), which Blender's importer does not make (it reads NaN as 0)."""
+    cut-off file, ...), which Blender's importer does not make (it reads NaN as 0). Returns the core's Mesh."""
     from garment_transfer.errors import GarmentTransferError
     from garment_transfer.geometry.obj import read_obj
 
     try:
-        read_obj(path)
+        return read_obj(path)
     except GarmentTransferError as exc:
         raise InputError(str(exc)) from None
 
 
 def import_obj(path, label, args):
-    """Import one OBJ file as one mesh object named ``label``."""
+    """Import one OBJ file as one mesh object named ``label``: (the object, the file as the core read it)."""
     import bpy
 
     if not path.is_file():
         raise InputError(f"{path}: file not found")
-    check_obj(path)
+    read = check_obj(path)
     before = set(bpy.data.objects)
     try:
         bpy.ops.wm.obj_import(filepath=str(path), global_scale=args.scale, up_axis=args.up,
@@ -302,7 +302,7 @@ def import_obj(path, label, args):
     obj = meshes[0]
     obj.name = label
     obj.data.name = label
-    return obj
+    return obj, read
 
 
 def remove_objects(objects):
@@ -315,11 +315,11 @@ def remove_objects(objects):
             bpy.data.meshes.remove(data)
 
 
-def export_obj(obj, path, args, garment_file=None):
-    """Write the result ``obj`` to ``path`` in the input files' units and axes (Blender's exporter); given the
-    garment's file, as that file with the new positions (the core's writer: its materials, groups, smoothing,
-    UVs and comments kept, its normals turned with the cloth, its material libraries named from ``path``),
-    where the export has the garment's polygons in its vertex order."""
+def export_obj(obj, path, args, garment_mesh=None):
+    """Write the result ``obj`` to ``path`` in the input files' units and axes (Blender's exporter); given
+    ``garment_mesh`` (the garment's file as the core read it), as that file with the new positions (the core's
+    writer: its materials, groups, smoothing, UVs and comments kept, its normals turned with the cloth, its
+    material libraries named from ``path``), where the export has the garment's polygons in its vertex order."""
     import bpy
 
     inputs = [args.source_body, *(args.target_body or []), *(args.garment or []), args.model, args.catalogue]
@@ -332,18 +332,18 @@ def export_obj(obj, path, args, garment_file=None):
                               global_scale=1.0 / args.scale, up_axis=args.up,
                               forward_axis=args.forward, export_materials=False,
                               export_normals=False, export_uv=True, export_triangulated_mesh=False)
-        if garment_file is not None:
-            _as_garment_file(tmp, path, garment_file)
+        if garment_mesh is not None:
+            _as_garment_file(tmp, path, garment_mesh)
 
 
-def _as_garment_file(tmp, path, garment_file):
-    """Rewrite the export ``tmp`` as the garment's own file with the exported positions, where its polygons are
-    the garment file's (the same vertices in the same order)."""
+def _as_garment_file(tmp, path, garment):
+    """Rewrite the export ``tmp`` as the garment's own file (``garment``: the core's Mesh of it) with the exported
+    positions, where its polygons are the garment file's (the same vertices in the same order)."""
     import numpy as np
 
     from garment_transfer.geometry.obj import obj_text, read_obj
 
-    exported, garment = read_obj(tmp, name=str(path)), read_obj(garment_file)
+    exported = read_obj(tmp, name=str(path))
     if (exported.V.shape == garment.V.shape and np.array_equal(exported.face_start, garment.face_start)
             and np.array_equal(exported.face_vertices, garment.face_vertices)):
         tmp.write_bytes(obj_text(garment, exported.V, path=path).encode("utf-8", errors="surrogateescape"))
@@ -370,7 +370,7 @@ def run(args, log, records=None, jobs=None):
         key = str(path)
         if key not in bodies:
             try:
-                bodies[key] = import_obj(path, label, args)
+                bodies[key] = import_obj(path, label, args)[0]
             except InputError as exc:
                 bodies[key] = exc
                 log(f"FAILED {exc}")
@@ -396,7 +396,7 @@ def run(args, log, records=None, jobs=None):
                 if args.catalogue:
                     records.append({"garment": job.name, "target": name, "error": str(exc)})
         try:
-            garment = import_obj(job.garment, job.name, args)
+            garment, garment_mesh = import_obj(job.garment, job.name, args)
         except InputError as exc:
             log(f"FAILED {exc}")
             records.append({"garment": str(job.garment), "error": str(exc)})
@@ -416,7 +416,7 @@ def run(args, log, records=None, jobs=None):
         for target, name, label in targets:
             stop_if_interrupted()
             record, result = transfer_pair(garment, target, label, args, log,
-                                           job.output(args.out, name), job.method, job.garment)
+                                           job.output(args.out, name), job.method, garment_mesh)
             if args.catalogue:
                 record.update(garment=job.name, target=name)
             records.append(record)
@@ -430,7 +430,7 @@ def run(args, log, records=None, jobs=None):
     return records
 
 
-def transfer_pair(garment, target, label, args, log, output, method, garment_file=None):
+def transfer_pair(garment, target, label, args, log, output, method, garment_mesh=None):
     """Transfer one garment to one target with the operator and export the result (as ``export_obj``).
 
     Returns
@@ -456,7 +456,7 @@ def transfer_pair(garment, target, label, args, log, output, method, garment_fil
     result = settings.result
     output.parent.mkdir(parents=True, exist_ok=True)
     try:
-        export_obj(result, output, args, garment_file)
+        export_obj(result, output, args, garment_mesh)
     except InputError as exc:
         record["error"] = str(exc)
         log(f"FAILED {garment.name} -> {target.name}: {record['error']}")
