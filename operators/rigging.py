@@ -84,6 +84,89 @@ def vertex_group_weights(obj, names):
     return weights_from_dict(pairs, len(obj.data.vertices), f"{obj.name}'s vertex groups")
 
 
+def armature_bones(armature, depsgraph, evaluated=True):
+    """Every bone of the armature in world space: {name: (parent name or None, head, tail, frame)}, the frame
+    (3,3) the bone's axes (X, Y along the bone, Z: its roll) as a rotation. ``evaluated``: as posed now (the pose
+    the Armature modifier gives its body, its rest position included); else at rest, as the mesh is without its
+    modifiers."""
+    A = convert.matrix_array(armature.matrix_world)
+    if evaluated:
+        items = [(b.name, b.parent.name if b.parent else None, b.head, b.tail, b.matrix)
+                 for b in armature.evaluated_get(depsgraph).pose.bones]
+    else:
+        items = [(b.name, b.parent.name if b.parent else None, b.head_local, b.tail_local, b.matrix_local)
+                 for b in armature.data.bones]
+    bones = {}
+    for name, parent, head, tail, matrix in items:
+        M = A[:3, :3] @ convert.matrix_array(matrix)[:3, :3]
+        # The nearest rotation to the bone's axes (an armature's or a bone's scale stretches them).
+        U, _, Vt = np.linalg.svd(M)
+        bones[name] = (parent, A[:3, :3] @ np.array(head) + A[:3, 3], A[:3, :3] @ np.array(tail) + A[:3, 3],
+                       U @ Vt)
+    return bones
+
+
+def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, frame):
+    """What a transfer needs to pose the source body into the target's rest pose (the core's
+    ``transfer_across_rest_poses``): both bodies have an armature (an Armature modifier) whose bones carry the
+    source's vertex groups, with the same names.
+
+    Parameters
+    ----------
+    source_body, target_body : bpy.types.Object
+    depsgraph : bpy.types.Depsgraph
+    evaluated : bool
+        The bodies read as posed now (else at rest, without modifiers).
+    n_vertices : int
+        The source body's vertices as read: its vertex groups must name the same ones.
+    frame : (3,3) float
+        The rotation from world space to the frame the bodies are given to the core in.
+
+    Returns
+    -------
+    (source Rig, target joints, target frames), or None when a body has no armature or the source's vertex
+    groups name none of its bones.
+
+    Raises
+    ------
+    RigError
+        The target's armature lacks bones that move the source body (naming them), or the source's vertex groups
+        do not fit the mesh read.
+    """
+    from ..garment_transfer import RigError, rig_from_bones
+
+    source_armature, target_armature = body_armature(source_body), body_armature(target_body)
+    if source_armature is None or target_armature is None:
+        return None
+    bones = armature_bones(source_armature, depsgraph, evaluated)
+    groups = {g.name for g in source_body.vertex_groups} & {b for b in deform_bones(source_armature)}
+    if not groups:
+        return None
+    needed = set()
+    for name in groups:
+        while name is not None and name not in needed:
+            needed.add(name)
+            name = bones[name][0]
+    target = armature_bones(target_armature, depsgraph, evaluated)
+    missing = sorted(needed - set(target))
+    if missing:
+        raise RigError(target_armature.name, f"lacks {len(missing)} bones of {source_armature.name} that move "
+                                             f"{source_body.name} (first: {', '.join(missing[:3])}): the two "
+                                             "bodies' rest poses cannot be matched bone by bone")
+    if len(source_body.data.vertices) != n_vertices:
+        raise RigError(source_body.name, f"has {len(source_body.data.vertices)} vertices but {n_vertices} as read "
+                                         "(a modifier changes the count): its vertex groups do not fit")
+    names = [b for b in bones if b in needed]
+    rig = rig_from_bones({b: (bones[b][0], bones[b][1] @ frame.T, bones[b][2] @ frame.T, frame @ bones[b][3])
+                          for b in names}, vertex_group_weights(source_body, sorted(groups)), source_armature.name)
+    joints = {}
+    for b in names:
+        joints[f"{b} head"] = target[b][1] @ frame.T
+        joints[f"{b} tail"] = target[b][2] @ frame.T
+    frames = np.array([frame @ target[b][3] for b in rig.skeleton.names])
+    return rig, joints, frames
+
+
 def write_vertex_groups(obj, weights):
     """Every group of ``weights`` (core SkinWeights) as a vertex group of ``obj`` (made, or replaced)."""
     from ..garment_transfer import weights_to_dict

@@ -11,7 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
-from .rigging import body_armature, rest_position, rig_to_body
+from .rigging import body_armature, rest_pose_rigs, rest_position, rig_to_body
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -118,7 +118,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     metrics : dict
         ``evaluate`` of the result as Blender has it (``result_metrics``) against the target body.
     """
-    from ..garment_transfer import SHAPE_BOUNDS, MeshError, transfer_to_any_body
+    from ..garment_transfer import SHAPE_BOUNDS, MeshError, transfer_across_rest_poses, transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -150,12 +150,17 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
         raise MeshError(source_body.name, f"its shape keys have {deltas.shape[1]} vertices but the mesh read "
                                           f"has {source.n_vertices} (a modifier changes the vertex count): "
                                           "turn off Fit With Shape Keys or Use Evaluated")
-    outcome, registration = transfer_to_any_body(
-        framed(source), framed(target), framed(cloth), method=method.lower(),
-        **(model.transfer_arguments() if model else {}), target=target_label or None, offset=offset,
-        fix_penetration=fix_penetration, progress=progress,
-        shape_basis=None if deltas is None else deltas @ frame.T,
-        shape_bounds=SHAPE_BOUNDS if bounds is None else bounds, body_model=body_model)
+    options = dict(method=method.lower(), **(model.transfer_arguments() if model else {}),
+                   target=target_label or None, offset=offset, fix_penetration=fix_penetration, progress=progress,
+                   shape_basis=None if deltas is None else deltas @ frame.T,
+                   shape_bounds=SHAPE_BOUNDS if bounds is None else bounds, body_model=body_model)
+    # Two bodies rigged alike: a target in another rest pose gets the source and its garment posed into it first.
+    rigs = None if model else rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame)
+    if rigs is not None:
+        outcome, registration = transfer_across_rest_poses(framed(source), framed(target), framed(cloth), *rigs,
+                                                           **options)
+    else:
+        outcome, registration = transfer_to_any_body(framed(source), framed(target), framed(cloth), **options)
     outcome.shape_keys = key_names
     outcome.body_model = body_model
     outcome.model_text = model_text(model)
@@ -164,7 +169,12 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     result = convert.new_result_object(garment, outcome.V, result_name(garment, target_body),
                                        depsgraph, evaluated, scene=context.scene,
                                        view_layer=context.view_layer)
-    metrics = result_metrics(context, result, cloth, target)
+    pose = outcome.info.get("rest_pose") or {}
+    # Posed into the target's rest pose: its crossings are counted apart where the target's body crosses or closes
+    # on itself (the source at rest, on a target of its mesh, tells which parts the pose pressed together).
+    posed = (outcome.info["offset"], source.V if registration is None else None) if pose.get("posed") else None
+    metrics = result_metrics(context, result, cloth, target, posed=posed)
+    outcome.pose_warnings = metrics.pop("pose_warnings", [])
     outcome.registered_body = None
     if registration is not None and keep_registered:
         outcome.registered_body = convert.new_result_object(
@@ -173,12 +183,14 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     return result, outcome, metrics
 
 
-def result_metrics(context, result, garment, target):
+def result_metrics(context, result, garment, target, posed=None):
     """``evaluate`` of the new object as Blender has it (evaluated, in world space, its 32-bit coordinates),
     against the target body as read (``garment``, ``target``: the core meshes read): the panel's and the
     report's figures, crossings under every triangulation of the faces included. A result that keeps a refining
-    modifier (Use Evaluated off) is measured before it."""
-    from ..garment_transfer import evaluate
+    modifier (Use Evaluated off) is measured before it. ``posed``: (offset, rest positions of the target's mesh or
+    None) for a target in a pose: the pose fit's counts are added (``posed_counts``: crossings away from where the
+    body crosses or closes on itself and at it; its warnings as ``pose_warnings``)."""
+    from ..garment_transfer import evaluate, posed_counts
 
     context.view_layer.update()
     depsgraph = context.evaluated_depsgraph_get()
@@ -186,7 +198,12 @@ def result_metrics(context, result, garment, target):
     if written.n_vertices != garment.n_vertices:
         # A refining modifier kept on the result (Subdivision, with Use Evaluated off): the mesh it refines.
         written = convert.core_mesh_from_object(result, depsgraph, False, "result")
-    return evaluate(garment, garment.with_vertices(written.V), target)
+    metrics = evaluate(garment, garment.with_vertices(written.V), target)
+    if posed is not None:
+        counts = posed_counts(written.V, garment, target, posed[0], rest_V=posed[1], name=target.name)
+        metrics.update(crossings_outside_contact=counts["crossings_outside_contact"],
+                       crossings_at_contact=counts["crossings_at_contact"], pose_warnings=counts["warnings"])
+    return metrics
 
 
 #: The panel's registration line names at most this many sliders (the largest weights first).
@@ -225,8 +242,11 @@ def method_text(method, model):
 def registration_text(context, outcome):
     """One line for the panel: whether the target was registered, and the fit's residual."""
     reg = outcome.info.get("registration")
+    pose = outcome.info.get("rest_pose") or {}
+    posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
+             f"{pose['largest_turn']:.0f} degrees)") if pose.get("posed") else ""
     if not reg:
-        return "Same mesh as the source body: no registration"
+        return "Same mesh as the source body: no registration" + posed
     q = reg["quality"]
     text = (f"Registered{' (cached)' if reg.get('cached') else ''}: 95% of the distance within "
             f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
@@ -242,7 +262,7 @@ def registration_text(context, outcome):
             text += f"; {what} {shown}{more}"
         else:
             text += f"; {what} not used (explains {max(q.get('shape_explained', 0.0), 0.0):.0%})"
-    return text
+    return text + posed
 
 
 class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
@@ -302,7 +322,8 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                                                metrics, elapsed))
         from ..garment_transfer import result_warnings
 
-        for warning in result_warnings(metrics, result.name) + (rigged or {}).get("warnings", []):
+        for warning in (result_warnings(metrics, result.name) + outcome.pose_warnings
+                        + (rigged or {}).get("warnings", [])):
             self.report({'WARNING'}, warning)
         return {'FINISHED'}
 

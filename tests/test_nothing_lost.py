@@ -86,6 +86,9 @@ def world(tmp_path_factory):
     write_obj(w / "result.obj", mesh_from_triangles(GV * 1.1, GF))
     write_obj(w / "reference.obj", mesh_from_triangles(GV * 1.1, GF))
     (w / "weights.json").write_text('{"weights": {"spine": [[0, 1.0]]}}\n')
+    (w / "skeleton.json").write_text('{"bones": {"spine": {"parent": null, "head": "a", "tail": "b"}}}\n')
+    (w / "joints.json").write_text('{"a": [0, 0, 0], "b": [0, 1, 0]}\n')
+    (w / "target_joints.json").write_text('{"a": [0, 0, 0], "b": [0, 1.1, 0]}\n')
     np.savez(w / "model.npz", a=np.zeros(3))
     np.savez(w / "targets.npz", a=np.zeros(3))
     (w / "cat.toml").write_text(
@@ -123,7 +126,9 @@ class Command:
 def _transfer(w, out):
     return ["transfer", "--source-body", w / "source.obj", "--target-body", w / "target.obj", "--garment",
             w / "clothes" / "garment.obj", "--model", w / "model.npz", "--target", "pear", "--shape-basis",
-            w / "basis.obj", "--body-model", w / "targets.npz", "--out", out["--out"]]
+            w / "basis.obj", "--body-model", w / "targets.npz", "--skeleton", w / "skeleton.json", "--source-joints",
+            w / "joints.json", "--source-weights", w / "weights.json", "--target-joints", w / "target_joints.json",
+            "--out", out["--out"]]
 
 
 def _outfit(w, out):
@@ -139,7 +144,9 @@ TRANSFER_SETTINGS = {"--method", "--target", "--field-share", "--no-placement", 
 COMMANDS = {
     "transfer": Command(_transfer, {"--source-body": "source.obj", "--target-body": "target.obj",
                                     "--garment": "clothes/garment.obj", "--model": "model.npz",
-                                    "--shape-basis": "basis.obj", "--body-model": "targets.npz"},
+                                    "--shape-basis": "basis.obj", "--body-model": "targets.npz",
+                                    "--skeleton": "skeleton.json", "--source-joints": "joints.json",
+                                    "--source-weights": "weights.json", "--target-joints": "target_joints.json"},
                         {"--out": "file"}, TRANSFER_SETTINGS),
     "shapes": Command(lambda w, out: ["shapes", "--source-body", w / "source.obj", "--target-body",
                                       w / "target.obj", "--target-body", w / "DS" / "bodies" / "pear.obj",

@@ -34,11 +34,15 @@ from ..learning.garment_training import (
 from ..learning.model_files import DEFAULT_FIELD_SHARE, read_model_file
 from ..learning.placement import LIBRARY_SHARE
 from ..learning.training import train_from_dataset
+from ..rigging.posing import Rig
+from ..rigging.skeleton import read_joints, read_skeleton
+from ..rigging.skinning import read_weights
 from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
-from ..pipeline.pose_fit import poses_to_files
+from ..pipeline.rest_pose import transfer_across_rest_poses
+from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
 from .batch import add_batch_arguments, batch_main
@@ -62,14 +66,17 @@ def cmd_transfer(args):
     target_body = read_obj(args.target_body)
     garment = read_obj(args.garment)
     model = _model_for(args)
+    rig = _rest_pose_rig(args, source_body)
     load = time.perf_counter() - t
     shape = _shape_basis_for(args, source_body)
-    result, registration = transfer_to_any_body(
-        source_body, target_body, garment, cache=not args.no_cache,
-        **{k: v for k, v in shape.items() if not k.startswith("_")},
-        method=args.method, **(model.transfer_arguments() if model else {}),
-        target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
-        interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
+    options = dict(cache=not args.no_cache, **{k: v for k, v in shape.items() if not k.startswith("_")},
+                   method=args.method, **(model.transfer_arguments() if model else {}),
+                   target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
+                   interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
+    if rig is not None:
+        result, registration = transfer_across_rest_poses(source_body, target_body, garment, *rig, **options)
+    else:
+        result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
     t = time.perf_counter()
     write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
@@ -92,8 +99,48 @@ def cmd_transfer(args):
         lines.append(f"model: {model.describe()}")
     if registration is not None:
         lines.append(_registration_line(args.source_body, args.target_body, registration))
+    pose = result.info.get("rest_pose")
+    if pose is not None:
+        out["rest_pose"] = pose
+        lines.append(f"the target's rest pose: {pose['largest_turn_bone']} turned {pose['largest_turn']:.0f} degrees "
+                     f"from the source's; " + ("the source and its garment were posed into it first" if pose["posed"]
+                                               else "the same pose (a change of shape)"))
+        if pose["posed"]:
+            # The file as written, against the target as given: where its body crosses or closes on itself (a
+            # pose's bent knee, an arm on the hip) no cloth can be outside both surfaces.
+            # The source at rest tells, on a target of its mesh, which parts the pose pressed together.
+            pose["written"] = posed_counts(read_obj(args.out).V, garment, target_body, result.info["offset"],
+                                           rest_V=source_body.V if registration is None else None,
+                                           name=os.path.basename(args.target_body))
+            out["warnings"] += pose["written"]["warnings"]
+            lines.append(f"as written: {pose['written']['crossings_outside_contact']} crossings away from where "
+                         f"the target's body crosses or closes on itself, {pose['written']['crossings_at_contact']} "
+                         "where it does")
     lines += [f"warning: {w}" for w in out["warnings"]]
     emit(args, out, lines)
+
+
+REST_POSE_OPTIONS = ("skeleton", "source_joints", "source_weights", "target_joints")
+
+
+def _rest_pose_rig(args, source_body):
+    """(source Rig, target joints) from the rest-pose options, or None when none is given."""
+    given = [o for o in REST_POSE_OPTIONS if getattr(args, o, None)]
+    if not given:
+        return None
+    if len(given) < len(REST_POSE_OPTIONS):
+        missing = ", ".join("--" + o.replace("_", "-") for o in REST_POSE_OPTIONS if o not in given)
+        raise GarmentTransferError(f"a target in another rest pose needs --skeleton, --source-joints, "
+                                   f"--source-weights and --target-joints; missing {missing}")
+    if args.method == "model":
+        raise GarmentTransferError("a target in another rest pose is transferred by the direct or surface method, "
+                                   "not by a model (trained on the source's pose)")
+    skeleton = read_skeleton(args.skeleton)
+    rig = Rig(skeleton, read_joints(args.source_joints), read_weights(args.source_weights, source_body.n_vertices))
+    rig.rest()      # every joint of the skeleton is placed on the source
+    target_joints = read_joints(args.target_joints)
+    skeleton.rest(target_joints)
+    return rig, target_joints
 
 
 def written_check(path, garment, target_body, result=None):
@@ -226,6 +273,9 @@ def cmd_transfer_outfit(args):
     if args.shape_basis or args.body_model:
         raise GarmentTransferError(f"{'--shape-basis' if args.shape_basis else '--body-model'} is for one garment: "
                                    f"an outfit needs a target body of the source's mesh")
+    if any(getattr(args, o, None) for o in REST_POSE_OPTIONS):
+        raise GarmentTransferError("a target in another rest pose (--skeleton, --source-joints, --source-weights, "
+                                   "--target-joints) takes one garment: transfer the layers one at a time")
     if args.no_fix or args.no_crossing_pass:
         raise GarmentTransferError("an outfit of several layers is always separated: "
                                    "--no-fix and --no-crossing-pass apply to one garment only")
@@ -386,6 +436,19 @@ def build_parser():
                    help="MakeHuman's targets archive (makehuman/data/targets.npz of the makehuman wheel: pip "
                         "download --no-deps makehuman==1.3.2): its sliders as the shape basis of a source body "
                         "of MakeHuman's hm08 mesh (docs/registration.md)")
+    r = t.add_argument_group(
+        "a target in another rest pose",
+        "When the target body stands in another pose than the source (arms lower, legs apart), give both bodies' "
+        "skeleton: the source body and its garment are posed into the target's rest pose by the source's weights "
+        "first, then the shape is transferred (docs/motion.md). All four are needed; one garment.")
+    r.add_argument("--skeleton", metavar="SKELETON.json",
+                   help="the bodies' skeleton: bones between named joints, MakeHuman's layout (rig/skeleton.json)")
+    r.add_argument("--source-joints", metavar="JOINTS.json",
+                   help="the skeleton's joints on the source body, {joint: [x, y, z]} (rig/joints/<body>.json)")
+    r.add_argument("--source-weights", metavar="WEIGHTS.json",
+                   help="the source body's weights, {group: [[vertex, weight], ...]} (rig/weights.json)")
+    r.add_argument("--target-joints", metavar="JOINTS.json",
+                   help="the skeleton's joints on the target body, as it stands")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 

@@ -36,7 +36,8 @@ def pose_difference(source_rig: Rig, target_joints, target_frames=None):
     degrees : dict of str to float
         The turn of each bone that carries at least ``MIN_WEIGHT_SHARE`` of the body's weights.
     """
-    R, angles = matching_rotations(source_rig.skeleton, source_rig.joints, target_joints, target_frames)
+    R, angles = matching_rotations(source_rig.skeleton, source_rig.joints, target_joints, target_frames,
+                                   source_rig.frames)
     weights = source_rig.weights.normalised()
     share = np.asarray(weights.W.sum(axis=0)).ravel() / max(weights.n_vertices, 1)
     carrying = {g for g, s in zip(weights.groups, share) if s >= MIN_WEIGHT_SHARE}

@@ -492,7 +492,10 @@ def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dic
         raise MeshError(name, f"is in another pose than the source body {source_body.name}: its {band} points "
                               f"{d['bands'][band]:.0f} degrees away from the source's (a transfer keeps the design "
                               f"up to {limit:.0f} for a{'n' if band.split(' ', 1)[1][0] in 'aeiou' else ''} "
-                              f"{band.split(' ', 1)[1]}). Pose the two bodies alike first")
+                              f"{band.split(' ', 1)[1]}). Pose the two bodies alike first, or give both a skeleton "
+                              "with the same bones to pose the source into the target's rest pose (in Blender an "
+                              "armature on each body; on the command line --skeleton, --source-joints, "
+                              "--source-weights and --target-joints)")
     return {"degrees": d["bands"][band], "band": band, "bands": d["bands"]}
 
 

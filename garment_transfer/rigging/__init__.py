@@ -8,7 +8,7 @@ matched where the surfaces agree and inpainted smoothly elsewhere. Built on ``ge
 """
 
 from .bvh import Motion, axes_between, parse_bvh, read_bvh
-from .posing import Rig, bvh_rotations, matching_rotations
+from .posing import Rig, bvh_rotations, matching_rotations, rig_from_bones
 from .skeleton import Skeleton, bone_frames, plane_normals, read_joints, read_skeleton, skeleton_from_dict
 from .skinning import (SkinWeights, deforming, group_transforms, pose_transforms, read_weights, skin, skin_weights,
                        weights_from_dict, weights_to_dict, write_weights)
@@ -19,6 +19,6 @@ from .weight_transfer import (MATCH_ANGLE, MATCH_DISTANCE_SHARE, MAX_INFLUENCES,
 __all__ = ["Skeleton", "read_skeleton", "read_joints", "skeleton_from_dict", "bone_frames", "plane_normals",
            "Motion", "read_bvh", "parse_bvh", "axes_between", "SkinWeights", "skin_weights", "read_weights",
            "write_weights", "weights_from_dict", "weights_to_dict", "skin", "pose_transforms", "group_transforms",
-           "deforming", "Rig", "bvh_rotations", "matching_rotations", "surface_weights", "nearest_weights",
-           "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian", "smoothness_matrix",
-           "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES"]
+           "deforming", "Rig", "rig_from_bones", "bvh_rotations", "matching_rotations", "surface_weights",
+           "nearest_weights", "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian",
+           "smoothness_matrix", "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES"]

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import RigError
 from .bvh import Motion, axes_between
-from .skeleton import Skeleton, bone_frames
+from .skeleton import Skeleton, bone_frames, skeleton_from_dict
 from .skinning import SkinWeights, deforming, group_transforms, pose_transforms, skin
 
 
@@ -31,15 +31,25 @@ class Rig:
         The joints on this body.
     weights : SkinWeights
         The body's weights (only the groups that are bones are used to pose it).
+    frames : (b,3,3) float64, optional
+        The bones' rest frames on this body (columns X, Y along the bone, Z), where an armature gives them (its
+        bones' rolls); by default they are made from the joints and the skeleton's roll planes (``bone_frames``).
     """
 
     skeleton: Skeleton
     joints: dict
     weights: SkinWeights
+    frames: np.ndarray | None = None
 
     def rest(self):
         """(heads, tails), each (b,3) float64."""
         return self.skeleton.rest(self.joints)
+
+    def rest_frames(self):
+        """(b,3,3) float64: the bones' rest frames (``frames``, else ``bone_frames``)."""
+        if self.frames is not None:
+            return np.asarray(self.frames, dtype=np.float64)
+        return bone_frames(self.skeleton, self.joints)
 
     def transforms(self, rotations, root_position=None):
         """(b,3,4) skinning transforms for local rotations (b,3,3) (``skinning.pose_transforms``)."""
@@ -58,7 +68,7 @@ class Rig:
     def posed_frames(self, T):
         """(b,3,3) the bones' frames (``bone_frames``) turned by the transforms ``T`` (b,3,4): an armature's
         bones in the pose."""
-        return np.einsum("bij,bjk->bik", T[:, :, :3], bone_frames(self.skeleton, self.joints))
+        return np.einsum("bij,bjk->bik", T[:, :, :3], self.rest_frames())
 
     def posed_joints(self, T):
         """Every joint moved by the bones that own it (as a head first, else as a tail), with the
@@ -71,6 +81,35 @@ class Rig:
         for joint, p in self.joints.items():
             out.setdefault(joint, np.asarray(p, dtype=np.float64))
         return out
+
+
+def rig_from_bones(bones, weights: SkinWeights, name="armature") -> Rig:
+    """A Rig from an armature's bones, placed on its body: each bone's head and tail become its own two joints,
+    and its frame (its roll) is kept, so the rig poses and is matched by the bones' frames, not by roll planes.
+
+    Parameters
+    ----------
+    bones : dict of str to (parent, head, tail, frame)
+        Each bone's parent's name (None for a root), head and tail (3,) and rest frame (3,3) (columns X, Y along
+        the bone, Z: Blender's bone matrix), in the body's space.
+    weights : SkinWeights
+        The body's weights, groups named as the bones.
+    name : str
+        The armature's name, for messages.
+
+    Returns
+    -------
+    Rig
+        Its skeleton's joints are named ``"<bone> head"`` and ``"<bone> tail"``.
+    """
+    skeleton = skeleton_from_dict({"bones": {b: {"parent": parent, "head": f"{b} head", "tail": f"{b} tail"}
+                                             for b, (parent, *_) in bones.items()}}, name)
+    joints = {}
+    for b, (_, head, tail, _) in bones.items():
+        joints[f"{b} head"] = np.asarray(head, dtype=np.float64)
+        joints[f"{b} tail"] = np.asarray(tail, dtype=np.float64)
+    frames = np.array([bones[b][3] for b in skeleton.names], dtype=np.float64).reshape(-1, 3, 3)
+    return Rig(skeleton, joints, weights, frames)
 
 
 def bvh_rotations(motion: Motion, skeleton: Skeleton, frame=0, file_up="Z", body_up="Y"):
@@ -107,7 +146,7 @@ def bvh_rotations(motion: Motion, skeleton: Skeleton, frame=0, file_up="Z", body
     return R
 
 
-def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=None):
+def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=None, frames=None):
     """The local rotations that pose a body's skeleton (``joints``) into another's pose (``target_joints``).
 
     Each bone takes the turn ``G_b`` that best carries what it moves rigidly (its tail and its children's heads,
@@ -128,6 +167,8 @@ def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=
         The joints on the body to pose and on the body whose pose it takes (the same skeleton's joints).
     target_frames : (b,3,3) float, optional
         The target's bone frames (columns X, Y along the bone, Z), when known.
+    frames : (b,3,3) float, optional
+        The body's own bone frames at ``joints`` (``Rig.frames``), when known; else ``bone_frames``.
 
     Returns
     -------
@@ -135,7 +176,7 @@ def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=
     angles : (b,) float64
         Each bone's global turn, in degrees (how far the two poses differ there).
     """
-    own = bone_frames(skeleton, joints)
+    own = bone_frames(skeleton, joints) if frames is None else np.asarray(frames, dtype=np.float64)
     if target_frames is not None:
         G = np.einsum("bij,bkj->bik", np.asarray(target_frames, dtype=np.float64), own)
         R = np.array([G[b] if p < 0 else G[p].T @ G[b] for b, p in enumerate(skeleton.parents)])
