@@ -30,7 +30,7 @@ instant until a transfer is asked for::
 
 import importlib
 
-from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError,
+from .errors import (Cancelled, DatasetError, GarmentTransferError, MeshError, ModelError, NamedError, PoseError,
                      RegistrationError, RigError, SettingError, TopologyMismatchError)
 from .files import (OutputError, atomic_path, check_output, check_output_folder, check_outputs, write_atomic,
                     write_json_atomic)
@@ -68,7 +68,7 @@ _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 __all__ = [
     "__version__",
     "GarmentTransferError", "NamedError", "MeshError", "TopologyMismatchError", "ModelError", "DatasetError",
-    "SettingError", "RegistrationError", "RigError", "OutputError", "Cancelled",
+    "SettingError", "RegistrationError", "PoseError", "RigError", "OutputError", "Cancelled",
     "check_output", "check_outputs", "check_output_folder", "atomic_path", "write_atomic", "write_json_atomic",
     *_LAYER_OF,
 ]

@@ -22,6 +22,20 @@ class TopologyMismatchError(MeshError):
     """Two meshes that must share vertex order and faces do not."""
 
 
+class PoseError(MeshError):
+    """A target body standing in another pose than the source, beyond what a transfer carries: ``difference``
+    (the figure) and ``remedy`` (what to do), ``"<name>: <difference>. <remedy>"``."""
+
+    REMEDY = ("Pose the two bodies alike first, or give both a skeleton with the same bones to pose the source into "
+              "the target's rest pose (in Blender an armature on each body; on the command line --skeleton, "
+              "--source-joints, --source-weights and --target-joints)")
+
+    def __init__(self, name, difference, remedy=REMEDY):
+        self.difference = difference
+        self.remedy = remedy
+        super().__init__(name, f"{difference}. {remedy}")
+
+
 class ModelError(NamedError):
     """A model file that is unreadable, corrupt, or made for other data."""
 

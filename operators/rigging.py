@@ -124,24 +124,22 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
 
     Returns
     -------
-    (source Rig, target joints, target frames), or None when a body has no armature or the source's vertex
-    groups name none of its bones.
-
-    Raises
-    ------
-    RigError
-        The target's armature lacks bones that move the source body (naming them), or the source's vertex groups
-        do not fit the mesh read.
+    rigs : (source Rig, target joints, target frames) or None
+        None where the rest poses cannot be matched bone by bone.
+    why_not : str
+        Without rigs, what would give them, in a few words (for the error if the poses then differ); "" with them.
     """
-    from ..garment_transfer import RigError, rig_from_bones
+    from ..garment_transfer import rig_from_bones
 
     source_armature, target_armature = body_armature(source_body), body_armature(target_body)
     if source_armature is None or target_armature is None:
-        return None
+        return None, ("give both bodies an Armature modifier, with the same bones, to pose the source into the "
+                      "target's rest pose")
     bones = armature_bones(source_armature, depsgraph, evaluated)
     groups = {g.name for g in source_body.vertex_groups} & {b for b in deform_bones(source_armature)}
     if not groups:
-        return None
+        return None, (f"give {source_body.name} vertex groups named as the bones of {source_armature.name} to "
+                      "pose it into the target's rest pose")
     needed = set()
     for name in groups:
         while name is not None and name not in needed:
@@ -150,12 +148,12 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
     target = armature_bones(target_armature, depsgraph, evaluated)
     missing = sorted(needed - set(target))
     if missing:
-        raise RigError(target_armature.name, f"lacks {len(missing)} bones of {source_armature.name} that move "
-                                             f"{source_body.name} (first: {', '.join(missing[:3])}): the two "
-                                             "bodies' rest poses cannot be matched bone by bone")
+        return None, (f"give {target_armature.name} the bones of {source_armature.name} that move "
+                      f"{source_body.name}: it lacks {len(missing)} (first: {', '.join(missing[:3])})")
     if len(source_body.data.vertices) != n_vertices:
-        raise RigError(source_body.name, f"has {len(source_body.data.vertices)} vertices but {n_vertices} as read "
-                                         "(a modifier changes the count): its vertex groups do not fit")
+        return None, (f"turn off Use Modifiers and Shape Keys: a modifier of {source_body.name} changes its "
+                      f"vertex count ({len(source_body.data.vertices)} to {n_vertices}), so its vertex groups "
+                      "cannot pose it")
     names = [b for b in bones if b in needed]
     rig = rig_from_bones({b: (bones[b][0], bones[b][1] @ frame.T, bones[b][2] @ frame.T, frame @ bones[b][3])
                           for b in names}, vertex_group_weights(source_body, sorted(groups)), source_armature.name)
@@ -164,7 +162,7 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
         joints[f"{b} head"] = target[b][1] @ frame.T
         joints[f"{b} tail"] = target[b][2] @ frame.T
     frames = np.array([frame @ target[b][3] for b in rig.skeleton.names])
-    return rig, joints, frames
+    return (rig, joints, frames), ""
 
 
 def write_vertex_groups(obj, weights):

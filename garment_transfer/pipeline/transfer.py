@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import Cancelled, MeshError, ModelError, SettingError
+from ..errors import Cancelled, MeshError, ModelError, PoseError, SettingError
 from ..geometry import clearance, penetration
 from ..geometry.binding import Binding, bind, carry
 from ..geometry.embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
@@ -489,13 +489,10 @@ def pose_check(source_body: Mesh, body_V, name, limbs=None, covered=None) -> dic
     band = max(over, key=over.get)
     limit = POSE_LIMITS[band.split(" ", 1)[1]]
     if over[band] > 1.0:
-        raise MeshError(name, f"is in another pose than the source body {source_body.name}: its {band} points "
+        raise PoseError(name, f"is in another pose than the source body {source_body.name}: its {band} points "
                               f"{d['bands'][band]:.0f} degrees away from the source's (a transfer keeps the design "
                               f"up to {limit:.0f} for a{'n' if band.split(' ', 1)[1][0] in 'aeiou' else ''} "
-                              f"{band.split(' ', 1)[1]}). Pose the two bodies alike first, or give both a skeleton "
-                              "with the same bones to pose the source into the target's rest pose (in Blender an "
-                              "armature on each body; on the command line --skeleton, --source-joints, "
-                              "--source-weights and --target-joints)")
+                              f"{band.split(' ', 1)[1]})")
     return {"degrees": d["bands"][band], "band": band, "bands": d["bands"]}
 
 

@@ -289,17 +289,21 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     body.modifiers.new(name="Armature", type='ARMATURE').object = armature
     bpy.context.view_layer.update()
     assert np.abs(world_vertices(body) - core_rig.pose(rest_body.V, T)).max() < 1e-4
-    # The source without an armature: the pose difference is refused, naming the target, and nothing is made.
+    # The source without an armature: the pose difference is refused, naming the target and what would do, and
+    # nothing is made.
     before = set(bpy.data.objects)
-    with pytest.raises(RuntimeError, match="another pose than the source body"):
+    with pytest.raises(RuntimeError, match="pear: is in another pose than the source body .* give both bodies an "
+                                           "Armature modifier"):
         bpy.ops.garment_transfer.transfer()
     assert set(bpy.data.objects) == before
     # The source rigged alike (the same skeleton on its own joints, the same weights): posed into the kick first.
     joints = read_joints(makehuman / "rig" / "joints" / "female_average.json")
     source_armature = rigging.make_armature(bpy.context, "average_rig", skeleton,
                                             {k: to_world(v) for k, v in joints.items()})
-    rigging.write_vertex_groups(source, core_rig.weights)
     source.modifiers.new(name="Armature", type='ARMATURE').object = source_armature
+    with pytest.raises(RuntimeError, match="give average vertex groups named as the bones of average_rig"):
+        bpy.ops.garment_transfer.transfer()
+    rigging.write_vertex_groups(source, core_rig.weights)
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     result = settings.result
     assert "posed into the target's rest pose first" in settings.last_registration
