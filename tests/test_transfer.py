@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 from meshes import arms_down, icosphere, require_makehuman
 
-from garment_transfer.errors import Cancelled, MeshError, TopologyMismatchError
+from garment_transfer.errors import Cancelled, MeshError, PoseError, TopologyMismatchError
 from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.pipeline.metrics import evaluate
 from garment_transfer.pipeline import transfer
+from garment_transfer.pipeline.outfit import transfer_outfit
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 
@@ -140,8 +141,12 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
     garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
     posed = source.with_vertices(arms_down(source.V, np.radians(35)), name="arms_down")
     with pytest.raises(MeshError, match=r"arms_down: is in another pose than the source body female_average: its "
-                                        r"(left|right) (upper arm|forearm) points \d+ degrees away"):
+                                        r"(left|right) (upper arm|forearm) points \d+ degrees away.*--skeleton"):
         transfer_garment(source, posed, garment, resolve_crossings=False)
+    # An outfit's layers are not posed into the target's pose: its refusal says to take one garment at a time.
+    with pytest.raises(PoseError, match=r"arms_down: is in another pose .* takes one garment at a time") as e:
+        transfer_outfit(source, posed, [garment])
+    assert "degrees away" in e.value.difference and "--skeleton" in e.value.remedy
     # A shape of the same pose, and arms a little lower, are not; the angle is in the result's info.
     pear = read_obj(root / "bodies" / "female_pear.obj")
     near = source.with_vertices(arms_down(source.V, np.radians(10)), name="arms_10")
