@@ -16,11 +16,12 @@ the current pose, and a fit baked over a frame range.
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 
 import bpy
 import numpy as np
-from bpy.props import IntProperty
+from bpy.props import IntProperty, StringProperty
 from mathutils import Matrix
 
 from . import convert
@@ -499,14 +500,44 @@ def measure_baked(context, baked, frames, fits):
     return {"frames": rows, "warnings": warnings}
 
 
-def baked_object(context, obj, frames, positions):
+def bake_cache_path(path):
+    """The absolute path of a bake's point cache, checked before the bake: a new file, or a PC2 file to replace
+    (never another kind of file, the .blend file, a folder or a link; its folder must exist and be writable)."""
+    from ..garment_transfer import OutputError, check_output, is_pc2
+
+    full = bpy.path.abspath(path)
+    if os.path.isfile(full) and not os.path.islink(full) and not is_pc2(full):
+        raise OutputError(full, "is not a PC2 point cache; refusing to replace it (choose a new .pc2 file)")
+    return check_output(full, [bpy.data.filepath] if bpy.data.filepath else [], "Point Cache")
+
+
+def baked_object(context, obj, frames, positions, cache=None):
     """A new object ``<garment>_baked``: a shape key per frame, each at 1 on its frame and 0 on the frames
-    beside it (constant interpolation between keys is not needed: neighbours blend linearly)."""
+    beside it (constant interpolation between keys is not needed: neighbours blend linearly); or, with ``cache``
+    (a path), the frames written there as a PC2 file (the object's own coordinates) and a Mesh Cache modifier that
+    plays it, its first sample at the first frame."""
+    from ..garment_transfer import write_pc2
+
     result = convert.new_result_object(obj, positions[0], f"{obj.name}_baked", context.evaluated_depsgraph_get(),
                                        False, scene=context.scene, view_layer=context.view_layer)
     try:
         for mod in [m for m in result.modifiers if m.type in ('ARMATURE', 'SHRINKWRAP')]:
             result.modifiers.remove(mod)
+        if cache is not None:
+            local = np.stack([convert.local_from_world(V, result.matrix_world, obj.name) for V in positions])
+            write_pc2(cache, local, start_frame=frames[0], inputs=[bpy.data.filepath] if bpy.data.filepath else [],
+                      what="Point Cache")
+            mod = result.modifiers.new(name="Pose Fit Cache", type='MESH_CACHE')
+            mod.cache_format = 'PC2'
+            mod.filepath = cache
+            mod.time_mode = 'FRAME'
+            mod.play_mode = 'SCENE'
+            mod.frame_start = frames[0]
+            mod.interpolation = 'LINEAR'
+            # First in the stack: a refining modifier kept on the result (Subdivision) refines the cached cloth.
+            result.modifiers.move(len(result.modifiers) - 1, 0)
+            result.data.update()
+            return result
         result.shape_key_add(name="Basis", from_mix=False)
         for frame, V in zip(frames, positions):
             kb = result.shape_key_add(name=f"frame {frame}", from_mix=False)
@@ -646,7 +677,7 @@ class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
 
 class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
     """Fit the result to the target body's pose at every frame of a range: a new object <result>_baked with
-    a shape key per frame, keyed to play back exactly"""
+    a shape key per frame, keyed to play back exactly, or played from a PC2 point cache by a Mesh Cache modifier"""
 
     bl_idname = "garment_transfer.bake_pose_fit"
     bl_label = "Bake Pose Fit"
@@ -654,6 +685,8 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
 
     frame_start: IntProperty(name="Start", default=1, description="First frame to bake")
     frame_end: IntProperty(name="End", default=0, description="Last frame to bake (0: the scene's end)")
+    cache_file: StringProperty(name="Point Cache", subtype='FILE_PATH', default="",
+                               description="PC2 file to bake into (a Mesh Cache modifier plays it); empty: shape keys")
 
     status_text = "Baking the pose fit"
     cancel_text = "Pose fit bake cancelled; nothing was made"
@@ -667,6 +700,7 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
     def _start(self, context):
         settings = context.scene.garment_transfer
         end = self.frame_end or context.scene.frame_end
+        self._cache = bake_cache_path(self.cache_file) if self.cache_file else None
         self._began = time.perf_counter()
         self._steps = bake_steps(context, settings.result, settings.target_body, self.frame_start, end)
 
@@ -675,7 +709,7 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
         settings = context.scene.garment_transfer
         result = None
         try:
-            result = baked_object(context, settings.result, frames, positions)
+            result = baked_object(context, settings.result, frames, positions, self._cache)
             measured = measure_baked(context, result, frames, fits)
         except Exception as exc:
             if result is not None:

@@ -226,6 +226,10 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="Rigging also adds a Surface Deform, bound to the body at rest, that carries the cloth lying "
                     "on the skin with the posed body's surface (the rest follows the bones): closer to the skin at "
                     "the bends; in Blender about as many crossings as without it over the poses measured")
+    bake_cache: StringProperty(
+        name="Point Cache", subtype='FILE_PATH', default="",
+        description="Bake Pose Fit into this PC2 file, played by a Mesh Cache modifier on the baked object (one file "
+                    "for a long action); empty: a shape key per frame on the object")
     max_influences: IntProperty(
         name="Bones per Vertex", default=8, min=1, max=16,
         description="The most bones that move one garment vertex (game engines take 8, or 4: fewer follow the "

@@ -28,6 +28,7 @@ from .mesh import (
                    vertex_normals,
 )
 from .obj import obj_text, read_obj, write_obj
+from .pc2 import is_pc2, read_pc2, write_pc2
 from .penetration import fix_penetration, vertex_adjacency
 from .poisson import PoissonSolver
 from .proximity import TriangleSurface, as_same_mesh, closest_on_triangles, facing_outward
@@ -36,8 +37,9 @@ from .self_check import SelfCheck
 
 __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
            "faces_turned", "turned_around", "as_same_mesh", "facing_outward", "connected_pieces", "triangle_normals",
-           "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text", "TriangleSurface",
-           "closest_on_triangles", "deformation_gradients", "body_scale",
+           "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text",
+           "read_pc2", "write_pc2", "is_pc2", "TriangleSurface", "closest_on_triangles", "deformation_gradients",
+           "body_scale",
            "body_to_cloth", "cloth_to_body", "embed", "unembed", "Binding", "bind", "carry", "follow_nearest_vertex",
            "PoissonSolver", "fix_penetration", "vertex_adjacency", "crossings", "self_intersections",
            "minimum_distance", "intersection_report", "separate", "Readings", "readings_of", "SelfCheck"]

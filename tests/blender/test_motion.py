@@ -11,7 +11,7 @@ import pytest
 from conftest import import_obj, world_vertices
 
 from garment_transfer import (Rig, bvh_rotations, fit_to_pose, posed_counts, read_bvh, read_joints, read_obj,
-                              read_skeleton, read_weights, transfer_garment)
+                              read_pc2, read_skeleton, read_weights, transfer_garment)
 
 # Blender's OBJ import of a Y-up file in decimetres (conftest.import_obj): world = 0.1 * C @ file.
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -187,7 +187,7 @@ def test_riding_the_body_surface_keeps_the_cloth_on_the_skin_at_the_bends(charac
     assert result.modifiers[1].is_bound
 
 
-def test_fit_to_pose_and_bake(character):
+def test_fit_to_pose_and_bake(character, tmp_path):
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     result = settings.result
@@ -258,6 +258,28 @@ def test_fit_to_pose_and_bake(character):
     for key in ("crossings_outside_contact", "crossings_at_contact", "penetrating_vertices"):
         assert figures[key] == sum(p[key] for p in played)
     assert figures["frames_with_crossings"] == sum(1 for p in played if p["crossings_outside_contact"])
+    # The same bake into a PC2 point cache, played by a Mesh Cache modifier: each frame as the keyed one plays it.
+    cache = tmp_path / "suit.pc2"
+    (tmp_path / "notes.pc2").write_text("not a cache")
+    for path in (tmp_path / "notes.pc2", tmp_path / "missing" / "suit.pc2"):
+        before = set(bpy.data.objects)
+        with pytest.raises(RuntimeError, match=str(path.name)):
+            bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(path))
+        assert set(bpy.data.objects) == before
+    assert (tmp_path / "notes.pc2").read_text() == "not a cache"
+    baked.name = "keyed"
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(cache)) == {'FINISHED'}
+    cached = bpy.data.objects[f"{result.name}_baked"]
+    assert cached.data.shape_keys is None and cached.modifiers[0].type == 'MESH_CACHE'
+    positions, start, _ = read_pc2(cache)
+    assert positions.shape == (3, len(cached.data.vertices), 3) and start == 1.0
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        assert np.abs(evaluated_world(cached) - evaluated_world(baked)).max() < 1e-5
+    assert cached[rigging.FIGURES].to_dict() == figures
+    # Baked again into the same cache: the PC2 file is replaced.
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=2, frame_end=3, cache_file=str(cache)) == {'FINISHED'}
+    assert read_pc2(cache)[0].shape[0] == 2 and read_pc2(cache)[1] == 2.0
 
 
 def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_nothing(character):
