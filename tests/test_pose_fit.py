@@ -11,7 +11,7 @@ from meshes import grid, icosphere, random_rotation, require_makehuman
 
 from garment_transfer import (Rig, bvh_rotations, every_split, fit_poses, fit_to_pose, inpainted_weights, mdc,
                               mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
-                              read_obj, read_skeleton, read_weights, transfer_garment, write_obj)
+                              read_obj, read_pc2, read_skeleton, read_weights, transfer_garment, write_obj)
 from garment_transfer.pipeline import self_contact
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.clearance import separate
@@ -174,12 +174,17 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
     out = tmp_path / "out"
     p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--poses", "--source-body",
                         paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"], "--out", out,
-                        "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+                        "--cache", tmp_path / "suit.pc2", "--json"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=300)
     assert p.returncode == 0, p.stderr
     data = json.loads(p.stdout)
     row, = data["shapes"]
     assert row["crossings_outside_contact"] == 0 and isinstance(data["warnings"], list)
     written = read_obj(row["out"])
+    # The point cache: the file as written, one sample per pose from frame 1.
+    cache, start, _ = read_pc2(tmp_path / "suit.pc2")
+    assert data["cache"] == str(tmp_path / "suit.pc2") and start == 1.0
+    assert np.array_equal(cache, written.V[None].astype(np.float32))
     assert np.array_equal(written.face_vertices, rest.face_vertices)      # the garment's own faces
     # The figures are those of the file as written, against the pose file as given, under every split.
     # The pose is the rest body's mesh posed: its own crossings are counted on the rest body's triangles (the
@@ -207,3 +212,7 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
                         paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"], "--out",
                         tmp_path / "never"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 2 and "--workers is for --poses" in p.stderr and not (tmp_path / "never").exists()
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--cache", tmp_path / "never.pc2",
+                        "--source-body", paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"],
+                        "--out", tmp_path / "never"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and "--cache is for --poses" in p.stderr and not (tmp_path / "never.pc2").exists()

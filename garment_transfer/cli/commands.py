@@ -222,7 +222,8 @@ def cmd_register(args):
 def cmd_shapes(args):
     if args.poses:
         summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
-                                 progress=stderr_progress("poses") if args.verbose else None, workers=args.workers)
+                                 progress=stderr_progress("poses") if args.verbose else None, workers=args.workers,
+                                 cache=args.cache)
         emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
                              f"{s['crossings_at_contact']} where the body crosses itself"
                              for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
@@ -473,6 +474,10 @@ def build_parser():
     h.add_argument("--workers", type=number_option(int, 1, what="a whole number"), default=None,
                    help="with --poses: poses fitted at once, in threads (default: the cores, at most 4); every "
                         "pose's result is the same whatever the number")
+    h.add_argument("--cache", metavar="FILE.pc2",
+                   help="with --poses: also every pose's result, in the order of the --target-body files, as one PC2 "
+                        "point cache (frames 1, 2, ...): the garment's animation for Blender's Mesh Cache modifier "
+                        "and other tools")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
 
@@ -602,6 +607,8 @@ def main(argv=None):
             _check_train_options(parser, args)
         if args.command == "shapes" and args.workers is not None and not args.poses:
             parser.error("--workers is for --poses (the poses fitted at once)")
+        if args.command == "shapes" and args.cache is not None and not args.poses:
+            parser.error("--cache is for --poses (the poses' animation as one point cache)")
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
         check_command_paths(args)

@@ -58,7 +58,8 @@ def _shapes(args):
     outs, summary = shapes_outputs(args.target_body, args.garment, args.out)
     if getattr(args, "poses", False):
         summary = summary.with_name("poses.json")
-    return dict(files=[*outs.values(), summary], folders=[args.out],
+    return dict(files=[*outs.values(), summary, *([args.cache] if getattr(args, "cache", None) else [])],
+                folders=[args.out],
                 inputs=[args.source_body, *args.target_body, args.garment])
 
 

@@ -35,6 +35,7 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
+from ..geometry.pc2 import write_pc2
 from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.readings import (Readings, kept_triangle_readings, polygon_triangles_readings, readings_of,
                                  readings_with_graph, split_readings)
@@ -422,7 +423,7 @@ def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_r
 
 
 def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None,
-                   workers=None):
+                   workers=None, cache=None):
     """OBJ files in, OBJ files out: the garment fitted to every pose of its body, prepared once.
 
     Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``.
@@ -441,6 +442,9 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         ``progress(fraction, pose)``, as each pose is fitted.
     workers : int, optional
         Poses fitted at once (``fit_poses``).
+    cache : path, optional
+        Also every pose's file as written, in the order given, as one PC2 point cache (its samples frames 1, 2,
+        ...; ``pc2.write_pc2``): an animation of the garment for a tool that plays point caches.
 
     Returns
     -------
@@ -449,8 +453,8 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     """
     outs, summary_path = shapes_outputs(posed_body_paths, garment_path, out_dir)
     summary_path = summary_path.with_name("poses.json")
-    check_outputs([*outs.values(), summary_path], [out_dir],
-                  inputs=[rest_body_path, *posed_body_paths, garment_path])
+    inputs = [rest_body_path, *posed_body_paths, garment_path]
+    check_outputs([*outs.values(), summary_path, *([cache] if cache is not None else [])], [out_dir], inputs=inputs)
     rest = read_obj(rest_body_path)
     garment = read_obj(garment_path)
     poses, paths = {}, {}
@@ -481,6 +485,9 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                             float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
                             contact=result.contact)
 
+    if cache is not None:
+        write_pc2(cache, np.stack([read_obj(outs[name]).V for name in results]), start_frame=1.0, inputs=inputs,
+                  what="--cache")
     rows, warnings = [], []
     for name, counts in zip(results, in_threads(written_counts, list(results), workers)):
         warnings += counts.pop("warnings")
@@ -490,6 +497,6 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
                "faces": garment.n_faces, "poses": True, "shapes": rows, "seconds": seconds,
-               "summary": str(summary_path), "warnings": warnings}
+               "summary": str(summary_path), "cache": None if cache is None else str(cache), "warnings": warnings}
     write_json_atomic(summary_path, summary)
     return summary
