@@ -296,7 +296,6 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
 
 def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_into_it_first(character):
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
-    settings.rig_result = False
     # The pear's rest pose made the kick, as an artist does it: the Armature modifier applied, the pose applied as
     # the armature's rest pose, the modifier added again.
     T = pose(character, "fight01")
@@ -329,6 +328,7 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
     result = settings.result
     assert "posed into the target's rest pose first" in settings.last_registration
+    assert result.modifiers[0].type == 'ARMATURE' and result.modifiers[0].object == armature     # rigged (default)
     # As if transferred at rest and then fitted to the kick (the core, on the files): within 3 mm on average.
     src = read_obj(makehuman / "bodies" / "female_average.obj")
     cloth = read_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj")
