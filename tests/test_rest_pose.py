@@ -107,6 +107,9 @@ def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_
     assert p.returncode == 1 and "kicking.obj" in p.stderr and "another pose" in p.stderr
     p = run(*plain, *rig[:4])
     assert p.returncode == 1 and "missing --source-weights, --target-joints" in p.stderr
+    (tmp_path / "few_joints.json").write_text('{"root____head": [0, 0, 0]}')
+    p = run(*plain, *rig, "--target-joints", tmp_path / "few_joints.json")
+    assert p.returncode == 1 and "few_joints.json: lacks" in p.stderr and "give --target-joints" in p.stderr
     assert not (tmp_path / "out.obj").exists()
     p = run(*plain, *rig, "--target-joints", tmp_path / "kicking_joints.json")
     assert p.returncode == 0, p.stderr

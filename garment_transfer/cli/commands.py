@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from ..errors import GarmentTransferError
+from ..errors import GarmentTransferError, RigError
 from ..files import atomic_path
 from ..fitting.body_model import makehuman_shape_basis
 from ..fitting.registration import register
@@ -136,11 +136,15 @@ def _rest_pose_rig(args, source_body):
         raise GarmentTransferError("a target in another rest pose is transferred by the direct or surface method, "
                                    "not by a model (trained on the source's pose)")
     skeleton = read_skeleton(args.skeleton)
-    rig = Rig(skeleton, read_joints(args.source_joints), read_weights(args.source_weights, source_body.n_vertices))
-    rig.rest()      # every joint of the skeleton is placed on the source
-    target_joints = read_joints(args.target_joints)
-    skeleton.rest(target_joints)
-    return rig, target_joints
+    joints = {}
+    for option, path in (("--source-joints", args.source_joints), ("--target-joints", args.target_joints)):
+        joints[option] = read_joints(path)
+        missing = [j for j in skeleton.joint_names() if j not in joints[option]]
+        if missing:
+            raise RigError(path, f"lacks {len(missing)} joints of the skeleton {args.skeleton} (first: "
+                                 f"{', '.join(missing[:3])}): give {option} the joints of that skeleton")
+    rig = Rig(skeleton, joints["--source-joints"], read_weights(args.source_weights, source_body.n_vertices))
+    return rig, joints["--target-joints"]
 
 
 def written_check(path, garment, target_body, result=None):
