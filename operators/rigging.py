@@ -500,15 +500,37 @@ def measure_baked(context, baked, frames, fits):
     return {"frames": rows, "warnings": warnings}
 
 
+#: The Mesh Cache modifier Bake Pose Fit gives the object it makes.
+CACHE_MODIFIER = "Pose Fit Cache"
+
+
+def files_in_use():
+    """Files the open .blend file reads: itself, its libraries, images, sounds, clips, fonts, volumes, caches,
+    and the point caches of Mesh Cache modifiers other than Bake Pose Fit's own (a character's animation)."""
+    paths = [bpy.data.filepath] if bpy.data.filepath else []
+    for collection in (bpy.data.libraries, bpy.data.images, bpy.data.sounds, bpy.data.movieclips, bpy.data.fonts,
+                       bpy.data.volumes, bpy.data.cache_files):
+        for block in collection:
+            path = getattr(block, "filepath", "")
+            if path and not path.startswith("<"):
+                paths.append(bpy.path.abspath(path, library=block.library))
+    for obj in bpy.data.objects:
+        for mod in obj.modifiers:
+            if mod.type == 'MESH_CACHE' and mod.filepath and mod.name != CACHE_MODIFIER:
+                paths.append(bpy.path.abspath(mod.filepath, library=obj.library))
+    return paths
+
+
 def bake_cache_path(path):
-    """The absolute path of a bake's point cache, checked before the bake: a new file, or a PC2 file to replace
-    (never another kind of file, the .blend file, a folder or a link; its folder must exist and be writable)."""
+    """The absolute path of a bake's point cache, checked before the bake: a new file, or a PC2 file of an
+    earlier bake to replace; never another kind of file, a file the .blend file reads (``files_in_use``: a
+    character's point cache included), a folder or a link; its folder must exist and be writable."""
     from ..garment_transfer import OutputError, check_output, is_pc2
 
     full = bpy.path.abspath(path)
     if os.path.isfile(full) and not os.path.islink(full) and not is_pc2(full):
         raise OutputError(full, "is not a PC2 point cache; refusing to replace it (choose a new .pc2 file)")
-    return check_output(full, [bpy.data.filepath] if bpy.data.filepath else [], "Point Cache")
+    return check_output(full, files_in_use(), "Point Cache")
 
 
 def baked_object(context, obj, frames, positions, cache=None):
@@ -525,9 +547,8 @@ def baked_object(context, obj, frames, positions, cache=None):
             result.modifiers.remove(mod)
         if cache is not None:
             local = np.stack([convert.local_from_world(V, result.matrix_world, obj.name) for V in positions])
-            write_pc2(cache, local, start_frame=frames[0], inputs=[bpy.data.filepath] if bpy.data.filepath else [],
-                      what="Point Cache")
-            mod = result.modifiers.new(name="Pose Fit Cache", type='MESH_CACHE')
+            write_pc2(cache, local, start_frame=frames[0], inputs=files_in_use(), what="Point Cache")
+            mod = result.modifiers.new(name=CACHE_MODIFIER, type='MESH_CACHE')
             mod.cache_format = 'PC2'
             mod.filepath = cache
             mod.time_mode = 'FRAME'

@@ -11,7 +11,7 @@ import pytest
 from conftest import import_obj, world_vertices
 
 from garment_transfer import (Rig, bvh_rotations, fit_to_pose, posed_counts, read_bvh, read_joints, read_obj,
-                              read_pc2, read_skeleton, read_weights, transfer_garment)
+                              read_pc2, read_skeleton, read_weights, transfer_garment, write_pc2)
 
 # Blender's OBJ import of a Y-up file in decimetres (conftest.import_obj): world = 0.1 * C @ file.
 C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -261,12 +261,20 @@ def test_fit_to_pose_and_bake(character, tmp_path):
     # The same bake into a PC2 point cache, played by a Mesh Cache modifier: each frame as the keyed one plays it.
     cache = tmp_path / "suit.pc2"
     (tmp_path / "notes.pc2").write_text("not a cache")
-    for path in (tmp_path / "notes.pc2", tmp_path / "missing" / "suit.pc2"):
+    # A character's own point cache, played by a Mesh Cache modifier of the scene, is never replaced.
+    write_pc2(tmp_path / "character.pc2", np.zeros((2, len(source.data.vertices), 3)))
+    character_cache = source.modifiers.new(name="Character Cache", type='MESH_CACHE')
+    character_cache.cache_format, character_cache.filepath = 'PC2', str(tmp_path / "character.pc2")
+    character_cache.show_viewport = character_cache.show_render = False
+    kept = (tmp_path / "character.pc2").read_bytes()
+    for path in (tmp_path / "notes.pc2", tmp_path / "missing" / "suit.pc2", tmp_path / "character.pc2"):
         before = set(bpy.data.objects)
         with pytest.raises(RuntimeError, match=str(path.name)):
             bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(path))
         assert set(bpy.data.objects) == before
     assert (tmp_path / "notes.pc2").read_text() == "not a cache"
+    assert (tmp_path / "character.pc2").read_bytes() == kept
+    source.modifiers.remove(character_cache)
     baked.name = "keyed"
     assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(cache)) == {'FINISHED'}
     cached = bpy.data.objects[f"{result.name}_baked"]
