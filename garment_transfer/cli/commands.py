@@ -41,7 +41,7 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
-from ..pipeline.rest_pose import transfer_across_rest_poses
+from ..pipeline.rest_pose import outfit_across_rest_poses, transfer_across_rest_poses
 from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
@@ -102,9 +102,7 @@ def cmd_transfer(args):
     pose = result.info.get("rest_pose")
     if pose is not None:
         out["rest_pose"] = pose
-        lines.append(f"the target's rest pose: {pose['largest_turn_bone']} turned {pose['largest_turn']:.0f} degrees "
-                     f"from the source's; " + ("the source and its garment were posed into it first" if pose["posed"]
-                                               else "the same pose (a change of shape)"))
+        lines.append(_rest_pose_line(pose))
         if pose["posed"]:
             # The file as written, against the target as given: where its body crosses or closes on itself (a
             # pose's bent knee, an arm on the hip) no cloth can be outside both surfaces.
@@ -113,9 +111,7 @@ def cmd_transfer(args):
                                            rest_V=source_body.V if registration is None else None,
                                            name=os.path.basename(args.target_body))
             out["warnings"] += pose["written"]["warnings"]
-            lines.append(f"as written: {pose['written']['crossings_outside_contact']} crossings away from where "
-                         f"the target's body crosses or closes on itself, {pose['written']['crossings_at_contact']} "
-                         "where it does")
+            lines.append(_written_pose_line(args.out, pose["written"]))
     lines += [f"warning: {w}" for w in out["warnings"]]
     emit(args, out, lines)
 
@@ -278,9 +274,6 @@ def cmd_transfer_outfit(args):
     if args.shape_basis or args.body_model:
         raise GarmentTransferError(f"{'--shape-basis' if args.shape_basis else '--body-model'} is for one garment: "
                                    f"an outfit needs a target body of the source's mesh")
-    if any(getattr(args, o, None) for o in REST_POSE_OPTIONS):
-        raise GarmentTransferError("a target in another rest pose (--skeleton, --source-joints, --source-weights, "
-                                   "--target-joints) takes one garment: transfer the layers one at a time")
     if args.no_fix or args.no_crossing_pass:
         raise GarmentTransferError("an outfit of several layers is always separated: "
                                    "--no-fix and --no-crossing-pass apply to one garment only")
@@ -289,10 +282,14 @@ def cmd_transfer_outfit(args):
     target_body = read_obj(args.target_body)
     garments = [read_obj(g, name=g) for g in args.garment]
     model = _model_for(args)
+    rig = _rest_pose_rig(args, source_body)
     load = time.perf_counter() - t
-    result = transfer_outfit(source_body, target_body, garments, offsets=args.offset, method=args.method,
-                             **(model.transfer_arguments() if model else {}),
-                             target=args.target, interpolate=not args.no_interpolate)
+    options = dict(offsets=args.offset, method=args.method, **(model.transfer_arguments() if model else {}),
+                   target=args.target, interpolate=not args.no_interpolate)
+    if rig is not None:
+        result = outfit_across_rest_poses(source_body, target_body, garments, *rig, **options)
+    else:
+        result = transfer_outfit(source_body, target_body, garments, **options)
     t = time.perf_counter()
     on = f"{os.path.basename(args.target_body)} ({args.method})"
     texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
@@ -313,10 +310,33 @@ def cmd_transfer_outfit(args):
            "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
                        "penetrating_vertices": c["inside_vertices"], "check": c, "info": pass_log(i)}
                       for f, p, g, i, c in zip(args.garment, paths, garments, result.info, checks)]}
-    emit(args, out, [f"wrote {p}: layer {k + 1} of {len(paths)}, {check_line(c)}"
-                     for k, (p, c) in enumerate(zip(paths, checks))]
-          + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
-          + ([f"model: {model.describe()}"] if model is not None else []) + [f"warning: {w}" for w in warnings])
+    lines = [f"wrote {p}: layer {k + 1} of {len(paths)}, {check_line(c)}"
+             for k, (p, c) in enumerate(zip(paths, checks))]
+    pose = result.rest_pose
+    if pose is not None:
+        out["rest_pose"] = pose
+        lines.append(_rest_pose_line(pose))
+        if pose["posed"]:
+            # Each layer as written, against the target as given, counted apart where its body crosses itself.
+            offsets = [i["offset"] for i in result.info]
+            for layer, g, p, offset in zip(out["layers"], garments, paths, offsets):
+                layer["rest_pose_written"] = posed_counts(read_obj(p).V, g, target_body, offset,
+                                                          rest_V=source_body.V, name=os.path.basename(args.target_body))
+                out["warnings"] += layer["rest_pose_written"]["warnings"]
+                lines.append(_written_pose_line(p, layer["rest_pose_written"]))
+    emit(args, out, lines + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
+         + ([f"model: {model.describe()}"] if model is not None else []) + [f"warning: {w}" for w in out["warnings"]])
+
+
+def _rest_pose_line(pose):
+    return (f"the target's rest pose: {pose['largest_turn_bone']} turned {pose['largest_turn']:.0f} degrees from the "
+            "source's; " + ("the source and its garments were posed into it first" if pose["posed"]
+                            else "the same pose (a change of shape)"))
+
+
+def _written_pose_line(path, counts):
+    return (f"{path} as written: {counts['crossings_outside_contact']} crossings away from where the target's body "
+            f"crosses or closes on itself, {counts['crossings_at_contact']} where it does")
 
 
 def cmd_evaluate(args):
@@ -445,7 +465,8 @@ def build_parser():
         "a target in another rest pose",
         "When the target body stands in another pose than the source (arms lower, legs apart), give both bodies' "
         "skeleton: the source body and its garment are posed into the target's rest pose by the source's weights "
-        "first, then the shape is transferred (docs/motion.md). All four are needed; one garment.")
+        "first, then the shape is transferred (docs/motion.md). All four are needed; an outfit's layers are posed "
+        "alike.")
     r.add_argument("--skeleton", metavar="SKELETON.json",
                    help="the bodies' skeleton: bones between named joints, MakeHuman's layout (rig/skeleton.json)")
     r.add_argument("--source-joints", metavar="JOINTS.json",

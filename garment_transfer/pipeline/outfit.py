@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import Cancelled, MeshError, PoseError
+from ..errors import Cancelled, MeshError
 from ..geometry import clearance, penetration
 from ..geometry.embedding import body_scale
 from ..geometry.intersections import crossings, self_intersections
@@ -85,12 +85,16 @@ class OutfitResult:
     info : list of dict
         Per layer: its transfer's info, with ``source`` and ``target_separation``: what its
         push-out did on either body (``push_out``'s info, and ``self_intersections_added``).
+    rest_pose : dict or None
+        A target in another rest pose (``rest_pose.outfit_across_rest_poses``): how far, and whether the source and
+        the layers were posed into it first.
     """
 
     V: list
     source_V: list
     seconds: dict
     info: list
+    rest_pose: dict | None = None
 
 
 def oriented_outward(V, F, body: TriangleSurface):
@@ -389,12 +393,6 @@ def _raise_inseparable(bad, where):
     raise OutfitError(bad[0][0], f"cannot be separated {where}: {worst}")
 
 
-#: What an outfit onto a target in another pose can do: its layers are not posed into the target's rest pose.
-OUTFIT_POSE_REMEDY = ("Pose the two bodies alike first: an outfit is transferred in the source's pose (a target in "
-                      "another rest pose takes one garment at a time, posed into it: Transfer Garment in Blender with "
-                      "an armature on each body, transfer --skeleton on the command line)")
-
-
 def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=None, progress=None,
                     **transfer_options) -> OutfitResult:
     """Transfer several garments worn one over another, from the body out.
@@ -451,10 +449,7 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     for k, g in enumerate(garments):
         if progress is not None and progress(0.1 + 0.6 * k / len(garments), f"transfer {g.name}"):
             raise Cancelled(f"transfer of the outfit cancelled at {g.name}")
-        try:
-            results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
-        except PoseError as e:
-            raise PoseError(e.name, e.difference, OUTFIT_POSE_REMEDY) from None
+        results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
     seconds["transfer"] = time.perf_counter() - t
     t = time.perf_counter()
     target_readings = readings_of(target_body)

@@ -4,7 +4,9 @@ The transfer carries a change of shape; a change of pose (arms lower, legs apart
 gradients and the binding carry well, and cloth ends up through the skin. When both bodies have a skeleton with
 the same bone names (MakeHuman's, MPFB's), the source body is posed into the target's rest pose by its own rig
 (``rigging.matching_rotations``: each bone turned onto the target's), its garment fitted to that pose
-(``pose_fit.fit_to_pose``), and the garment then transferred from the posed source to the target as usual.
+(``pose_fit.fit_to_pose``), and the garment then transferred from the posed source to the target as usual. An outfit
+is posed layer by layer and then transferred as an outfit (its layers separated on the posed source and on the
+target).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 from ..geometry.mesh import Mesh
 from ..rigging.posing import Rig, matching_rotations
 from .any_body import transfer_to_any_body
+from .outfit import OutfitResult, transfer_outfit
 from .pose_fit import clear_posed_body, fit_to_pose
 
 #: Bones that carry at least this share of the body's weights say how far two rest poses differ ...
@@ -44,6 +47,14 @@ def pose_difference(source_rig: Rig, target_joints, target_frames=None):
     return R, {b: float(a) for b, a in zip(source_rig.skeleton.names, angles) if b in carrying}
 
 
+def _posed_source(source_body, source_rig, target_joints, target_frames):
+    """(rest pose info, the source's positions posed into the target's rest pose or None when the poses are one)."""
+    R, turns = pose_difference(source_rig, target_joints, target_frames)
+    bone = max(turns, key=turns.get)
+    info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES}
+    return info, (source_rig.pose(source_body.V, source_rig.transforms(R)) if info["posed"] else None)
+
+
 def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Mesh, source_rig: Rig,
                                target_joints, target_frames=None, **options):
     """Transfer a garment to a target body whose rest pose differs from the source's.
@@ -69,12 +80,9 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     registration : Registration or None
     """
     t = time.perf_counter()
-    R, turns = pose_difference(source_rig, target_joints, target_frames)
-    bone = max(turns, key=turns.get)
-    info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES}
+    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames)
     rest_V = source_body.V
     if info["posed"]:
-        posed_V = source_rig.pose(source_body.V, source_rig.transforms(R))
         fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
         info["pose_fit"] = {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
                                                      "body_self_crossings")}
@@ -97,3 +105,52 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     result.seconds["rest_pose"] = seconds
     result.seconds["total"] += seconds
     return result, registration
+
+
+def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, source_rig: Rig, target_joints,
+                             target_frames=None, *, offsets=None, **options) -> OutfitResult:
+    """Transfer an outfit to a target body whose rest pose differs from the source's.
+
+    Each layer is fitted to the source posed into the target's rest pose (``fit_to_pose``, as for one garment),
+    and the layers are then transferred as an outfit from the posed source (``transfer_outfit``: separated on the
+    posed source, transferred, separated on the target from the body out). Where the posed target crosses or
+    closes on itself no cloth can be outside both surfaces; the separation on the target pushes what it can.
+
+    Parameters
+    ----------
+    source_body, target_body : Mesh
+    garments : sequence of Mesh
+        The layers on the source body, innermost first.
+    source_rig, target_joints, target_frames
+        As ``transfer_across_rest_poses``.
+    offsets : float or sequence of float, optional
+        As ``transfer_outfit``.
+    **options
+        Passed to ``transfer_outfit``.
+
+    Returns
+    -------
+    OutfitResult
+        ``rest_pose``: as ``info["rest_pose"]`` of ``transfer_across_rest_poses`` (``pose_fit``: each layer's fit's
+        counts).
+    """
+    t = time.perf_counter()
+    garments = list(garments)
+    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames)
+    if not info["posed"]:
+        result = transfer_outfit(source_body, target_body, garments, offsets=offsets, **options)
+    else:
+        each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
+        fits = [fit_to_pose(source_body, posed_V, g, offset=o, name="target's rest pose")
+                for g, o in zip(garments, each)]
+        info["pose_fit"] = [{k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
+                                                      "body_self_crossings")} for fit in fits]
+        source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
+        # Each layer's own crossing pass would run against the whole posed body, where it crosses itself too: the
+        # separation on the target clears the body and the layers under each.
+        result = transfer_outfit(source_body, target_body, [g.with_vertices(fit.V) for g, fit in zip(garments, fits)],
+                                 offsets=offsets, **dict(options, resolve_crossings=False))
+    result.rest_pose = info
+    result.seconds["rest_pose"] = time.perf_counter() - t - result.seconds["total"]
+    result.seconds["total"] = time.perf_counter() - t
+    return result
