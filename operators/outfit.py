@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .rigging import body_armature, rest_position, rig_to_body
+from .rigging import body_armature, rest_pose_rigs, rest_position, rig_to_body
 from .transfer import chosen_model, model_text, result_name
 
 
@@ -70,7 +70,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
-    from ..garment_transfer import OFFSET_SHARE, TopologyMismatchError, body_scale, mdc, same_mesh, transfer_outfit
+    from ..garment_transfer import (OFFSET_SHARE, PoseError, TopologyMismatchError, body_scale, mdc,
+                                    outfit_across_rest_poses, same_mesh, transfer_outfit)
 
     convert.require_mesh_object(source_body, "source body")
     convert.require_mesh_object(target_body, "target body")
@@ -92,10 +93,19 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     if offsets is not None:
         automatic = OFFSET_SHARE * body_scale(source_framed.V)
         offsets = [automatic if o is None else o for o in offsets]
-    outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], offsets=offsets,
-                              method=method.lower(), **(model.transfer_arguments() if model else {}),
-                              target=target_label or None,
-                              progress=progress)
+    options = dict(offsets=offsets, method=method.lower(), **(model.transfer_arguments() if model else {}),
+                   target=target_label or None, progress=progress)
+    # Two bodies rigged alike: a target in another rest pose gets the source and every layer posed into it first.
+    rigs, why_not = ((None, "use the Direct method: a model is trained on the source's pose") if model else
+                     rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame))
+    try:
+        if rigs is not None:
+            outcome = outfit_across_rest_poses(source_framed, framed(target), [framed(c) for c in cloths], *rigs,
+                                               **options)
+        else:
+            outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], **options)
+    except PoseError as e:
+        raise PoseError(e.name, e.difference, f"Pose the two bodies alike first, or {why_not}") from None
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]
     outcome.model_text = model_text(model)
@@ -108,25 +118,33 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     except BaseException:
         convert.remove_results(results)
         raise
-    outcome.checks = layer_checks(context, results, cloths, target)
+    posed = bool((outcome.rest_pose or {}).get("posed"))
+    outcome.checks = layer_checks(context, results, cloths, target,
+                                  [i["offset"] for i in outcome.info] if posed else None, source.V)
     return results, outcome, design
 
 
-def layer_checks(context, results, cloths, target):
+def layer_checks(context, results, cloths, target, posed_offsets=None, rest_V=None):
     """``check_result`` of each new object as Blender evaluates it (world space) against the target as read and
     the layers under it as evaluated, under every triangulation (a refining modifier kept: the mesh it
-    refines)."""
-    from ..garment_transfer import check_result, readings_of
+    refines). ``posed_offsets``: the layers' offsets, for a target in a pose: each check adds the pose fit's
+    counts (``posed_counts``, the target's mesh at rest ``rest_V``): ``crossings_outside_contact``,
+    ``crossings_at_contact`` and ``pose_warnings``."""
+    from ..garment_transfer import check_result, posed_counts, readings_of
 
     context.view_layer.update()
     depsgraph = context.evaluated_depsgraph_get()
     checks, below = [], []
-    for obj, cloth in zip(results, cloths):
+    for k, (obj, cloth) in enumerate(zip(results, cloths)):
         V = convert.core_mesh_from_object(obj, depsgraph, True, "result").V
         if V.shape != cloth.V.shape:
             V = convert.core_mesh_from_object(obj, depsgraph, False, "result").V
         checks.append(check_result(cloth, V, target, layers_below=below))
         below.append((V, readings_of(cloth)))
+        if posed_offsets is not None:
+            counts = posed_counts(V, cloth, target, posed_offsets[k], rest_V=rest_V, name=f"{target.name} ({obj.name})")
+            checks[-1].update(crossings_outside_contact=counts["crossings_outside_contact"],
+                              crossings_at_contact=counts["crossings_at_contact"], pose_warnings=counts["warnings"])
     return checks
 
 
@@ -136,8 +154,11 @@ def outfit_message(results, outcome, design, elapsed):
                    for c in outcome.checks)
     said = ("no crossings between the layers or with the body" if not crossing else
             f"{crossing} edge-triangle pairs cross between the layers or with the body")
+    pose = outcome.rest_pose or {}
+    posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
+             f"{pose['largest_turn']:.0f} degrees)") if pose.get("posed") else ""
     return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
-            f"triangulation); {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
+            f"triangulation){posed}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
 
 class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
@@ -195,7 +216,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         from ..garment_transfer import result_warnings
 
         for obj, check in zip(results, outcome.checks):
-            for warning in result_warnings(check, obj.name):
+            for warning in result_warnings(check, obj.name) + check.get("pose_warnings", []):
                 self.report({'WARNING'}, warning)
         return {'FINISHED'}
 

@@ -302,10 +302,10 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
         bpy.ops.garment_transfer.fit_pose()
 
 
-def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_into_it_first(character):
+def kick_as_rest_pose(character):
+    """The pear's rest pose made the kick, as an artist does it: the Armature modifier applied, the pose applied as
+    the armature's rest pose, the modifier added again. Returns the pear at rest (world space)."""
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
-    # The pear's rest pose made the kick, as an artist does it: the Armature modifier applied, the pose applied as
-    # the armature's rest pose, the modifier added again.
     T = pose(character, "fight01")
     rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
     rest_body = rest_body.with_vertices(to_world(rest_body.V))
@@ -318,6 +318,22 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     body.modifiers.new(name="Armature", type='ARMATURE').object = armature
     bpy.context.view_layer.update()
     assert np.abs(world_vertices(body) - core_rig.pose(rest_body.V, T)).max() < 1e-4
+    return rest_body
+
+
+def rig_the_source(character):
+    """The source body rigged as the pear is: the same skeleton on its own joints, the same weights."""
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    joints = read_joints(makehuman / "rig" / "joints" / "female_average.json")
+    source_armature = rigging.make_armature(bpy.context, "average_rig", skeleton,
+                                            {k: to_world(v) for k, v in joints.items()})
+    source.modifiers.new(name="Armature", type='ARMATURE').object = source_armature
+    rigging.write_vertex_groups(source, core_rig.weights)
+
+
+def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_into_it_first(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    rest_body = kick_as_rest_pose(character)
     # The source without an armature: the pose difference is refused, naming the target and what would do, and
     # nothing is made.
     before = set(bpy.data.objects)
@@ -354,3 +370,36 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     assert metrics["crossings_at_contact"] == counted["crossings_at_contact"] == \
         metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]
     assert metrics["penetrating_vertices"] == 0
+
+
+def test_an_outfit_onto_a_character_in_another_rest_pose_is_posed_layer_by_layer(character):
+    from test_outfit_operator import mesh_object, set_layers
+
+    from garment_transfer.geometry.intersections import crossings
+    from lab.makehuman_procedural import MANNEQUIN, fit
+    from lab.paths import DEMO_DATA
+
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    # A T-shirt under a shift dress (two of the catalogue's garments) on the source, as objects in world space.
+    src = read_obj(makehuman / "bodies" / "female_average.obj")
+    mannequin = read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj")
+    inner, _, _, registration = fit("tshirt", mannequin, src)
+    outer, _, _, _ = fit("shift_dress", mannequin, src, registration)
+    cloths = [m.with_vertices(to_world(m.V)) for m in (inner, outer)]
+    set_layers(settings, [mesh_object(m, name) for m, name in zip(cloths, ("tshirt", "dress"))])
+    rest_body = kick_as_rest_pose(character)
+    rig_the_source(character)
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    results = [bpy.data.objects[f"{name}_on_pear"] for name in ("tshirt", "dress")]
+    assert all(r.modifiers[0].type == 'ARMATURE' and r.modifiers[0].object == armature for r in results)
+    # As Blender has them, against the kicking character: nothing through it away from where it crosses itself,
+    # the dress not through the T-shirt.
+    from garment_transfer import OFFSET_SHARE, body_scale
+
+    posed = rest_body.with_vertices(world_vertices(body))
+    offset = OFFSET_SHARE * body_scale(world_vertices(source))
+    for result, cloth in zip(results, cloths):
+        counts = posed_counts(world_vertices(result), cloth, posed, offset, rest_V=world_vertices(source))
+        assert counts["crossings_outside_contact"] == 0 and counts["penetrating_vertices"] == 0
+    c = crossings(world_vertices(results[1]), cloths[1].F, world_vertices(results[0]), cloths[0].F)
+    assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
