@@ -106,7 +106,10 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     (``shape_key_basis``; their names in ``outcome.shape_keys``); with ``body_model_path`` (MakeHuman's
     ``targets.npz``) MakeHuman's sliders are, in place of the shape keys (``outcome.body_model`` True).
     ``field_share``: for a garment fit model file (None: the core's default); its learned placement is
-    used when the file holds one; ``outcome.model_text`` says which model was used, ``outcome.method_text``
+    used when the file holds one. When both bodies have an armature with the bones that move the source
+    (``rigging.rest_pose_rigs``), a target in another rest pose gets the source and the garment posed into it
+    first (the core's ``transfer_across_rest_poses``; ``outcome.info["rest_pose"]``); ``outcome.model_text`` says
+    which model was used, ``outcome.method_text``
     which method made the result and what it gains (``method_text``).
 
     Returns
