@@ -54,8 +54,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     Reads every object (world space), runs the core's ``transfer_outfit`` (``outfit_across_rest_poses`` when both
     bodies have an armature with the bones that move the source: a target in another rest pose gets the source
     and every layer posed into it first) and only then makes one new object ``<garment>_on_<target>`` per layer;
-    if making any of them fails, the ones made are
-    removed: the scene is as it was.
+    if making any of them fails, the ones made are removed: the scene is as it was.
 
     Parameters
     ----------

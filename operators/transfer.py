@@ -109,8 +109,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     used when the file holds one. When both bodies have an armature with the bones that move the source
     (``rigging.rest_pose_rigs``), a target in another rest pose gets the source and the garment posed into it
     first (the core's ``transfer_across_rest_poses``; ``outcome.info["rest_pose"]``); ``outcome.model_text`` says
-    which model was used, ``outcome.method_text``
-    which method made the result and what it gains (``method_text``).
+    which model was used, ``outcome.method_text`` which method made the result and what it gains
+    (``method_text``).
 
     Returns
     -------
