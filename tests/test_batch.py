@@ -500,3 +500,49 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
     assert {"geometry.clearance", "geometry.intersections", "pipeline.transfer", "geometry.penetration"} <= hashed
     assert loaded - not_result <= hashed
     assert not hashed & not_result
+
+
+def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwise(tmp_path):
+    from garment_transfer import Rig, bvh_rotations, read_bvh, read_joints, read_skeleton, read_weights
+    from garment_transfer.pipeline.transfer import transfer_garment
+
+    root = require_makehuman()
+    skeleton = read_skeleton(root / "rig" / "skeleton.json")
+    pear = read_obj(root / "bodies" / "female_pear.obj")
+    rig = Rig(skeleton, read_joints(root / "rig" / "joints" / "female_pear.json"),
+              read_weights(root / "rig" / "weights.json", pear.n_vertices))
+    T = rig.transforms(bvh_rotations(read_bvh(root / "poses" / "fight01.bvh"), skeleton))
+    write_obj(tmp_path / "kicking.obj", pear.with_vertices(rig.pose(pear.V, T)))
+    (tmp_path / "kicking.json").write_text(json.dumps({k: [float(x) for x in v]
+                                                       for k, v in rig.posed_joints(T).items()}))
+    joints = root / "rig" / "joints"
+    cat = {"source": "female_average", "targets": ["female_pear", "kicking"],
+           "bodies": {"female_average": str(root / "bodies" / "female_average.obj"),
+                      "female_pear": str(root / "bodies" / "female_pear.obj"), "kicking": "kicking.obj"},
+           "rig": {"skeleton": str(root / "rig" / "skeleton.json"), "weights": str(root / "rig" / "weights.json"),
+                   "joints": {"female_average": str(joints / "female_average.json"),
+                              "female_pear": str(joints / "female_pear.json"), "kicking": "kicking.json"}},
+           "garments": [{"name": "suit", "file": str(root / "garments" / "female_sportsuit01" /
+                                                      "female_average.obj")}]}
+    (tmp_path / "cat.json").write_text(json.dumps(cat))
+    catalogue = read_catalogue(tmp_path / "cat.json")
+    assert str(tmp_path / "kicking.json") in catalogue.inputs()[0]
+    summary = run_batch(catalogue, tmp_path / "out", workers=1)
+    assert summary.ok and summary.counts["done"] == 2
+    kicking = json.loads((tmp_path / "out" / "suit" / "kicking.json").read_text())
+    pear_record = json.loads((tmp_path / "out" / "suit" / "female_pear.json").read_text())
+    # The kicking target: posed into first, counted as written apart where the kick makes the body cross itself.
+    assert kicking["rest_pose"]["posed"] and kicking["rest_pose"]["largest_turn"] > 45
+    assert kicking["rest_pose"]["written"]["crossings_outside_contact"] == 0
+    assert set(kicking["rest_pose"]["written"]["warnings"]) <= set(kicking["warnings"])
+    # The pear stands as the source does: the plain transfer, bit for bit.
+    assert pear_record["rest_pose"]["posed"] is False
+    source = read_obj(root / "bodies" / "female_average.obj")
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    plain = transfer_garment(source, pear, garment).V
+    assert np.abs(read_obj(tmp_path / "out" / "suit" / "female_pear.obj").V - plain).max() < 1e-8
+    # A joints file of a body the catalogue lacks is named.
+    cat["rig"]["joints"]["nobody"] = "kicking.json"
+    (tmp_path / "cat.json").write_text(json.dumps(cat))
+    with pytest.raises(CatalogueError, match=r"cat.json: rig.joints.nobody: 'nobody' is not a body"):
+        read_catalogue(tmp_path / "cat.json")

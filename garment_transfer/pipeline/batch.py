@@ -44,7 +44,12 @@ from ..geometry.obj import obj_text, read_obj
 from ..learning.dataset import dataset_inputs, load_dataset
 from ..learning.model_files import read_model_file
 from ..version import __version__
+from ..rigging.posing import Rig
+from ..rigging.skeleton import read_joints, read_skeleton
+from ..rigging.skinning import read_weights
 from .metrics import evaluate
+from .pose_fit import posed_counts
+from .rest_pose import SAME_POSE_DEGREES, pose_difference, transfer_across_rest_poses
 from .result_check import result_warnings
 from .transfer import prepare_garment, transfer_garment
 
@@ -54,7 +59,8 @@ METHODS = ("direct", "model", "surface")
 SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness", "field_share",
                 "placement")
 ENTRY_KEYS = ("name", "file", "source", "targets", "labels", "references", *SETTING_KEYS)
-TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels")
+TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels", "rig")
+RIG_KEYS = ("skeleton", "weights", "joints")
 CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seconds", "mdc",
                "penetration_ratio", "max_penetration_depth", "penetrating_vertices", "drape_reference",
                "drape_error", "drape_error_relative", "vertex_error_mean", "vertex_error_max",
@@ -126,6 +132,19 @@ class Target:
     body: str
     label: str | None = None
     reference: str | None = None
+    #: The skeleton's joints on this body (a joints file), where the catalogue has a ``rig``.
+    joints: str | None = None
+
+
+@dataclass(frozen=True)
+class RigFiles:
+    """The catalogue's ``rig``, as one garment's source body has it: the skeleton, the source body's weights and
+    its joints (files); each target with joints of its own that stands in another pose is posed into
+    (``rest_pose.transfer_across_rest_poses``)."""
+
+    skeleton: str
+    weights: str
+    source_joints: str
 
 
 @dataclass(frozen=True)
@@ -155,6 +174,7 @@ class GarmentJob:
     targets: tuple
     settings: Settings
     entry: str = ""
+    rig: RigFiles | None = None
 
 
 @dataclass
@@ -190,7 +210,9 @@ class Catalogue:
             files.append(self.origin)
         for j in self.jobs:
             files += [j.file, j.source_file, j.settings.model]
-            files += [p for t in j.targets for p in (t.body, t.reference)]
+            files += [p for t in j.targets for p in (t.body, t.reference, t.joints)]
+            if j.rig is not None:
+                files += [j.rig.skeleton, j.rig.weights, j.rig.source_joints]
         return list(dict.fromkeys(p for p in files if p is not None)), folders
 
 
@@ -297,6 +319,9 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
         source?    default source body name
         targets?   default target body names
         labels?    {body: model label} for method "model" (default: the body's name)
+        rig?       {skeleton, weights, joints: {body: joints file}}: MakeHuman's layouts (``rigging``); a
+                   target whose joints stand in another pose than its garment's source body's gets the
+                   source and the garment posed into it first
         garments   [{name, file, source?, targets?, labels?, references?, <any setting>?}, ...]
                    targets: body names, or {body, label?, reference?};
                    references: {body: "garment simulated or fitted on that body.obj"} (metrics)
@@ -329,6 +354,7 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
         _check_name(name, f"bodies.{name}", fail)
         bodies[name] = _path(p, base, f"bodies.{name}", fail)
     top_labels = _labels(data.get("labels"), bodies, "labels", fail)
+    rig, joints = _rig(data.get("rig"), bodies, base, fail)
     entries = data.get("garments")
     if not isinstance(entries, list) or not entries:
         fail("garments", "a list of garments is needed (each with name and file)")
@@ -380,12 +406,35 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
             ref = None if ref is None else _path(ref, base, twhere + " reference", fail)
             if settings.method == "model" and label is None:
                 label = tname
-            targets.append(Target(tname, tfile, label, ref))
+            targets.append(Target(tname, tfile, label, ref, joints.get(tname)))
         for body in refs:
             if body not in names:
                 fail(where + " references", f"{body!r} is not one of its targets")
-        jobs.append(GarmentJob(name, gfile, source_name, source_file, tuple(targets), settings, where))
+        job_rig = None if rig is None or source_name not in joints else RigFiles(*rig, joints[source_name])
+        jobs.append(GarmentJob(name, gfile, source_name, source_file, tuple(targets), settings, where, job_rig))
     return Catalogue(origin, jobs)
+
+
+def _rig(raw, bodies, base, fail):
+    """The catalogue's ``rig`` table: ((skeleton, weights) paths, {body: joints path}), or (None, {})."""
+    if raw is None:
+        return None, {}
+    if not isinstance(raw, dict):
+        fail("rig", "must be a table with skeleton, weights and joints")
+    _unknown_keys(raw, RIG_KEYS, "rig", fail)
+    missing = [k for k in RIG_KEYS if k not in raw]
+    if missing:
+        fail("rig", f"needs {', '.join(missing)} (skeleton and weights files, and a table of body = joints file)")
+    if not isinstance(raw["joints"], dict) or not raw["joints"]:
+        fail("rig.joints", "must be a table of body name = joints file")
+    joints = {}
+    for body, p in raw["joints"].items():
+        if body not in bodies:
+            fail(f"rig.joints.{body}", f"{body!r} is not a body of the catalogue; its bodies are: "
+                                       f"{', '.join(sorted(bodies))}")
+        joints[body] = _path(p, base, f"rig.joints.{body}", fail)
+    return (_path(raw["skeleton"], base, "rig.skeleton", fail), _path(raw["weights"], base, "rig.weights", fail)), \
+        joints
 
 
 def _unknown_keys(d, allowed, where, fail):
@@ -629,6 +678,16 @@ class _Inputs:
     def mesh(self, path, name):
         return self._get(path, ("mesh", name), lambda: read_obj(path, name=name))
 
+    def rig(self, files: RigFiles, n_vertices):
+        """The source body's Rig (skeleton, joints, weights) from the catalogue's rig files."""
+        key = (self._stat(files.skeleton), self._stat(files.weights), n_vertices)
+        return self._get(files.source_joints, ("rig", key),
+                         lambda: Rig(read_skeleton(files.skeleton), read_joints(files.source_joints),
+                                     read_weights(files.weights, n_vertices)))
+
+    def joints(self, path):
+        return self._get(path, "joints", lambda: read_joints(path))
+
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
 
@@ -708,6 +767,10 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             digests = dict(common, target_body=_INPUTS.digest(t.body))
             if t.reference is not None:
                 digests["reference"] = _INPUTS.digest(t.reference)
+            if job.rig is not None and t.joints is not None:
+                digests.update(skeleton=_INPUTS.digest(job.rig.skeleton), weights=_INPUTS.digest(job.rig.weights),
+                               source_joints=_INPUTS.digest(job.rig.source_joints),
+                               target_joints=_INPUTS.digest(t.joints))
         except OSError as exc:
             rec.update(outcome="failed", error=_error_text(exc))
             continue
@@ -743,10 +806,19 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         t1 = time.perf_counter()
         try:
             target_body = _INPUTS.mesh(t.body, t.name)
-            result = transfer_garment(source_body, target_body, garment, method=s.method,
-                                      **(model.transfer_arguments() if model else {}),
-                                      target=t.label, offset=s.offset, fix_penetration=s.fix_penetration,
-                                      interpolate=s.interpolate, stiffness=s.stiffness, prepared=prepared)
+            options = dict(method=s.method, **(model.transfer_arguments() if model else {}), target=t.label,
+                           offset=s.offset, fix_penetration=s.fix_penetration, interpolate=s.interpolate,
+                           stiffness=s.stiffness)
+            pose = _rest_pose(job, t, source_body)
+            if pose is not None and pose[2]:
+                if model is not None:
+                    raise GarmentTransferError(f"{t.name} stands in another pose than {job.source}: a model is "
+                                               "trained on the source's pose; use the direct method")
+                # Posed into the target's rest pose first: the garment prepared on the rest source does not serve.
+                result, _ = transfer_across_rest_poses(source_body, target_body, garment, pose[0], pose[1],
+                                                       cache=False, **options)
+            else:
+                result = transfer_garment(source_body, target_body, garment, prepared=prepared, **options)
             reference = _read_garment(t.reference) if t.reference is not None else None
             obj_path, json_path = result_paths(out, job.name, t.name)
             text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} ({s.method})",
@@ -756,7 +828,15 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             # last, is what marks the pair done). Without a reference: the design (MDC) and penetration only;
             # the drape error against the body-driven fit would cost as much again and judge nothing the
             # transfer did not aim at.
-            metrics = evaluate(garment, garment.with_vertices(read_obj(obj_path).V), target_body, reference=reference)
+            written = read_obj(obj_path).V
+            metrics = evaluate(garment, garment.with_vertices(written), target_body, reference=reference)
+            rest_pose = None
+            if pose is not None:
+                rest_pose = dict(result.info.get("rest_pose") or _turn_info(pose))
+                if pose[2]:
+                    # Where the posed target crosses or closes on itself no cloth can be outside both surfaces.
+                    rest_pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
+                                                        rest_V=source_body.V, name=str(obj_path))
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue
@@ -769,14 +849,38 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                       inputs=digests, stage_seconds=result.seconds,
                       crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
                       check={k: metrics[k] for k in CHECK_KEYS},
-                      warnings=result_warnings(metrics, str(obj_path)),
+                      warnings=result_warnings(metrics, str(obj_path))
+                      + (rest_pose or {}).get("written", {}).get("warnings", []),
                       output_sha256=hashlib.sha256(text).hexdigest())
+        if rest_pose is not None:
+            record["rest_pose"] = rest_pose
         write_atomic(json_path, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
     return _finish(records, t_start)
 
 
 def _read_garment(path):
     return read_obj(path)
+
+
+def _rest_pose(job, target, source_body):
+    """(source Rig, target joints, whether the target stands in another pose) for a pair of a catalogue with a
+    ``rig`` where both bodies have joints; None otherwise."""
+    if job.rig is None or target.joints is None:
+        return None
+    rig = _INPUTS.rig(job.rig, source_body.n_vertices)
+    joints = _INPUTS.joints(target.joints)
+    missing = [j for j in rig.skeleton.joint_names() if j not in joints]
+    if missing:
+        raise GarmentTransferError(f"{target.joints}: lacks {len(missing)} joints of the skeleton "
+                                   f"{job.rig.skeleton} (first: {', '.join(missing[:3])})")
+    _, turns = pose_difference(rig, joints)
+    bone = max(turns, key=turns.get)
+    return rig, joints, turns[bone] >= SAME_POSE_DEGREES, (bone, turns[bone])
+
+
+def _turn_info(pose):
+    bone, degrees = pose[3]
+    return {"largest_turn": degrees, "largest_turn_bone": bone, "posed": bool(pose[2])}
 
 
 def _plain(x):
