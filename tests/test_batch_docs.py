@@ -49,7 +49,7 @@ def fixtures_folder(tmp_path):
 
 
 def test_the_catalogue_example_runs_as_written(fixtures_folder, tmp_path, capsys):
-    (toml,) = blocks("toml")
+    toml = blocks("toml")[0]
     catalogue = fixtures_folder / "catalogue.toml"
     catalogue.write_text(toml, encoding="utf-8")
     out = tmp_path / "results"
@@ -69,7 +69,7 @@ def test_the_catalogue_example_runs_as_written(fixtures_folder, tmp_path, capsys
 
 
 def test_the_json_form_has_the_same_keys(fixtures_folder):
-    (toml,) = blocks("toml")
+    toml = blocks("toml")[0]
     (fixtures_folder / "catalogue.toml").write_text(toml, encoding="utf-8")
     (fixtures_folder / "catalogue.json").write_text(json.dumps(tomllib.loads(toml)), encoding="utf-8")
     a, b = (read_catalogue(fixtures_folder / f"catalogue.{ext}") for ext in ("toml", "json"))
@@ -78,7 +78,7 @@ def test_the_json_form_has_the_same_keys(fixtures_folder):
 
 def test_top_level_keys_written_after_bodies_are_named(fixtures_folder):
     # The mistake the example once made: in TOML, keys after [bodies] belong to it.
-    (toml,) = blocks("toml")
+    toml = blocks("toml")[0]
     head, tables = toml.split("\n[settings]", 1)
     top = "\n".join(line for line in head.splitlines() if line.startswith(("source =", "targets =")))
     assert top.count("\n") == 1
@@ -122,3 +122,15 @@ def test_the_python_entry_point_of_the_dask_section_exists():
     assert "from garment_transfer import read_catalogue, run_batch" in python
     assert {"read_catalogue", "run_batch"} <= set(garment_transfer.__all__)
     assert "client" in inspect.signature(garment_transfer.run_batch).parameters
+
+
+def test_the_rig_example_reads_with_the_catalogue(fixtures_folder):
+    # The rig table added to the example catalogue: its joints name the catalogue's bodies, each pair then has them.
+    catalogue, rig = blocks("toml")
+    (fixtures_folder / "rig").symlink_to(require_makehuman() / "rig")
+    top, rest = catalogue.split("\n[", 1)
+    (fixtures_folder / "catalogue.toml").write_text(top + "\n" + rig + "\n[" + rest, encoding="utf-8")
+    cat = read_catalogue(fixtures_folder / "catalogue.toml")
+    assert all(job.rig is not None and job.rig.source_joints.endswith("female_average.json") for job in cat.jobs)
+    joints = {t.name: t.joints for job in cat.jobs for t in job.targets}
+    assert joints["female_pear"].endswith("rig/joints/female_pear.json") and joints["male_slim"] is None
