@@ -107,10 +107,29 @@ def armature_bones(armature, depsgraph, evaluated=True):
     return bones
 
 
+def bone_key(name):
+    """A bone's name without a namespace (``character1:``, ``Armature|``, as FBX files from other tools carry them)
+    and in lower case: the same skeleton's bones have the same key."""
+    return name.replace("|", ":").rsplit(":", 1)[-1].lower()
+
+
+def matched_bones(bones, names):
+    """``bones`` ({name: ...}) under the names of ``names`` that they match: by name, else by ``bone_key`` where
+    one bone alone has that key; the others under their own names."""
+    by_key = {}
+    for name in bones:
+        by_key.setdefault(bone_key(name), []).append(name)
+    out = dict(bones)
+    for name in names:
+        if name not in bones and len(by_key.get(bone_key(name), [])) == 1:
+            out[name] = bones[by_key[bone_key(name)][0]]
+    return out
+
+
 def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, frame):
     """What a transfer needs to pose the source body into the target's rest pose (the core's
     ``transfer_across_rest_poses``): both bodies have an armature (an Armature modifier) whose bones carry the
-    source's vertex groups, with the same names.
+    source's vertex groups, with the same names (or the same but for a namespace and case: ``bone_key``).
 
     Parameters
     ----------
@@ -146,7 +165,7 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
         while name is not None and name not in needed:
             needed.add(name)
             name = bones[name][0]
-    target = armature_bones(target_armature, depsgraph, evaluated)
+    target = matched_bones(armature_bones(target_armature, depsgraph, evaluated), needed)
     missing = sorted(needed - set(target))
     if missing:
         return None, (f"give {target_armature.name} the bones of {source_armature.name} that move "
