@@ -100,10 +100,13 @@ def armature_bones(armature, depsgraph, evaluated=True):
     bones = {}
     for name, parent, head, tail, matrix in items:
         M = A[:3, :3] @ convert.matrix_array(matrix)[:3, :3]
-        # The nearest rotation to the bone's axes (an armature's or a bone's scale stretches them).
+        # The nearest rotation to the bone's axes (an armature's or a bone's scale stretches them); a mirrored
+        # armature's axes are left-handed: X turned back, so that Y (along the bone) and Z (its roll) are kept.
         U, _, Vt = np.linalg.svd(M)
-        bones[name] = (parent, A[:3, :3] @ np.array(head) + A[:3, 3], A[:3, :3] @ np.array(tail) + A[:3, 3],
-                       U @ Vt)
+        R = U @ Vt
+        if np.linalg.det(R) < 0:
+            R[:, 0] *= -1.0
+        bones[name] = (parent, A[:3, :3] @ np.array(head) + A[:3, 3], A[:3, :3] @ np.array(tail) + A[:3, 3], R)
     return bones
 
 
