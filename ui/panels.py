@@ -20,6 +20,9 @@ METRIC_LABELS = (
     ("vertex_error_max", "Vertex error (max)", "{:.4g}"),
     ("garment_edges_through_body", "Garment edges through body", "{:d}"),
     ("body_edges_through_garment", "Body edges through garment", "{:d}"),
+    # A target posed (another rest pose): the crossings apart where its body crosses or closes on itself.
+    ("crossings_outside_contact", "Crossings away from body contact", "{:d}"),
+    ("crossings_at_contact", "Crossings where body meets itself", "{:d}"),
     ("self_intersections_new", "Self-intersections beyond source", "{:d}"),
     ("min_body_distance", "Smallest distance to body", "{:.4g}"),
 )

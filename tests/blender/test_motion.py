@@ -375,6 +375,16 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     assert metrics["crossings_at_contact"] == counted["crossings_at_contact"] == \
         metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]
     assert metrics["penetrating_vertices"] == 0
+    # The Evaluation panel shows them.
+    from types import SimpleNamespace
+
+    from test_panel import RecordingLayout
+
+    calls = []
+    bpy.types.VIEW3D_PT_garment_transfer_evaluation.draw(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    shown = [k.get("text") for kind, _, k in calls if kind == "label"]
+    row = shown.index("Crossings away from body contact")
+    assert shown[row + 1] == "0" and shown[row + 2] == "Crossings where body meets itself"
 
 
 def test_an_outfit_onto_a_character_in_another_rest_pose_is_posed_layer_by_layer(character):
