@@ -43,10 +43,10 @@ from ..files import check_outputs
 from ..geometry.obj import obj_text, read_obj
 from ..learning.dataset import dataset_inputs, load_dataset
 from ..learning.model_files import read_model_file
-from ..version import __version__
 from ..rigging.posing import Rig
 from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
+from ..version import __version__
 from .metrics import evaluate
 from .pose_fit import posed_counts
 from .rest_pose import SAME_POSE_DEGREES, pose_difference, transfer_across_rest_poses
