@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .rigging import body_armature, rest_pose_rigs, rest_position, rig_to_body
+from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body
 from .transfer import chosen_model, model_text, result_name
 
 
@@ -71,8 +71,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
-    from ..garment_transfer import (OFFSET_SHARE, PoseError, TopologyMismatchError, body_scale, mdc,
-                                    outfit_across_rest_poses, same_mesh, transfer_outfit)
+    from ..garment_transfer import (OFFSET_SHARE, TopologyMismatchError, body_scale, mdc, outfit_across_rest_poses,
+                                    same_mesh, transfer_outfit)
 
     convert.require_mesh_object(source_body, "source body")
     convert.require_mesh_object(target_body, "target body")
@@ -97,16 +97,13 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     options = dict(offsets=offsets, method=method.lower(), **(model.transfer_arguments() if model else {}),
                    target=target_label or None, progress=progress)
     # Two bodies rigged alike: a target in another rest pose gets the source and every layer posed into it first.
-    rigs, why_not = ((None, "use the Direct method: a model is trained on the source's pose") if model else
-                     rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame))
-    try:
+    rigs, why_not = rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame, model)
+    with pose_remedy(why_not):
         if rigs is not None:
             outcome = outfit_across_rest_poses(source_framed, framed(target), [framed(c) for c in cloths], *rigs,
                                                **options)
         else:
             outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], **options)
-    except PoseError as e:
-        raise PoseError(e.name, e.difference, f"Pose the two bodies alike first, or {why_not}") from None
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]
     outcome.model_text = model_text(model)

@@ -71,6 +71,20 @@ def deform_bones(armature):
     return [b.name for b in armature.data.bones if b.use_deform]
 
 
+@contextlib.contextmanager
+def pose_remedy(why_not):
+    """A pose difference refused in the block (``PoseError``) names what would have carried it: ``why_not`` of
+    ``rest_pose_rigs`` (nothing changes when it is "": the rigs were there)."""
+    from ..garment_transfer import PoseError
+
+    try:
+        yield
+    except PoseError as e:
+        if not why_not:
+            raise
+        raise PoseError(e.name, e.difference, f"Pose the two bodies alike first, or {why_not}") from None
+
+
 def vertex_group_weights(obj, names):
     """The object's vertex groups called ``names`` as a core SkinWeights (groups it lacks come out empty)."""
     from ..garment_transfer import weights_from_dict
@@ -129,7 +143,7 @@ def matched_bones(bones, names):
     return out
 
 
-def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, frame):
+def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, frame, model=None):
     """What a transfer needs to pose the source body into the target's rest pose (the core's
     ``transfer_across_rest_poses``): both bodies have an armature (an Armature modifier) whose bones carry the
     source's vertex groups, with the same names (or the same but for a namespace and case: ``bone_key``).
@@ -144,6 +158,8 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
         The source body's vertices as read: its vertex groups must name the same ones.
     frame : (3,3) float
         The rotation from world space to the frame the bodies are given to the core in.
+    model : optional
+        The model the transfer uses: none is posed (it is trained on the source's pose).
 
     Returns
     -------
@@ -154,6 +170,8 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
     """
     from ..garment_transfer import rig_from_bones
 
+    if model is not None:
+        return None, "use the Direct method: a model is trained on the source's pose"
     source_armature, target_armature = body_armature(source_body), body_armature(target_body)
     if source_armature is None or target_armature is None:
         return None, ("give both bodies an Armature modifier, with the same bones, to pose the source into the "

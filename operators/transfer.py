@@ -11,7 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
-from .rigging import body_armature, rest_pose_rigs, rest_position, rig_to_body
+from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -121,8 +121,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     metrics : dict
         ``evaluate`` of the result as Blender has it (``result_metrics``) against the target body.
     """
-    from ..garment_transfer import (SHAPE_BOUNDS, MeshError, PoseError, transfer_across_rest_poses,
-                                    transfer_to_any_body)
+    from ..garment_transfer import SHAPE_BOUNDS, MeshError, transfer_across_rest_poses, transfer_to_any_body
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -159,16 +158,13 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
                    shape_basis=None if deltas is None else deltas @ frame.T,
                    shape_bounds=SHAPE_BOUNDS if bounds is None else bounds, body_model=body_model)
     # Two bodies rigged alike: a target in another rest pose gets the source and its garment posed into it first.
-    rigs, why_not = ((None, "use the Direct method: a model is trained on the source's pose") if model else
-                     rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame))
-    try:
+    rigs, why_not = rest_pose_rigs(source_body, target_body, depsgraph, evaluated, source.n_vertices, frame, model)
+    with pose_remedy(why_not):
         if rigs is not None:
             outcome, registration = transfer_across_rest_poses(framed(source), framed(target), framed(cloth), *rigs,
                                                                **options)
         else:
             outcome, registration = transfer_to_any_body(framed(source), framed(target), framed(cloth), **options)
-    except PoseError as e:
-        raise PoseError(e.name, e.difference, f"Pose the two bodies alike first, or {why_not}") from None
     outcome.shape_keys = key_names
     outcome.body_model = body_model
     outcome.model_text = model_text(model)

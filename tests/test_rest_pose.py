@@ -1,9 +1,10 @@
 """A target body in another rest pose: the source body and its garment posed into it first, then the shape."""
 
 import numpy as np
+import pytest
 from meshes import require_makehuman
 
-from garment_transfer import (Rig, bone_frames, bvh_rotations, fit_to_pose, read_bvh, read_joints, read_obj,
+from garment_transfer import (PoseError, Rig, bone_frames, bvh_rotations, fit_to_pose, read_bvh, read_joints, read_obj,
                               read_skeleton, read_weights, rig_from_bones, transfer_garment)
 from garment_transfer.pipeline.rest_pose import pose_difference, transfer_across_rest_poses
 
@@ -42,6 +43,10 @@ def test_a_target_in_another_rest_pose_gets_the_garment_as_if_transferred_at_res
                                            target_rig.posed_frames(T))
     info = result.info["rest_pose"]
     assert info["posed"] and info["largest_turn"] > 45 and info["largest_turn_bone"] in ("upperarm02.R", "lowerleg01.L")
+    # A model is trained on the source's pose: refused before any work, naming the target and the turn.
+    with pytest.raises(PoseError, match=r"pear kicking: stands in another pose .* turned \d+ degrees.*direct method"):
+        transfer_across_rest_poses(source, posed, garment, source_rig, target_rig.posed_joints(T),
+                                   target_rig.posed_frames(T), method="model")
     assert result.info["crossings_outside_contact"] == 0
     assert np.linalg.norm(result.V - expected, axis=1).mean() < 0.03      # 3 mm, in decimetres
 

@@ -18,7 +18,7 @@ import os
 import sys
 import time
 
-from ..errors import GarmentTransferError, RigError
+from ..errors import GarmentTransferError
 from ..files import atomic_path
 from ..fitting.body_model import makehuman_shape_basis
 from ..fitting.registration import register
@@ -83,7 +83,7 @@ def cmd_transfer(args):
                      f"{os.path.basename(args.target_body)} ({args.method})")
     write = time.perf_counter() - t
     t = time.perf_counter()
-    check = written_check(args.out, garment, target_body, result)
+    check, written = written_check(args.out, garment, target_body, result)
     seconds = dict(result.seconds, load=load, write=write, check=time.perf_counter() - t)
     out = {"out": args.out, "method": args.method, "target": args.target,
            "vertices": garment.n_vertices, "triangles": garment.n_triangles,
@@ -107,7 +107,7 @@ def cmd_transfer(args):
             # The file as written, against the target as given: where its body crosses or closes on itself (a
             # pose's bent knee, an arm on the hip) no cloth can be outside both surfaces.
             # The source at rest tells, on a target of its mesh, which parts the pose pressed together.
-            pose["written"] = posed_counts(read_obj(args.out).V, garment, target_body, result.info["offset"],
+            pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
                                            rest_V=source_body.V if registration is None else None,
                                            name=os.path.basename(args.target_body))
             out["warnings"] += pose["written"]["warnings"]
@@ -132,26 +132,20 @@ def _rest_pose_rig(args, source_body):
         raise GarmentTransferError("a target in another rest pose is transferred by the direct or surface method, "
                                    "not by a model (trained on the source's pose)")
     skeleton = read_skeleton(args.skeleton)
-    joints = {}
-    for option, path in (("--source-joints", args.source_joints), ("--target-joints", args.target_joints)):
-        joints[option] = read_joints(path)
-        missing = [j for j in skeleton.joint_names() if j not in joints[option]]
-        if missing:
-            raise RigError(path, f"lacks {len(missing)} joints of the skeleton {args.skeleton} (first: "
-                                 f"{', '.join(missing[:3])}): give {option} the joints of that skeleton")
-    rig = Rig(skeleton, joints["--source-joints"], read_weights(args.source_weights, source_body.n_vertices))
-    return rig, joints["--target-joints"]
+    rig = Rig(skeleton, read_joints(args.source_joints, skeleton, "--source-joints"),
+              read_weights(args.source_weights, source_body.n_vertices))
+    return rig, read_joints(args.target_joints, skeleton, "--target-joints")
 
 
 def written_check(path, garment, target_body, result=None):
     """``check_result`` of the file as written at ``path`` (read back), against the target body given (``result``:
-    the transfer's, for what it prepared and binned)."""
+    the transfer's, for what it prepared and binned), and the positions read back (n,3)."""
     written = read_obj(path)
     prepared = None if result is None else result.prepared
     return check_result(garment, written.V, target_body, obstacle=None if result is None else result.obstacle,
                         surface=None if result is None else result.surface,
                         source_pairs=None if prepared is None else prepared.source_pairs(),
-                        readings=None if prepared is None else prepared.readings())
+                        readings=None if prepared is None else prepared.readings()), written.V
 
 
 def check_line(check):
@@ -319,8 +313,8 @@ def cmd_transfer_outfit(args):
         if pose["posed"]:
             # Each layer as written, against the target as given, counted apart where its body crosses itself.
             offsets = [i["offset"] for i in result.info]
-            for layer, g, p, offset in zip(out["layers"], garments, paths, offsets):
-                layer["rest_pose_written"] = posed_counts(read_obj(p).V, g, target_body, offset,
+            for layer, g, p, (V, _), offset in zip(out["layers"], garments, paths, below, offsets):
+                layer["rest_pose_written"] = posed_counts(V, g, target_body, offset,
                                                           rest_V=source_body.V, name=os.path.basename(args.target_body))
                 out["warnings"] += layer["rest_pose_written"]["warnings"]
                 lines.append(_written_pose_line(p, layer["rest_pose_written"]))

@@ -49,7 +49,7 @@ from ..rigging.skinning import read_weights
 from ..version import __version__
 from .metrics import evaluate
 from .pose_fit import posed_counts
-from .rest_pose import SAME_POSE_DEGREES, pose_difference, transfer_across_rest_poses
+from .rest_pose import transfer_across_rest_poses
 from .result_check import result_warnings
 from .transfer import prepare_garment, transfer_garment
 
@@ -681,12 +681,17 @@ class _Inputs:
     def rig(self, files: RigFiles, n_vertices):
         """The source body's Rig (skeleton, joints, weights) from the catalogue's rig files."""
         key = (self._stat(files.skeleton), self._stat(files.weights), n_vertices)
-        return self._get(files.source_joints, ("rig", key),
-                         lambda: Rig(read_skeleton(files.skeleton), read_joints(files.source_joints),
-                                     read_weights(files.weights, n_vertices)))
+        def make():
+            skeleton = read_skeleton(files.skeleton)
+            return Rig(skeleton, read_joints(files.source_joints, skeleton, "rig.joints"),
+                       read_weights(files.weights, n_vertices))
 
-    def joints(self, path):
-        return self._get(path, "joints", lambda: read_joints(path))
+        return self._get(files.source_joints, ("rig", key), make)
+
+    def joints(self, path, skeleton):
+        """A target's joints file, checked against the skeleton."""
+        return self._get(path, ("joints", self._stat(skeleton.name)),
+                         lambda: read_joints(path, skeleton, "rig.joints"))
 
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
@@ -809,14 +814,13 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             options = dict(method=s.method, **(model.transfer_arguments() if model else {}), target=t.label,
                            offset=s.offset, fix_penetration=s.fix_penetration, interpolate=s.interpolate,
                            stiffness=s.stiffness)
-            pose = _rest_pose(job, t, source_body)
-            if pose is not None and pose[2]:
-                if model is not None:
-                    raise GarmentTransferError(f"{t.name} stands in another pose than {job.source}: a model is "
-                                               "trained on the source's pose; use the direct method")
-                # Posed into the target's rest pose first: the garment prepared on the rest source does not serve.
-                result, _ = transfer_across_rest_poses(source_body, target_body, garment, pose[0], pose[1],
-                                                       cache=False, **options)
+            if job.rig is not None and t.joints is not None:
+                # Posed into the target's rest pose first where it stands otherwise (the garment prepared on the
+                # source at rest serves the others).
+                rig = _INPUTS.rig(job.rig, source_body.n_vertices)
+                result, _ = transfer_across_rest_poses(source_body, target_body, garment, rig,
+                                                       _INPUTS.joints(t.joints, rig.skeleton), cache=False,
+                                                       prepared=prepared, **options)
             else:
                 result = transfer_garment(source_body, target_body, garment, prepared=prepared, **options)
             reference = _read_garment(t.reference) if t.reference is not None else None
@@ -830,13 +834,11 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             # transfer did not aim at.
             written = read_obj(obj_path).V
             metrics = evaluate(garment, garment.with_vertices(written), target_body, reference=reference)
-            rest_pose = None
-            if pose is not None:
-                rest_pose = dict(result.info.get("rest_pose") or _turn_info(pose))
-                if pose[2]:
-                    # Where the posed target crosses or closes on itself no cloth can be outside both surfaces.
-                    rest_pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
-                                                        rest_V=source_body.V, name=str(obj_path))
+            rest_pose = result.info.get("rest_pose")
+            if rest_pose is not None and rest_pose["posed"]:
+                # Where the posed target crosses or closes on itself no cloth can be outside both surfaces.
+                rest_pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
+                                                    rest_V=source_body.V, name=str(obj_path))
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue
@@ -860,27 +862,6 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
 
 def _read_garment(path):
     return read_obj(path)
-
-
-def _rest_pose(job, target, source_body):
-    """(source Rig, target joints, whether the target stands in another pose) for a pair of a catalogue with a
-    ``rig`` where both bodies have joints; None otherwise."""
-    if job.rig is None or target.joints is None:
-        return None
-    rig = _INPUTS.rig(job.rig, source_body.n_vertices)
-    joints = _INPUTS.joints(target.joints)
-    missing = [j for j in rig.skeleton.joint_names() if j not in joints]
-    if missing:
-        raise GarmentTransferError(f"{target.joints}: lacks {len(missing)} joints of the skeleton "
-                                   f"{job.rig.skeleton} (first: {', '.join(missing[:3])})")
-    _, turns = pose_difference(rig, joints)
-    bone = max(turns, key=turns.get)
-    return rig, joints, turns[bone] >= SAME_POSE_DEGREES, (bone, turns[bone])
-
-
-def _turn_info(pose):
-    bone, degrees = pose[3]
-    return {"largest_turn": degrees, "largest_turn_bone": bone, "posed": bool(pose[2])}
 
 
 def _plain(x):

@@ -478,15 +478,17 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         write_obj(outs[name], garment, result.V, inputs=[rest_body_path, *posed_body_paths],
                   header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
 
+    # The files as written, read back: their figures against each pose as given, and the point cache.
+    written = {name: read_obj(outs[name]).V for name in results}
+
     def written_counts(name):
-        # The figures of the file as written, against that pose as given.
         result = results[name]
-        return posed_counts(read_obj(outs[name]).V, garment, rest.with_vertices(poses[name], name=name),
+        return posed_counts(written[name], garment, rest.with_vertices(poses[name], name=name),
                             float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
                             contact=result.contact)
 
     if cache is not None:
-        write_pc2(cache, np.stack([read_obj(outs[name]).V for name in results]), start_frame=1.0, inputs=inputs,
+        write_pc2(cache, np.stack(list(written.values())), start_frame=1.0, inputs=inputs,
                   what="--cache")
     rows, warnings = [], []
     for name, counts in zip(results, in_threads(written_counts, list(results), workers)):

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from ..errors import PoseError
 from ..geometry.mesh import Mesh
 from ..rigging.posing import Rig, matching_rotations
 from .any_body import transfer_to_any_body
@@ -70,7 +71,8 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         The target's bone frames in its rest pose (an armature's bones): they fix how far each bone turned
         about itself, which the joints cannot (``rigging.matching_rotations``).
     **options
-        Passed to ``transfer_to_any_body``.
+        Passed to ``transfer_to_any_body``; ``prepared`` (the garment prepared on the source at rest) serves only
+        a target in the source's pose.
 
     Returns
     -------
@@ -78,11 +80,21 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         ``info["rest_pose"]``: ``largest_turn`` (degrees, and its bone), ``posed`` (whether the source was
         posed), ``pose_fit`` (the fit's crossing counts).
     registration : Registration or None
+
+    Raises
+    ------
+    PoseError
+        The target stands in another pose and the method is a model's (trained on the source's pose).
     """
     t = time.perf_counter()
     info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames)
     rest_V = source_body.V
     if info["posed"]:
+        if options.get("method") == "model":
+            raise PoseError(target_body.name, f"stands in another pose than {source_body.name} (its "
+                                              f"{info['largest_turn_bone']} turned {info['largest_turn']:.0f} degrees)",
+                            "Use the direct method: a model is trained on the source's pose")
+        options = {k: v for k, v in options.items() if k != "prepared"}
         fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
         info["pose_fit"] = {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
                                                      "body_self_crossings")}

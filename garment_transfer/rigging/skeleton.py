@@ -65,6 +65,10 @@ class Skeleton:
             used.update(plane or ())
         return sorted(used)
 
+    def missing_joints(self, joints):
+        """The joints of its bones and planes that ``joints`` (a mapping) lacks, sorted."""
+        return [j for j in self.joint_names() if j not in joints]
+
     def rest(self, joints):
         """The bones' rest heads and tails on one body.
 
@@ -77,7 +81,7 @@ class Skeleton:
         -------
         heads, tails : (b,3) float64
         """
-        missing = [j for j in self.joint_names() if j not in joints]
+        missing = self.missing_joints(joints)
         if missing:
             raise RigError(self.name, f"the joints given lack {len(missing)} joints of its bones "
                                       f"(first: {', '.join(missing[:3])})")
@@ -151,8 +155,16 @@ def read_skeleton(path) -> Skeleton:
     return skeleton_from_dict(_read_json(path), str(path))
 
 
-def read_joints(path):
+def read_joints(path, skeleton: Skeleton | None = None, what="the joints file"):
     """Read a joints file: ``{joint: [x, y, z]}`` (``rig/joints/<body>.json``).
+
+    Parameters
+    ----------
+    path : path
+    skeleton : Skeleton, optional
+        With it, the file must hold every joint of its bones and planes (RigError naming the file otherwise).
+    what : str
+        What the file is given as (an option, an entry), for that error's remedy.
 
     Returns
     -------
@@ -169,6 +181,10 @@ def read_joints(path):
         if p is None or not np.isfinite(p).all():
             raise RigError(str(path), f"joint {joint!r} is not three finite numbers: {value!r}")
         joints[joint] = p
+    missing = [] if skeleton is None else skeleton.missing_joints(joints)
+    if missing:
+        raise RigError(str(path), f"lacks {len(missing)} joints of the skeleton {skeleton.name} (first: "
+                                  f"{', '.join(missing[:3])}): give {what} the joints of that skeleton")
     return joints
 
 
