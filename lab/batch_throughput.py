@@ -96,7 +96,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     if not (args.data / "bodies").is_dir():
         raise SystemExit(f"the MakeHuman fixtures are needed: {args.data} (--data)")
-    from garment_transfer.pipeline.batch import read_catalogue
+    from garment_transfer.pipeline.catalogue import read_catalogue
 
     full = read_catalogue(args.data, source="female_average")
     cat = type(full)(full.origin, full.jobs[: args.garments])

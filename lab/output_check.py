@@ -13,7 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from garment_transfer.pipeline.batch import catalogue_from_dict, check_batch_outputs
+from garment_transfer.pipeline.batch import check_batch_outputs
+from garment_transfer.pipeline.catalogue import catalogue_from_dict
 
 #: Core-seconds of one pair (transfer, penetration fix, metrics, writing) measured in docs/batch.md.
 PAIR_SECONDS = 0.89

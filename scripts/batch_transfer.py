@@ -168,11 +168,18 @@ def output_problem(args, jobs, reads):
 
 
 def core_batch():
-    """The core's batch module (catalogue reader, result layout), from this script's own checkout or
-    extension folder (on ``sys.path`` above): the same code as ``python -m garment_transfer batch``."""
+    """The core's batch module (the result layout), from this script's own checkout or extension folder (on
+    ``sys.path`` above): the same code as ``python -m garment_transfer batch``."""
     from garment_transfer.pipeline import batch
 
     return batch
+
+
+def core_catalogue():
+    """The core's catalogue reader, from the same place as ``core_batch``."""
+    from garment_transfer.pipeline import catalogue
+
+    return catalogue
 
 
 @dataclasses.dataclass
@@ -207,7 +214,7 @@ def plan(args):
         jobs = [Job(labels[str(g)], g, labels[str(args.source_body)], args.source_body, targets,
                     args.method, args.model, args.offset, not args.no_fix) for g in args.garment]
         return jobs, ([*paths, args.model], [])
-    batch = core_batch()
+    catalogue = core_catalogue()
     options = {"method": args.method} if args.method_given else {}
     if args.model is not None:
         options["model"] = str(args.model.resolve())
@@ -216,8 +223,8 @@ def plan(args):
     if args.no_fix:
         options["fix_penetration"] = False
     try:
-        cat = batch.read_catalogue(args.catalogue, source=args.source, settings=options)
-    except batch.CatalogueError as exc:
+        cat = catalogue.read_catalogue(args.catalogue, source=args.source, settings=options)
+    except catalogue.CatalogueError as exc:
         raise InputError(str(exc)) from None
     jobs = []
     for j in cat.jobs:

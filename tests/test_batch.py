@@ -18,7 +18,8 @@ from meshes import icosphere, require_makehuman
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj, write_obj
 from garment_transfer.pipeline import batch
-from garment_transfer.pipeline.batch import CatalogueError, read_catalogue, run_batch
+from garment_transfer.pipeline.batch import run_batch
+from garment_transfer.pipeline.catalogue import CatalogueError, read_catalogue
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON_ENV = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))

@@ -16,7 +16,7 @@ from meshes import require_makehuman
 import garment_transfer
 from garment_transfer.cli import main
 from garment_transfer.cli.commands import build_parser
-from garment_transfer.pipeline.batch import CatalogueError, read_catalogue
+from garment_transfer.pipeline.catalogue import CatalogueError, read_catalogue
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "batch.md"
 

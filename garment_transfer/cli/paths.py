@@ -14,7 +14,8 @@ import os
 from ..errors import GarmentTransferError
 from ..files import check_outputs
 from ..learning.dataset import dataset_inputs
-from ..pipeline.batch import batch_paths, read_catalogue
+from ..pipeline.batch import batch_paths
+from ..pipeline.catalogue import read_catalogue
 from ..pipeline.shape_keys import shapes_outputs
 
 

@@ -4,13 +4,14 @@ another mesh: registered first), ``outfit`` (layers, each outside the ones under
 fitted to every shape of a body), ``pose_fit`` (a garment fitted to its body posed), ``rest_pose`` (a target in
 another rest pose: the source posed into it first), ``metrics`` (MDC, penetration, drape and vertex error,
 crossings: ``evaluate``), ``result_check`` (the promise measured on a result as written: no crossing under any
-triangulation, against the body given), ``model_check`` (a trained model on held-out garments), and ``batch`` (a
-catalogue of garments on many targets, resumable, on a process pool or Dask). Built on ``geometry``, ``fitting``,
-``learning`` and ``rigging``.
+triangulation, against the body given), ``model_check`` (a trained model on held-out garments), ``catalogue``
+(garments to transfer to many targets, read and checked) and ``batch`` (a catalogue's run, resumable, on a
+process pool or Dask). Built on ``geometry``, ``fitting``, ``learning`` and ``rigging``.
 """
 
 from .any_body import transfer_to_any_body
-from .batch import BatchSummary, Catalogue, read_catalogue, run_batch
+from .batch import BatchSummary, run_batch
+from .catalogue import Catalogue, read_catalogue
 from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit

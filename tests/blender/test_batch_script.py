@@ -66,7 +66,8 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
 def test_batch_reads_the_core_catalogue_and_matches_the_core_batch(makehuman, tmp_path):
     """--catalogue: the same TOML that python -m garment_transfer batch runs, the same result layout and
     (up to the float32 of Blender meshes) the same results; a missing body fails its pairs only."""
-    from garment_transfer.pipeline.batch import read_catalogue, run_batch
+    from garment_transfer.pipeline.batch import run_batch
+    from garment_transfer.pipeline.catalogue import read_catalogue
 
     catalogue = tmp_path / "cat.toml"
     catalogue.write_text(
