@@ -1,5 +1,6 @@
 """``geometry.threads.together``: the calls' results in order, every call ended before an error is raised, and
-the work done in the caller's thread when no helper is free."""
+the work done in the caller's thread when no helper is free; ``ahead``: a call started early, its result (or its
+error) when asked for, in the caller's thread when no helper is free."""
 
 import threading
 import time
@@ -7,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from garment_transfer.geometry.threads import HELPERS, together
+from garment_transfer.geometry.threads import HELPERS, ahead, together
 
 
 def test_results_in_order_as_one_after_the_other():
@@ -66,3 +67,50 @@ def test_no_free_helper_runs_the_work_in_the_callers_thread():
     outer.join(5)
     for nested in results[0][:HELPERS]:
         assert nested[0] == nested[1]          # each helper ran its nested calls itself
+
+
+def test_ahead_runs_on_a_helper_meanwhile_and_gives_its_result_or_error():
+    here = threading.current_thread().name
+    gate = threading.Event()
+    calls = []
+
+    def work():
+        calls.append(threading.current_thread().name)
+        gate.wait(5)
+        return 42
+
+    early = ahead(work)
+    if HELPERS:
+        # Started before the caller asks: on a helper, while the caller goes on.
+        for _ in range(500):
+            if calls:
+                break
+            time.sleep(0.01)
+        assert calls and calls[0] != here
+    gate.set()
+    assert early.result() == 42 and early.result() == 42
+    assert len(calls) == 1                      # run once, however often asked
+    assert (calls[0] == here) == (HELPERS == 0)
+    # The helper is free again afterwards: together still gets it.
+    names = together(lambda: threading.current_thread().name, lambda: 0)
+    assert (names[0] != here) == (HELPERS > 0)
+
+    def broken():
+        raise ValueError("the early call")
+
+    failed = ahead(broken)
+    with pytest.raises(ValueError, match="the early call"):
+        failed.result()
+
+
+def test_ahead_without_a_free_helper_runs_when_asked_in_the_callers_thread():
+    # Every helper busy with an early call of its own (none on one core).
+    here = threading.current_thread().name
+    release = threading.Event()
+    busy = [ahead(lambda: release.wait(5)) for _ in range(HELPERS)]
+    ran = []
+    late = ahead(lambda: ran.append(threading.current_thread().name) or "done")
+    assert ran == []                            # nothing started: it waits to be asked
+    assert late.result() == "done" and ran == [here]
+    release.set()
+    assert all(b.result() for b in busy)

@@ -1,4 +1,4 @@
-"""Independent array computations at once, where a core is free.
+"""Independent array computations at once, where a core is free (``together``), or one started early (``ahead``).
 
 Most of a check's time is numpy's, scipy's and libigl's work on whole arrays, which runs outside Python's lock:
 two checks that do not depend on each other (a garment's crossings and its close pairs against a body that does
@@ -56,6 +56,30 @@ def together(*calls):
     if error is not None:
         raise error
     return results
+
+
+class Ahead:
+    """A call started early on a helper thread where one is free (``ahead``), for its result later."""
+
+    def __init__(self, call):
+        self._call = call
+        self._future = (_helpers().submit(_released, call) if _free is not None and _free.acquire(blocking=False)
+                        else None)
+        self._value, self._done = None, False
+
+    def result(self):
+        """The call's result: waited for where a helper took it, else computed now in the caller's thread (once)."""
+        if self._future is not None:
+            return self._future.result()
+        if not self._done:
+            self._value, self._done = self._call(), True
+        return self._value
+
+
+def ahead(call) -> Ahead:
+    """Start ``call`` on a helper thread where one is free, while the caller goes on with work that does not touch
+    what the call makes; ``.result()`` before using it. Where no helper is free the call runs at ``.result()``."""
+    return Ahead(call)
 
 
 def _released(call):

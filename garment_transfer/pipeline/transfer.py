@@ -38,6 +38,7 @@ from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
 from ..geometry.self_check import pairs_in_full
+from ..geometry.threads import ahead
 from ..fitting.limbs import find_limbs, limb_angles
 from ..learning.placement import anchor_offsets
 from .field_mapping import model_field
@@ -385,7 +386,7 @@ def _undo_pushes_inside(V, V_fixed, surface):
 
 
 def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetration=True, resolve_crossings=True,
-                source_V=None, info=None, seconds=None, step=None):
+                source_V=None, info=None, seconds=None, step=None, early=None):
     """The last two stages on ``body`` as given (its own frame and faces): the penetration fix, then the crossing
     pass under every reading of the garment's and the body's polygons.
 
@@ -405,6 +406,8 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
         Added to (the fix's and the pass's figures; ``fix`` and ``crossings`` seconds).
     step : callable, optional
         ``step(fraction, stage)`` before each stage.
+    early : threads.Ahead, optional
+        Work on ``prepared`` or ``body`` started earlier (``transfer_garment``'s), waited for before the pass.
 
     Returns
     -------
@@ -437,6 +440,8 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
     if step is not None:
         step(0.9, "crossings")
     t = time.perf_counter()
+    if early is not None:
+        early.result()
     V_fixed = V
     G = prepared.readings()
     obstacle = clearance.Obstacle(body.V, readings_of(body), surface, clearance.edge_length(V, G))
@@ -563,6 +568,12 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         seconds.update(prepared.seconds)
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
+    early = None
+    if fix_penetration and resolve_crossings:
+        # What the crossing pass needs that the stages before it do not touch, on a free core meanwhile: the
+        # garment's own self-intersections on the source (its readings' topology with them) and the target's
+        # readings.
+        early = ahead(lambda: (prepared.source_pairs(), readings_of(target_body)))
     pose = (pose_check(source_body, target_body.V, target_body.name, prepared.limbs(), prepared.covered())
             if check_pose else None)
     step(0.5, "bind")
@@ -596,7 +607,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         info["solver"] = prepared.solver.method
     V, inside, obstacle, surface = fit_to_body(V, prepared, target_body, offset, fix_penetration=fix_penetration,
                                                resolve_crossings=resolve_crossings, info=info, seconds=seconds,
-                                               step=step)
+                                               step=step, early=early)
     seconds["total"] = time.perf_counter() - t0
     step(1.0, "done")
     return TransferResult(V, seconds, inside, info, prepared, obstacle, surface=surface)
