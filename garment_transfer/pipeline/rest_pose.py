@@ -3,10 +3,11 @@
 The transfer carries a change of shape; a change of pose (arms lower, legs apart) is not a shape the body's
 gradients and the binding carry well, and cloth ends up through the skin. When both bodies have a skeleton with
 the same bone names (MakeHuman's, MPFB's), the source body is posed into the target's rest pose by its own rig
-(``rigging.matching_rotations``: each bone turned onto the target's), its garment fitted to that pose
-(``pose_fit.fit_to_pose``), and the garment then transferred from the posed source to the target as usual. An outfit
-is posed layer by layer and then transferred as an outfit (its layers separated on the posed source and on the
-target).
+(``rigging.matching_rotations``: each bone turned onto the target's; how far it turned about itself from the
+target's bone frames, or from a target of the source's own mesh, ``rigging.twist_from_body``), its garment fitted
+to that pose (``pose_fit.fit_to_pose``), and the garment then transferred from the posed source to the target as
+usual. An outfit is posed layer by layer and then transferred as an outfit (its layers separated on the posed
+source and on the target).
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ import time
 import numpy as np
 
 from ..errors import PoseError
-from ..geometry.mesh import Mesh
-from ..rigging.posing import Rig, matching_rotations
+from ..geometry.mesh import Mesh, same_mesh
+from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
 from .pose_fit import clear_posed_body, fit_to_pose
@@ -30,8 +31,12 @@ MIN_WEIGHT_SHARE = 0.01
 SAME_POSE_DEGREES = 25.0
 
 
-def pose_difference(source_rig: Rig, target_joints, target_frames=None):
+def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None):
     """How far the target's rest pose is from the source's: each bone's turn, in degrees.
+
+    The turns come from the joints (``rigging.matching_rotations``); how far a bone turned about itself, which
+    joints do not say, from the target's bone frames where given, else from the target body itself where it is
+    the source's mesh (``source_V`` at rest and ``target_V``: ``rigging.twist_from_body``).
 
     Returns
     -------
@@ -42,15 +47,19 @@ def pose_difference(source_rig: Rig, target_joints, target_frames=None):
     """
     R, angles = matching_rotations(source_rig.skeleton, source_rig.joints, target_joints, target_frames,
                                    source_rig.frames)
+    if target_frames is None and source_V is not None and target_V is not None:
+        R, angles = twist_from_body(source_rig, R, source_V, target_joints, target_V)
     weights = source_rig.weights.normalised()
     share = np.asarray(weights.W.sum(axis=0)).ravel() / max(weights.n_vertices, 1)
     carrying = {g for g, s in zip(weights.groups, share) if s >= MIN_WEIGHT_SHARE}
     return R, {b: float(a) for b, a in zip(source_rig.skeleton.names, angles) if b in carrying}
 
 
-def _posed_source(source_body, source_rig, target_joints, target_frames):
+def _posed_source(source_body, source_rig, target_joints, target_frames, target_body):
     """(rest pose info, the source's positions posed into the target's rest pose or None when the poses are one)."""
-    R, turns = pose_difference(source_rig, target_joints, target_frames)
+    body = same_mesh(source_body, target_body) and source_rig.weights.n_vertices == source_body.n_vertices
+    R, turns = pose_difference(source_rig, target_joints, target_frames, source_body.V if body else None,
+                               target_body.V if body else None)
     bone = max(turns, key=turns.get)
     info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES}
     return info, (source_rig.pose(source_body.V, source_rig.transforms(R)) if info["posed"] else None)
@@ -69,7 +78,8 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         The target's joints (the same skeleton's joint names), in the target's rest pose.
     target_frames : (b,3,3) float, optional
         The target's bone frames in its rest pose (an armature's bones): they fix how far each bone turned
-        about itself, which the joints cannot (``rigging.matching_rotations``).
+        about itself, which the joints cannot (``rigging.matching_rotations``). Without them, a target of the
+        source's own mesh tells it by its shape (``rigging.twist_from_body``); another mesh is posed by the joints.
     **options
         Passed to ``transfer_to_any_body``; ``prepared`` (the garment prepared on the source at rest) serves only
         a target in the source's pose.
@@ -87,7 +97,7 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         The target stands in another pose and the method is a model's (trained on the source's pose).
     """
     t = time.perf_counter()
-    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames)
+    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames, target_body)
     rest_V = source_body.V
     if info["posed"]:
         if options.get("method") == "model":
@@ -148,7 +158,7 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
     """
     t = time.perf_counter()
     garments = list(garments)
-    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames)
+    info, posed_V = _posed_source(source_body, source_rig, target_joints, target_frames, target_body)
     if not info["posed"]:
         result = transfer_outfit(source_body, target_body, garments, offsets=offsets, **options)
     else:

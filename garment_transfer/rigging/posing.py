@@ -209,16 +209,158 @@ def matching_rotations(skeleton: Skeleton, joints, target_joints, target_frames=
     return R, np.degrees(np.arccos(cos))
 
 
+#: A bone's twist is measured on the vertices it moves by at least this share of their weight ...
+TWIST_WEIGHT = 0.3
+#: ... where it has at least this many of them; a bone with fewer keeps the smallest turn from its parent's.
+TWIST_VERTICES = 8
+#: Rounds of the twists' fit (each poses the body once; the blended vertices between two bones settle in a few).
+TWIST_ROUNDS = 4
+
+
+def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds=TWIST_ROUNDS):
+    """``matching_rotations``'s turns with each bone's turn about itself measured on the target body.
+
+    Joints do not say how far a bone whose points lie on its line (a forearm, a shin, a spine bone with one child)
+    turned about itself; the target body does, where it is this body's mesh in another shape and pose. Each such
+    bone turns about the target's bone by the angle that best takes the vertices it moves (``TWIST_WEIGHT``) of the
+    body posed to where the target has them: the least-squares step of every bone at once (each vertex's
+    displacement across the bone, weighted by its weight), ``rounds`` times, the body posed again each time. A
+    bone with too few vertices (``TWIST_VERTICES``) takes its parent's turn followed by the smallest turn along
+    the target's bone, as ``matching_rotations`` gives it; the bones whose joints fix their turn keep it.
+
+    Parameters
+    ----------
+    rig : Rig
+        The body to pose (its skeleton, joints, weights).
+    rotations : (b,3,3) float
+        ``matching_rotations(rig.skeleton, rig.joints, target_joints)[0]``.
+    body_V : (n,3) float
+        The rig's body at rest.
+    target_joints : dict of str to (3,) float
+    target_V : (n,3) float
+        The target body: the same mesh in the target's shape and pose.
+    rounds : int
+
+    Returns
+    -------
+    R : (b,3,3) float64
+    angles : (b,) float64
+        Each bone's global turn, in degrees.
+    """
+    skeleton = rig.skeleton
+    body_V = np.asarray(body_V, dtype=np.float64)
+    target_V = np.asarray(target_V, dtype=np.float64)
+    weights = deforming(rig.weights, skeleton).normalised()
+    if not body_V.shape[0] == target_V.shape[0] == weights.n_vertices:
+        raise ValueError(f"the body has {body_V.shape[0]} vertices, the target {target_V.shape[0]}, the weights "
+                         f"{weights.n_vertices}: the target must be the body's own mesh")
+    heads, tails = skeleton.rest(rig.joints)
+    heads_t, tails_t = skeleton.rest(target_joints)
+    scale = max(float(np.ptp(heads, axis=0).max()), 1e-300)
+    W = weights.W.tocsc()
+    column = {g: k for k, g in enumerate(weights.groups)}
+    children = [[] for _ in range(skeleton.n_bones)]
+    for b, parent in enumerate(skeleton.parents):
+        if parent >= 0:
+            children[parent].append(b)
+    R = np.array(rotations, dtype=np.float64)
+    given = np.empty_like(R)            # the global turns of ``rotations``
+    for b, parent in enumerate(skeleton.parents):
+        given[b] = R[b] if parent < 0 else given[parent] @ R[b]
+    # Each bone: "rest" (no length: follows its parent), "fixed" (its joints fix its turn) or a bone on its line,
+    # whose twist is fitted where it moves enough vertices (``moved``: their indices and weights).
+    kind, moved = [], {}
+    for b in range(skeleton.n_bones):
+        bone, bone_t = tails[b] - heads[b], tails_t[b] - heads_t[b]
+        if min(np.linalg.norm(bone), np.linalg.norm(bone_t)) <= 1e-3 * scale:
+            kind.append("rest")
+        elif not _on_line(np.vstack([tails[b], heads[children[b]]]) - heads[b], 1e-3 * scale):
+            kind.append("fixed")
+        else:
+            kind.append("line")
+            k = column.get(skeleton.names[b])
+            if k is not None:
+                col = W[:, k]
+                keep = col.data >= TWIST_WEIGHT
+                if keep.sum() >= TWIST_VERTICES:
+                    moved[b] = (col.indices[keep], col.data[keep])
+    twist = np.zeros(skeleton.n_bones)
+    G, out = np.empty_like(R), R.copy()
+    axes = tails_t - heads_t
+    axes /= np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-300)
+
+    def turn(b):
+        """Bone b's global turn ``G[b]`` and local rotation ``out[b]``, from its parent's turn as it stands."""
+        parent = skeleton.parents[b]
+        if kind[b] == "rest":
+            G[b] = out[b] if parent < 0 else G[parent] @ out[b]
+            return
+        if kind[b] == "fixed" or parent < 0:
+            G[b] = given[b]
+        else:
+            G[b] = _swing(G[parent] @ (tails[b] - heads[b]), axes[b]) @ G[parent]
+        if kind[b] == "line":
+            G[b] = _about(axes[b], twist[b]) @ G[b]
+        out[b] = G[b] if parent < 0 else G[parent].T @ G[b]
+
+    for b in range(skeleton.n_bones):
+        turn(b)
+    # Bone by bone from the root, ``rounds`` times: each bone's step with the others as they stand (its own turn and
+    # its ancestors' made again first; the vertices it moves posed with every bone's turn), so that a bone's twist,
+    # which its bones on its line inherit, is not counted twice.
+    bone_of = np.array([skeleton.names.index(g) for g in weights.groups], dtype=np.int64)
+    dense = {b: weights.W[idx].toarray() for b, (idx, _) in moved.items()}
+    below = [[] for _ in range(skeleton.n_bones)]      # each bone's descendants, parents first
+    for b in range(skeleton.n_bones - 1, -1, -1):
+        for c in children[b]:
+            below[b] += [c] + below[c]
+    below = [sorted(d) for d in below]
+    for _ in range(rounds if moved else 0):
+        done = 0
+        for b, (idx, w) in moved.items():
+            # The bones up to this one since the last step (that one too: its twist moved), and those below it.
+            for j in [*range(done, b + 1), *below[b]]:
+                turn(j)
+            done = b
+            T = pose_transforms(skeleton, heads, out)[bone_of].reshape(-1, 12)
+            A = dense[b] @ T                    # each vertex's blended transform (linear blend skinning)
+            posed = np.einsum("kij,kj->ki", A.reshape(-1, 3, 4)[:, :, :3], body_V[idx]) + A[:, 3::4]
+            across = np.cross(axes[b], posed - heads_t[b])
+            twist[b] += float(np.einsum("i,ij,ij->", w, across, target_V[idx] - posed)
+                              / max(np.einsum("i,ij,ij->", w * w, across, across), 1e-300))
+    for b in range(skeleton.n_bones):
+        turn(b)
+    R = out
+    cos = np.clip((np.einsum("bii->b", G) - 1.0) / 2.0, -1.0, 1.0)
+    return R, np.degrees(np.arccos(cos))
+
+
+def _on_line(points, tiny):
+    """Whether the vectors ``points`` (k,3) longer than ``tiny`` lie on one line (``_turn``'s test)."""
+    keep = np.linalg.norm(points, axis=1) > tiny
+    if keep.sum() < 2:
+        return True
+    unit = points[keep] / np.linalg.norm(points[keep], axis=1, keepdims=True)
+    return bool(np.linalg.svd(unit, compute_uv=False)[1] < 0.05)
+
+
+def _about(axis, angle):
+    """The rotation (3,3) by ``angle`` (radians) about the unit ``axis`` (3,)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
 def _swing(a, b):
     """The smallest rotation (3,3) that turns the direction of ``a`` (3,) onto that of ``b`` (3,)."""
     a = a / np.linalg.norm(a)
     b = b / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
+    c = float(a @ b)
     if c < -1.0 + 1e-12:
         # Half a turn: about any axis across ``a``.
         axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
         axis /= np.linalg.norm(axis)
         return 2.0 * np.outer(axis, axis) - np.eye(3)
+    v = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
     K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     return np.eye(3) + K + K @ K / (1.0 + c)
 
