@@ -285,13 +285,15 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
                 if keep.sum() >= TWIST_VERTICES:
                     moved[b] = (col.indices[keep], col.data[keep])
     twist = np.zeros(skeleton.n_bones)
-    G, out = np.empty_like(R), R.copy()
+    G, out, at = np.empty_like(R), R.copy(), np.empty_like(heads)
     axes = tails_t - heads_t
     axes /= np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-300)
 
     def turn(b):
-        """Bone b's global turn ``G[b]`` and local rotation ``out[b]``, from its parent's turn as it stands."""
+        """Bone b's global turn ``G[b]``, local rotation ``out[b]`` and posed head ``at[b]`` (as
+        ``skinning.pose_transforms`` places it), from its parent's as they stand."""
         parent = skeleton.parents[b]
+        at[b] = heads[b] if parent < 0 else at[parent] + G[parent] @ (heads[b] - heads[parent])
         if kind[b] == "rest":
             G[b] = out[b] if parent < 0 else G[parent] @ out[b]
             return
@@ -306,24 +308,29 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
     for b in range(skeleton.n_bones):
         turn(b)
     # Bone by bone from the root, ``rounds`` times: each bone's step with the others as they stand (its own turn and
-    # its ancestors' made again first; the vertices it moves posed with every bone's turn), so that a bone's twist,
-    # which its bones on its line inherit, is not counted twice.
+    # its ancestors' made again first, and those of the bones below it that move its vertices; the vertices posed
+    # with them), so that a bone's twist, which its bones on its line inherit, is not counted twice.
     bone_of = np.array([skeleton.names.index(g) for g in weights.groups], dtype=np.int64)
-    dense = {b: weights.W[idx].toarray() for b, (idx, _) in moved.items()}
-    below = [[] for _ in range(skeleton.n_bones)]      # each bone's descendants, parents first
-    for b in range(skeleton.n_bones - 1, -1, -1):
-        for c in children[b]:
-            below[b] += [c] + below[c]
-    below = [sorted(d) for d in below]
+    steps = {}
+    for b, (idx, w) in moved.items():
+        rows = weights.W[idx].toarray()
+        used = np.flatnonzero(np.abs(rows).sum(axis=0) > 0)
+        below = set()
+        for u in bone_of[used]:
+            while u > b and u not in below:     # a bone below b (children come after their parents)
+                below.add(int(u))
+                u = skeleton.parents[u]
+        steps[b] = (idx, w, rows[:, used], bone_of[used], sorted(below))
     for _ in range(rounds if moved else 0):
         done = 0
-        for b, (idx, w) in moved.items():
+        for b, (idx, w, rows, bones, below) in steps.items():
             # The bones up to this one since the last step (that one too: its twist moved), and those below it.
-            for j in [*range(done, b + 1), *below[b]]:
+            for j in [*range(done, b + 1), *below]:
                 turn(j)
             done = b
-            T = pose_transforms(skeleton, heads, out)[bone_of].reshape(-1, 12)
-            A = dense[b] @ T                    # each vertex's blended transform (linear blend skinning)
+            T = np.concatenate([G[bones], (at[bones] - np.einsum("bij,bj->bi", G[bones], heads[bones]))[:, :, None]],
+                               axis=2).reshape(-1, 12)
+            A = rows @ T                        # each vertex's blended transform (linear blend skinning)
             posed = np.einsum("kij,kj->ki", A.reshape(-1, 3, 4)[:, :, :3], body_V[idx]) + A[:, 3::4]
             across = np.cross(axes[b], posed - heads_t[b])
             twist[b] += float(np.einsum("i,ij,ij->", w, across, target_V[idx] - posed)
