@@ -7,6 +7,7 @@ from meshes import require_makehuman
 from garment_transfer import (PoseError, Rig, bone_frames, bvh_rotations, fit_to_pose, matching_rotations, read_bvh,
                               read_joints, read_obj, read_skeleton, read_weights, rig_from_bones, transfer_garment,
                               twist_from_body)
+from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.pipeline.rest_pose import pose_difference, transfer_across_rest_poses
 
 
@@ -105,6 +106,30 @@ def test_a_bones_turn_about_itself_is_measured_on_a_target_of_the_same_mesh():
         twist_from_body(rig, R, source.V, joints, running[:-1])
 
 
+def test_a_target_of_another_mesh_posed_from_its_joints_alone_is_said_to_be():
+    # How each bone's turn about itself was found: the target's bone frames, its body (the source's mesh), or
+    # nowhere (another mesh without frames), which the user is warned of by name.
+    from garment_transfer.pipeline.rest_pose import posed_source
+
+    root, skeleton, bodies = rigs()
+    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
+    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
+    posed = target.with_vertices(target_rig.pose(target.V, T), name="running.obj")
+    joints, frames = target_rig.posed_joints(T), target_rig.posed_frames(T)
+    info, _ = posed_source(source, source_rig, joints, frames, posed)
+    assert info["posed"] and info["twist"] == "frames" and info["warnings"] == []
+    info, _ = posed_source(source, source_rig, joints, None, posed)
+    assert info["twist"] == "body" and info["warnings"] == []
+    # The same body as triangles is another mesh (a scan's, an export's): no vertex-for-vertex shape to read.
+    scan = mesh_from_triangles(posed.V, posed.F, name="scan.obj")
+    info, _ = posed_source(source, source_rig, joints, None, scan)
+    assert info["posed"] and info["twist"] == "joints"
+    assert len(info["warnings"]) == 1 and info["warnings"][0].startswith("scan.obj: posed from its joints alone")
+    # A target in the source's own pose needs no twist: nothing to warn of.
+    info, _ = posed_source(source, source_rig, source_rig.joints, None, mesh_from_triangles(source.V, source.F))
+    assert not info["posed"] and info["warnings"] == []
+
+
 def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_path):
     import json
     import subprocess
@@ -142,6 +167,7 @@ def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     assert out["rest_pose"]["posed"] and out["rest_pose"]["largest_turn"] > 45
+    assert out["rest_pose"]["twist"] == "body" and out["rest_pose"]["warnings"] == []
     # Counted on the file as written, against the running body: nothing through it away from where the run makes
     # the body cross or close on itself; said in the JSON's warnings.
     written = read_obj(tmp_path / "out.obj")

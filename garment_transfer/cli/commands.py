@@ -103,6 +103,7 @@ def cmd_transfer(args):
     if pose is not None:
         out["rest_pose"] = pose
         lines.append(_rest_pose_line(pose))
+        out["warnings"] += pose["warnings"]
         if pose["posed"]:
             # The file as written, against the target as given: where its body crosses or closes on itself (a
             # pose's bent knee, an arm on the hip) no cloth can be outside both surfaces.
@@ -310,6 +311,7 @@ def cmd_transfer_outfit(args):
     if pose is not None:
         out["rest_pose"] = pose
         lines.append(_rest_pose_line(pose))
+        out["warnings"] += pose["warnings"]
         if pose["posed"]:
             # Each layer as written, against the target as given, counted apart where its body crosses itself.
             offsets = [i["offset"] for i in result.info]
@@ -322,9 +324,14 @@ def cmd_transfer_outfit(args):
          + ([f"model: {model.describe()}"] if model is not None else []) + [f"warning: {w}" for w in out["warnings"]])
 
 
+TWIST_FROM = {"frames": "the target's bone frames", "body": "the target's body",
+              "joints": "nowhere: joints alone do not tell them"}
+
+
 def _rest_pose_line(pose):
     return (f"the target's rest pose: {pose['largest_turn_bone']} turned {pose['largest_turn']:.0f} degrees from the "
-            "source's; " + ("the source and its garments were posed into it first" if pose["posed"]
+            "source's; " + (f"the source and its garments were posed into it first (each bone's turn about itself "
+                            f"from {TWIST_FROM[pose['twist']]})" if pose["posed"]
                             else "the same pose (a change of shape)"))
 
 

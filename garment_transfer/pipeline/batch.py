@@ -417,7 +417,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                       inputs=digests, stage_seconds=result.seconds,
                       crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
                       check={k: metrics[k] for k in CHECK_KEYS},
-                      warnings=result_warnings(metrics, str(obj_path))
+                      warnings=result_warnings(metrics, str(obj_path)) + (rest_pose or {}).get("warnings", [])
                       + (rest_pose or {}).get("written", {}).get("warnings", []),
                       output_sha256=hashlib.sha256(text).hexdigest())
         if rest_pose is not None:
