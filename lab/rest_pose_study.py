@@ -1,0 +1,160 @@
+"""A target in another rest pose, from its joints: how the source is posed into it, and the garment as written.
+
+The data: MakeHuman's default skeleton, its CC0 weights and its shared BVH poses (``../shared/data/makehuman``), the
+pose taken as the target's rest pose (``female_pear`` posed by it, its posed joints written as a joints file),
+``female_sportsuit01`` on ``female_average`` as the garment.
+
+1. **Posing** (the core): the source posed into each pose by its joints alone (``matching_rotations``) and with each
+   bone's twist from the target's body (``twist_from_body``), against the source posed by the pose's true bone
+   frames: mean, 95th percentile and largest vertex distance, on the source's own body posed and on the pear posed
+   (another shape: its shape around a limb can read as twist).
+2. **The command line** (``python -m garment_transfer transfer --skeleton ... --target-joints ...``, a fresh process
+   each, as a user runs it): the file written against the reference (the core's transfer to the pear at rest, then
+   ``fit_to_pose`` to the pose), its crossings away from where the posed body crosses or closes on itself (the
+   JSON's ``rest_pose.written``), how the twists were found (``rest_pose.twist``) and the command's transfer seconds.
+   With ``--remeshed``, also onto the posed pear re-meshed to 50K triangles (registered; posed from the joints
+   alone, with the JSON's warning).
+
+    python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import garment_transfer as gt
+
+from .paths import ROOT, makehuman_folder
+from .registration import remesh
+
+POSES = ("standing01", "standing02", "standing03", "sit01", "run01", "fight01")
+SOURCE, TARGET, GARMENT = "female_average", "female_pear", "female_sportsuit01"
+MM_PER_UNIT = 100.0                 # MakeHuman's bodies are in decimetres
+
+
+def _spread(a, b):
+    d = np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1) * MM_PER_UNIT
+    return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max())}
+
+
+def posing(root, skeleton, weights, poses, say=print):
+    """Rows of table 1: per pose and target body, the source posed by its joints and with the body's twists, against
+    the source posed by the true frames (mm)."""
+    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
+    source_rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{SOURCE}.json", skeleton), weights)
+    rows = []
+    for target_name in (SOURCE, TARGET):
+        target = gt.read_obj(root / "bodies" / f"{target_name}.obj")
+        rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{target_name}.json", skeleton), weights)
+        for pose in poses:
+            T = rig.transforms(gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton))
+            joints, posed = rig.posed_joints(T), rig.pose(target.V, T)
+            R, _ = gt.matching_rotations(skeleton, source_rig.joints, joints)
+            t = time.perf_counter()
+            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, joints, posed)
+            seconds = time.perf_counter() - t
+            R_true, _ = gt.matching_rotations(skeleton, source_rig.joints, joints, rig.posed_frames(T),
+                                              source_rig.rest_frames())
+
+            def pose_by(rotations):
+                return source_rig.pose(source.V, source_rig.transforms(rotations))
+
+            truth = pose_by(R_true)
+            row = {"target": target_name, "pose": pose, "joints": _spread(pose_by(R), truth),
+                   "twists": _spread(pose_by(R_twist), truth), "twist_seconds": seconds}
+            rows.append(row)
+            say(f"posing {target_name:15s} {pose:10s} joints {row['joints']['mean']:5.2f} mm, with the twists "
+                f"{row['twists']['mean']:5.2f} mm ({seconds:.2f} s)")
+    return rows
+
+
+def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
+    """Rows of table 2: per pose (and target mesh), the command line's file against the reference."""
+    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
+    target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
+    rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
+    garment_path = root / "garments" / GARMENT / f"{SOURCE}.obj"
+    garment = gt.read_obj(garment_path)
+    at_rest = garment.with_vertices(gt.transfer_garment(source, target, garment).V)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
+        tmp = Path(tmp)
+        for pose in poses:
+            T = rig.transforms(gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton))
+            posed = rig.pose(target.V, T)
+            reference = gt.fit_to_pose(target, posed, at_rest).V
+            (tmp / "joints.json").write_text(json.dumps({k: [float(x) for x in v]
+                                                         for k, v in rig.posed_joints(T).items()}))
+            meshes = [("same mesh", target.with_vertices(posed, name="posed"))]
+            if remeshed:
+                U, G = remesh(posed, target.F, 50000)
+                meshes.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
+            for label, mesh in meshes:
+                gt.write_obj(tmp / "posed.obj", mesh)
+                cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
+                       str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"),
+                       "--garment", str(garment_path), "--out", str(tmp / "out.obj"), "--skeleton",
+                       str(root / "rig" / "skeleton.json"), "--source-joints",
+                       str(root / "rig" / "joints" / f"{SOURCE}.json"), "--source-weights",
+                       str(root / "rig" / "weights.json"), "--target-joints", str(tmp / "joints.json"), "--json",
+                       "--no-cache"]
+                p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+                if p.returncode != 0:
+                    raise RuntimeError(f"{pose} ({label}): {p.stderr[-2000:]}")
+                out = json.loads(p.stdout)
+                written = gt.read_obj(tmp / "out.obj").V
+                counts = out["rest_pose"]["written"]
+                row = {"pose": pose, "target": label, "to_reference": _spread(written, reference),
+                       "twist": out["rest_pose"]["twist"], "crossings_outside_contact":
+                       counts["crossings_outside_contact"], "crossings_at_contact": counts["crossings_at_contact"],
+                       "warnings": len(out["warnings"]), "seconds": out["seconds"]["total"]}
+                rows.append(row)
+                say(f"command {pose:10s} {label:13s} {row['to_reference']['mean']:5.2f} mm from the reference, "
+                    f"twists from {row['twist']}, {row['crossings_outside_contact']} crossings away from contact "
+                    f"({row['crossings_at_contact']} at it), {row['seconds']:.2f} s")
+    return rows
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m lab.rest_pose_study", description=__doc__.split("\n\n")[0])
+    p.add_argument("--poses", nargs="+", default=list(POSES), help="shared poses by name (default: all six)")
+    p.add_argument("--remeshed", action="store_true", help="also onto the posed body re-meshed to 50K (registered)")
+    p.add_argument("--json", type=Path, help="write every row to this file")
+    args = p.parse_args(argv)
+    root = makehuman_folder()
+    if root is None:
+        raise SystemExit("error: the MakeHuman data (../shared/data/makehuman) is not there")
+    skeleton = gt.read_skeleton(root / "rig" / "skeleton.json")
+    weights = gt.read_weights(root / "rig" / "weights.json", gt.read_obj(root / "bodies" / f"{SOURCE}.obj").n_vertices)
+
+    def say(line):
+        print(line, file=sys.stderr, flush=True)
+
+    rows = {"posing": posing(root, skeleton, weights, args.poses, say),
+            "command_line": command_line(root, skeleton, weights, args.poses, args.remeshed, say)}
+    print("\nposing: the source against the source posed by the true frames, mm (mean / 95% / max)")
+    print(f"{'target':15s} {'pose':10s} | {'joints alone':>20s} | {'with the twists':>20s}")
+    for r in rows["posing"]:
+        j, t = r["joints"], r["twists"]
+        print(f"{r['target']:15s} {r['pose']:10s} | {j['mean']:6.2f} {j['p95']:6.2f} {j['max']:6.1f} | "
+              f"{t['mean']:6.2f} {t['p95']:6.2f} {t['max']:6.1f}")
+    print("\nthe command line: the file against the reference (transfer at rest, then fit to the pose)")
+    print(f"{'pose':10s} {'target':13s} | {'mean mm':>7s} | twists from | away from contact | at it | s")
+    for r in rows["command_line"]:
+        print(f"{r['pose']:10s} {r['target']:13s} | {r['to_reference']['mean']:7.2f} | {r['twist']:11s} | "
+              f"{r['crossings_outside_contact']:17d} | {r['crossings_at_contact']:5d} | {r['seconds']:.2f}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
