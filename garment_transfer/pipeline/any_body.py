@@ -9,9 +9,8 @@ from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh
 from ..geometry.proximity import as_same_mesh
-from ..geometry.readings import readings_of
-from ..geometry.threads import ahead
-from .transfer import OFFSET_SHARE, check_offset, fit_to_body, pose_check, prepare_garment, transfer_garment
+from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahead, pose_check, prepare_garment,
+                       transfer_garment)
 
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
@@ -81,9 +80,7 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         prepared = prepare_garment(source_body, garment, interpolate=options.get("interpolate", True),
                                    stiffness=options.get("stiffness"), need_solver=options.get("method") != "surface",
                                    anchoring=options.get("anchoring", "everywhere"), reused=False)
-    # What the crossing pass on the target needs that the solve does not touch, on a free core meanwhile (as
-    # ``transfer_garment`` does).
-    early = (ahead(lambda: (prepared.source_pairs(), readings_of(target_body))) if fix and resolve else None)
+    early = pass_inputs_ahead(prepared, target_body) if fix and resolve else None
     # Solved in the source's frame on the fitted body (a model sees the frame and units it was trained in);
     # the fix and the crossing pass then run on the target itself, in its own frame: the body the user gave.
     pose = (pose_check(source_body, fitted.V, target_body.name, prepared.limbs(), prepared.covered())

@@ -89,6 +89,11 @@ def rest_pose_warnings(info, name) -> list:
             "shape tells the twists"]
 
 
+def _fit_counts(fit):
+    """The figures of the garment's fit to the posed source that ``info["rest_pose"]["pose_fit"]`` keeps."""
+    return {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact", "body_self_crossings")}
+
+
 def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Mesh, source_rig: Rig,
                                target_joints, target_frames=None, **options):
     """Transfer a garment to a target body whose rest pose differs from the source's.
@@ -132,8 +137,7 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
                             "Use the direct method: a model is trained on the source's pose")
         options = {k: v for k, v in options.items() if k != "prepared"}
         fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
-        info["pose_fit"] = {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
-                                                     "body_self_crossings")}
+        info["pose_fit"] = _fit_counts(fit)
         source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
         garment = garment.with_vertices(fit.V)
     seconds = time.perf_counter() - t
@@ -191,8 +195,7 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
         each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
         fits = [fit_to_pose(source_body, posed_V, g, offset=o, name="target's rest pose")
                 for g, o in zip(garments, each)]
-        info["pose_fit"] = [{k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact",
-                                                      "body_self_crossings")} for fit in fits]
+        info["pose_fit"] = [_fit_counts(fit) for fit in fits]
         source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
         # Each layer's own crossing pass would run against the whole posed body, where it crosses itself too: the
         # separation on the target clears the body and the layers under each.

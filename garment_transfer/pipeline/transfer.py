@@ -385,6 +385,14 @@ def _undo_pushes_inside(V, V_fixed, surface):
     return V, left, int(inside.sum())
 
 
+def pass_inputs_ahead(prepared: PreparedGarment, body: Mesh):
+    """What the crossing pass on ``body`` needs that the stages before it (the field, the solve, the penetration
+    fix) do not touch, started on a free core meanwhile (``threads.ahead``): the garment's own self-intersections
+    on the source (its readings' topology with them) and the body's readings. ``fit_to_body(..., early=)`` waits
+    for it."""
+    return ahead(lambda: (prepared.source_pairs(), readings_of(body)))
+
+
 def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetration=True, resolve_crossings=True,
                 source_V=None, info=None, seconds=None, step=None, early=None):
     """The last two stages on ``body`` as given (its own frame and faces): the penetration fix, then the crossing
@@ -407,7 +415,7 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
     step : callable, optional
         ``step(fraction, stage)`` before each stage.
     early : threads.Ahead, optional
-        Work on ``prepared`` or ``body`` started earlier (``transfer_garment``'s), waited for before the pass.
+        ``pass_inputs_ahead(prepared, body)``, started earlier, waited for before the pass.
 
     Returns
     -------
@@ -568,12 +576,7 @@ def transfer_garment(source_body: Mesh, target_body: Mesh, garment: Mesh, *, met
         seconds.update(prepared.seconds)
     elif prepared.garment is not garment or prepared.source_body is not source_body:
         raise ValueError("prepared was made for another garment or source body")
-    early = None
-    if fix_penetration and resolve_crossings:
-        # What the crossing pass needs that the stages before it do not touch, on a free core meanwhile: the
-        # garment's own self-intersections on the source (its readings' topology with them) and the target's
-        # readings.
-        early = ahead(lambda: (prepared.source_pairs(), readings_of(target_body)))
+    early = pass_inputs_ahead(prepared, target_body) if fix_penetration and resolve_crossings else None
     pose = (pose_check(source_body, target_body.V, target_body.name, prepared.limbs(), prepared.covered())
             if check_pose else None)
     step(0.5, "bind")

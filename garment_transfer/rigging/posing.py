@@ -346,7 +346,7 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
 
 
 def _on_line(points, tiny):
-    """Whether the vectors ``points`` (k,3) longer than ``tiny`` lie on one line (``_turn``'s test)."""
+    """Whether the vectors ``points`` (k,3) longer than ``tiny`` lie on one line (fewer than two of them do)."""
     keep = np.linalg.norm(points, axis=1) > tiny
     if keep.sum() < 2:
         return True
@@ -380,10 +380,7 @@ def _turn(a, b, fallback, tiny):
     the vectors longer than ``tiny`` lie on one line (a turn about that line is then not fixed by them)."""
     keep = (np.linalg.norm(a, axis=1) > tiny) & (np.linalg.norm(b, axis=1) > tiny)
     a, b = a[keep], b[keep]
-    if a.shape[0] < 2:
-        return fallback
-    ua = a / np.linalg.norm(a, axis=1, keepdims=True)
-    if np.linalg.svd(ua, compute_uv=False)[1] < 0.05:
+    if _on_line(a, tiny):
         return fallback
     U, _, Vt = np.linalg.svd(a.T @ b)
     d = np.sign(np.linalg.det(Vt.T @ U.T))
