@@ -14,8 +14,12 @@ pose taken as the target's rest pose (``female_pear`` posed by it, its posed joi
    JSON's ``rest_pose.written``), how the twists were found (``rest_pose.twist``) and the command's transfer seconds.
    With ``--remeshed``, also onto the posed pear re-meshed to 50K triangles (registered; posed from the joints
    alone, with the JSON's warning).
+3. **A skeleton named otherwise** (``--named``): the target's skeleton given as Mixamo's bones where the pose puts
+   them (``named_bones``: Mixamo's joints at MakeHuman's, its three spine joints along MakeHuman's spine), in a
+   bones file: the source posed onto its landmarks (``pose_to_landmarks``) against the pose itself, and the
+   command line's file against the reference, as in 2.
 
-    python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--json OUT.json]
+    python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--named] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import garment_transfer as gt
+from garment_transfer.rigging.naming import SEGMENTS
 
 from .paths import ROOT, makehuman_folder
 from .registration import remesh
@@ -123,10 +128,115 @@ def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
     return rows
 
 
+#: The spine's bones between the pelvis's and the neck's, by naming (``named_bones``).
+SPINE_BONES = {"Mixamo": ("Spine", "Spine1", "Spine2"), "Rigify": ("DEF-spine.001", "DEF-spine.002", "DEF-spine.003"),
+               "Unreal": ("spine_01", "spine_02", "spine_03")}
+
+
+def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
+    """A skeleton named by ``naming`` (a key of ``gt.NAMINGS``) on a body whose MakeHuman joints are ``joints``:
+    ``{prefix + bone: (parent, head, tail)}``, each landmark's bone at MakeHuman's landmark and ``spine`` spine bones
+    (0 to 3) spread along MakeHuman's spine from the pelvis to the neck, at equal shares of its length, as a rig
+    made for that body would put them (the bones of each segment of ``gt.NAMINGS`` chained as the segments are)."""
+    own = gt.landmarks_of({b: (skeleton.names[p] if p >= 0 else None, joints[skeleton.heads[i]],
+                               joints[skeleton.tails[i]]) for i, (b, p) in enumerate(zip(skeleton.names,
+                                                                                          skeleton.parents))})
+    at, table = own.points, gt.NAMINGS[naming]
+    line = own.chains[("pelvis", "neck")]
+    length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
+    shares = np.arange(1, spine + 1) / (spine + 1) * length[-1]
+    spine_at = np.stack([np.interp(shares, length, line[:, c]) for c in range(3)], axis=1)
+    heads = {table["pelvis"][0]: (None, at["pelvis"])}
+    below_neck = table["pelvis"][0]
+    for k in range(spine):
+        heads[SPINE_BONES[naming][k]] = (below_neck, spine_at[k])
+        below_neck = SPINE_BONES[naming][k]
+    parent_of = {"neck": below_neck, "head": table["neck"][0], "head top": table["head"][0]}
+    for s in ("L", "R"):
+        parent_of.update({f"clavicle.{s}": below_neck, f"hip.{s}": table["pelvis"][0]})
+    for a, b in SEGMENTS[3:]:
+        parent_of[b] = table[a][0]
+    tails = {}
+    for landmark, (bone, end) in table.items():
+        if end == "tail":
+            tails[bone] = at[landmark]
+        elif landmark in parent_of and landmark in at:
+            heads[bone] = (parent_of[landmark], at[landmark])
+    children = {}
+    for bone, (up, _) in heads.items():
+        children.setdefault(up, []).append(bone)
+    out = {}
+    for bone, (up, head) in heads.items():
+        tail = tails.get(bone, heads[children[bone][0]][1] if bone in children else
+                         head + (head - heads[up][1]) * 0.3)
+        out[prefix + bone] = (None if up is None else prefix + up, head, tail)
+    return out
+
+
+def named(root, skeleton, weights, poses, say=print):
+    """Rows of table 3: per pose, the target's skeleton named Mixamo's way (a bones file): the source posed onto its
+    landmarks against the pose itself, and the command line's file against the reference."""
+    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
+    target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
+    source_rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{SOURCE}.json", skeleton), weights)
+    rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
+    garment_path = root / "garments" / GARMENT / f"{SOURCE}.obj"
+    garment = gt.read_obj(garment_path)
+    at_rest = garment.with_vertices(gt.transfer_garment(source, target, garment).V)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
+        tmp = Path(tmp)
+        for pose in poses:
+            R_pose = gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton)
+            # The source posed onto the landmarks of its own pose, against the pose.
+            T_own = source_rig.transforms(R_pose)
+            truth = source_rig.pose(source.V, T_own)
+            own_joints, _ = gt.pose_to_landmarks(source_rig, gt.landmarks_of(named_bones(
+                skeleton, source_rig.posed_joints(T_own))))
+            R, _ = gt.matching_rotations(skeleton, source_rig.joints, own_joints)
+            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth)
+            posing_rows = {"landmarks": _spread(source_rig.pose(source.V, source_rig.transforms(R)), truth),
+                           "twists": _spread(source_rig.pose(source.V, source_rig.transforms(R_twist)), truth)}
+            # The command line onto the pear in the pose, its skeleton as Mixamo's bones.
+            T = rig.transforms(R_pose)
+            posed = rig.pose(target.V, T)
+            reference = gt.fit_to_pose(target, posed, at_rest).V
+            bones = named_bones(skeleton, rig.posed_joints(T), prefix="mixamorig:")
+            (tmp / "bones.json").write_text(json.dumps({"bones": {b: {"parent": p, "head": [float(x) for x in h],
+                                                                      "tail": [float(x) for x in t]}
+                                                                  for b, (p, h, t) in bones.items()}}))
+            gt.write_obj(tmp / "posed.obj", target.with_vertices(posed, name="posed"))
+            cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
+                   str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"),
+                   "--garment", str(garment_path), "--out", str(tmp / "out.obj"), "--skeleton",
+                   str(root / "rig" / "skeleton.json"), "--source-joints",
+                   str(root / "rig" / "joints" / f"{SOURCE}.json"), "--source-weights",
+                   str(root / "rig" / "weights.json"), "--target-joints", str(tmp / "bones.json"), "--json",
+                   "--no-cache"]
+            p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+            if p.returncode != 0:
+                raise RuntimeError(f"{pose} (named otherwise): {p.stderr[-2000:]}")
+            out = json.loads(p.stdout)
+            counts = out["rest_pose"]["written"]
+            row = {"pose": pose, "posing": posing_rows,
+                   "to_reference": _spread(gt.read_obj(tmp / "out.obj").V, reference),
+                   "skeletons": out["rest_pose"]["skeletons"], "twist": out["rest_pose"]["twist"],
+                   "crossings_outside_contact": counts["crossings_outside_contact"],
+                   "crossings_at_contact": counts["crossings_at_contact"], "warnings": len(out["warnings"]),
+                   "seconds": out["seconds"]["total"]}
+            rows.append(row)
+            lm, tw = posing_rows["landmarks"]["mean"], posing_rows["twists"]["mean"]
+            say(f"named {pose:10s} posing {lm:5.2f} mm ({tw:5.2f} with the twists); command "
+                f"{row['to_reference']['mean']:5.2f} mm from the reference, "
+                f"{row['crossings_outside_contact']} crossings away from contact, {row['seconds']:.2f} s")
+    return rows
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.rest_pose_study", description=__doc__.split("\n\n")[0])
     p.add_argument("--poses", nargs="+", default=list(POSES), help="shared poses by name (default: all six)")
     p.add_argument("--remeshed", action="store_true", help="also onto the posed body re-meshed to 50K (registered)")
+    p.add_argument("--named", action="store_true", help="also the target's skeleton named Mixamo's way (landmarks)")
     p.add_argument("--json", type=Path, help="write every row to this file")
     args = p.parse_args(argv)
     root = makehuman_folder()
@@ -151,6 +261,16 @@ def main(argv=None):
     for r in rows["command_line"]:
         print(f"{r['pose']:10s} {r['target']:13s} | {r['to_reference']['mean']:7.2f} | {r['twist']:11s} | "
               f"{r['crossings_outside_contact']:17d} | {r['crossings_at_contact']:5d} | {r['seconds']:.2f}")
+    if args.named:
+        rows["named"] = named(root, skeleton, weights, args.poses, say)
+        print("\nthe target's skeleton named Mixamo's way: the source posed onto its landmarks against the pose, and "
+              "the command line's file against the reference (mm, mean / 95% / max)")
+        print(f"{'pose':10s} | {'posing':>20s} | {'with the twists':>20s} | {'the file':>20s} | away | at | s")
+        for r in rows["named"]:
+            a, b, c = r["posing"]["landmarks"], r["posing"]["twists"], r["to_reference"]
+            print(f"{r['pose']:10s} | {a['mean']:6.2f} {a['p95']:6.2f} {a['max']:6.1f} | {b['mean']:6.2f} "
+                  f"{b['p95']:6.2f} {b['max']:6.1f} | {c['mean']:6.2f} {c['p95']:6.2f} {c['max']:6.1f} | "
+                  f"{r['crossings_outside_contact']:4d} | {r['crossings_at_contact']:3d} | {r['seconds']:.2f}")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

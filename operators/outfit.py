@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body
+from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
 from .transfer import chosen_model, model_text, result_name
 
 
@@ -154,7 +154,7 @@ def outfit_message(results, outcome, design, elapsed):
             f"{crossing} edge-triangle pairs cross between the layers or with the body")
     pose = outcome.rest_pose or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
-             f"{pose['largest_turn']:.0f} degrees)") if pose.get("posed") else ""
+             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
     return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
             f"triangulation){posed}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
@@ -213,6 +213,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         self.report({'INFO'}, outfit_message(results, outcome, design, elapsed))
         from ..garment_transfer import result_warnings
 
+        for warning in (outcome.rest_pose or {}).get("warnings", []):
+            self.report({'WARNING'}, warning)
         for obj, check in zip(results, outcome.checks):
             for warning in result_warnings(check, obj.name) + check.get("pose_warnings", []):
                 self.report({'WARNING'}, warning)

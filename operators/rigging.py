@@ -124,15 +124,11 @@ def armature_bones(armature, depsgraph, evaluated=True):
     return bones
 
 
-def bone_key(name):
-    """A bone's name without a namespace (``character1:``, ``Armature|``, as FBX files from other tools carry them)
-    and in lower case: the same skeleton's bones have the same key."""
-    return name.replace("|", ":").rsplit(":", 1)[-1].lower()
-
-
 def matched_bones(bones, names):
     """``bones`` ({name: ...}) under the names of ``names`` that they match: by name, else by ``bone_key`` where
     one bone alone has that key; the others under their own names."""
+    from ..garment_transfer import bone_key
+
     by_key = {}
     for name in bones:
         by_key.setdefault(bone_key(name), []).append(name)
@@ -146,7 +142,9 @@ def matched_bones(bones, names):
 def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, frame, model=None):
     """What a transfer needs to pose the source body into the target's rest pose (the core's
     ``transfer_across_rest_poses``): both bodies have an armature (an Armature modifier) whose bones carry the
-    source's vertex groups, with the same names (or the same but for a namespace and case: ``bone_key``).
+    source's vertex groups, with the same names (or the same but for a namespace and case: ``bone_key``); or
+    skeletons named in two of the ways the core knows (MakeHuman's, Mixamo's, Rigify's, Unreal's: ``NAMINGS``),
+    matched by the joints a body bends at (the core's ``Landmarks``).
 
     Parameters
     ----------
@@ -163,12 +161,12 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
 
     Returns
     -------
-    rigs : (source Rig, target joints, target frames) or None
-        None where the rest poses cannot be matched bone by bone.
+    rigs : (source Rig, target joints or Landmarks, target frames or None) or None
+        None where the rest poses cannot be matched bone by bone or by landmarks.
     why_not : str
         Without rigs, what would give them, in a few words (for the error if the poses then differ); "" with them.
     """
-    from ..garment_transfer import rig_from_bones
+    from ..garment_transfer import landmarks_of, naming_of, rig_from_bones
 
     if model is not None:
         return None, "use the Direct method: a model is trained on the source's pose"
@@ -186,11 +184,15 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
         while name is not None and name not in needed:
             needed.add(name)
             name = bones[name][0]
-    target = matched_bones(armature_bones(target_armature, depsgraph, evaluated), needed)
+    target_bones = armature_bones(target_armature, depsgraph, evaluated)
+    target = matched_bones(target_bones, needed)
     missing = sorted(needed - set(target))
-    if missing:
+    # Named otherwise: matched by the joints a body bends at, where both namings are known.
+    by_landmarks = bool(missing) and naming_of(bones) is not None and naming_of(target_bones) is not None
+    if missing and not by_landmarks:
         return None, (f"give {target_armature.name} the bones of {source_armature.name} that move "
-                      f"{source_body.name}: it lacks {len(missing)} (first: {', '.join(missing[:3])})")
+                      f"{source_body.name}: it lacks {len(missing)} (first: {', '.join(missing[:3])}), or a "
+                      "skeleton named as MakeHuman's, Mixamo's, Rigify's or Unreal's, like the source's")
     if len(source_body.data.vertices) != n_vertices:
         return None, (f"turn off Use Modifiers and Shape Keys: a modifier of {source_body.name} changes its "
                       f"vertex count ({len(source_body.data.vertices)} to {n_vertices}), so its vertex groups "
@@ -198,12 +200,27 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
     names = [b for b in bones if b in needed]
     rig = rig_from_bones({b: (bones[b][0], bones[b][1] @ frame.T, bones[b][2] @ frame.T, frame @ bones[b][3])
                           for b in names}, vertex_group_weights(source_body, sorted(groups)), source_armature.name)
+    if by_landmarks:
+        # Every bone of the source's naming (the landmarks' included), not only those its vertex groups need.
+        whole = rig_from_bones({b: (p, h @ frame.T, t @ frame.T, frame @ F) for b, (p, h, t, F) in bones.items()},
+                               rig.weights, source_armature.name)
+        landmarks = landmarks_of({b: (p, h @ frame.T, t @ frame.T) for b, (p, h, t, _) in target_bones.items()},
+                                 target_armature.name)
+        return (whole, landmarks, None), ""
     joints = {}
     for b in names:
         joints[f"{b} head"] = target[b][1] @ frame.T
         joints[f"{b} tail"] = target[b][2] @ frame.T
     frames = np.array([frame @ target[b][3] for b in rig.skeleton.names])
     return (rig, joints, frames), ""
+
+
+def skeletons_text(pose):
+    """How the two skeletons were matched, where not by the bones' names (``info["rest_pose"]["skeletons"]``)."""
+    matched = pose.get("skeletons") or {}
+    if matched.get("by") != "landmarks":
+        return ""
+    return f"; the {matched['target']} skeleton matched by {matched['segments']} segments"
 
 
 def write_vertex_groups(obj, weights):

@@ -11,7 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
-from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body
+from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -248,7 +248,7 @@ def registration_text(context, outcome):
     reg = outcome.info.get("registration")
     pose = outcome.info.get("rest_pose") or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
-             f"{pose['largest_turn']:.0f} degrees)") if pose.get("posed") else ""
+             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
     if not reg:
         return "Same mesh as the source body: no registration" + posed
     q = reg["quality"]
@@ -327,6 +327,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         from ..garment_transfer import result_warnings
 
         for warning in (result_warnings(metrics, result.name) + outcome.pose_warnings
+                        + (outcome.info.get("rest_pose") or {}).get("warnings", [])
                         + (rigged or {}).get("warnings", [])):
             self.report({'WARNING'}, warning)
         return {'FINISHED'}

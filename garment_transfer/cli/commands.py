@@ -35,6 +35,7 @@ from ..learning.model_files import DEFAULT_FIELD_SHARE, read_model_file
 from ..learning.placement import LIBRARY_SHARE
 from ..learning.training import train_from_dataset
 from ..rigging.posing import Rig
+from ..rigging.naming import read_target_skeleton
 from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..pipeline.any_body import transfer_to_any_body
@@ -121,7 +122,7 @@ REST_POSE_OPTIONS = ("skeleton", "source_joints", "source_weights", "target_join
 
 
 def _rest_pose_rig(args, source_body):
-    """(source Rig, target joints) from the rest-pose options, or None when none is given."""
+    """(source Rig, target joints or Landmarks) from the rest-pose options, or None when none is given."""
     given = [o for o in REST_POSE_OPTIONS if getattr(args, o, None)]
     if not given:
         return None
@@ -135,7 +136,7 @@ def _rest_pose_rig(args, source_body):
     skeleton = read_skeleton(args.skeleton)
     rig = Rig(skeleton, read_joints(args.source_joints, skeleton, "--source-joints"),
               read_weights(args.source_weights, source_body.n_vertices))
-    return rig, read_joints(args.target_joints, skeleton, "--target-joints")
+    return rig, read_target_skeleton(args.target_joints, skeleton, "--target-joints")
 
 
 def written_check(path, garment, target_body, result=None):
@@ -475,7 +476,9 @@ def build_parser():
     r.add_argument("--source-weights", metavar="WEIGHTS.json",
                    help="the source body's weights, {group: [[vertex, weight], ...]} (rig/weights.json)")
     r.add_argument("--target-joints", metavar="JOINTS.json",
-                   help="the skeleton's joints on the target body, as it stands")
+                   help="the skeleton's joints on the target body, as it stands; or, for a skeleton named "
+                        "otherwise (Mixamo's, Rigify's, Unreal's), its bones as they stand: {\"bones\": {bone: "
+                        "{\"parent\": ..., \"head\": [x, y, z], \"tail\": [x, y, z]}}}")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 

@@ -41,6 +41,7 @@ from ..files import check_outputs
 from ..geometry.obj import obj_text, read_obj
 from ..learning.model_files import read_model_file
 from ..rigging.posing import Rig
+from ..rigging.naming import read_target_skeleton
 from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..version import __version__
@@ -255,9 +256,10 @@ class _Inputs:
         return self._get(files.source_joints, ("rig", key), make)
 
     def joints(self, path, skeleton):
-        """A target's joints file, checked against the skeleton."""
+        """A target's joints file, checked against the skeleton (or its bones, for a skeleton named otherwise:
+        ``Landmarks``)."""
         return self._get(path, ("joints", self._stat(skeleton.name)),
-                         lambda: read_joints(path, skeleton, "rig.joints"))
+                         lambda: read_target_skeleton(path, skeleton, "rig.joints"))
 
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""

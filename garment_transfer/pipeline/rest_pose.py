@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import PoseError
 from ..geometry.mesh import Mesh, same_mesh
+from ..rigging.naming import Landmarks, landmarks_of, pose_to_landmarks, rig_bones
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
@@ -29,6 +30,10 @@ MIN_WEIGHT_SHARE = 0.01
 #: change of shape. MakeHuman's bodies differ by up to 22 degrees in shape alone (the spine of a male body from
 #: the female average); each of its shared poses turns a limb by 24 to 140 degrees.
 SAME_POSE_DEGREES = 25.0
+#: How far the garment was from the reference (transferred at rest, then fitted to the pose) when the target's
+#: skeleton was named otherwise (``lab.rest_pose_study --named``: Mixamo's, onto the pear in MakeHuman's six shared
+#: poses), said in the warning.
+LANDMARK_FIGURES = "1.2-4.1 mm"
 
 
 def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None):
@@ -58,35 +63,65 @@ def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V
 def posed_source(source_body: Mesh, source_rig: Rig, target_joints, target_frames, target_body: Mesh):
     """The source body posed into the target's rest pose, and how.
 
+    ``target_joints`` is the target's joints of the source's skeleton, or, for a skeleton named otherwise
+    (Mixamo's, Rigify's, Unreal's), its ``Landmarks`` (``rigging.landmarks_of``): the source's skeleton is then
+    posed segment by segment onto them first (``rigging.pose_to_landmarks``), and no bone frames apply.
+
     Returns
     -------
     info : dict
         ``largest_turn`` (degrees) and ``largest_turn_bone``, ``posed`` (the poses differ by
         ``SAME_POSE_DEGREES`` or more), ``twist`` (how each bone's turn about itself was found: ``"frames"``, the
-        target's; ``"body"``, the target being the source's mesh; ``"joints"``, not at all) and ``warnings``.
+        target's; ``"body"``, the target being the source's mesh; ``"joints"``, not at all), ``skeletons`` (how the
+        two skeletons were matched: ``{"by": "names"}``, or ``{"by": "landmarks", "target": naming, "source":
+        naming, "segments": count}``) and ``warnings``.
     V : (n,3) float64 or None
         The source's positions posed, or None when the poses are one.
     """
+    matched = {"by": "names"}
+    if isinstance(target_joints, Landmarks):
+        target = target_joints
+        target_joints, segments = pose_to_landmarks(source_rig, target, target_body.name)
+        target_frames = None
+        matched = {"by": "landmarks", "target": target.naming,
+                   "source": landmarks_of(rig_bones(source_rig), source_rig.skeleton.name).naming,
+                   "segments": len(segments)}
     body = same_mesh(source_body, target_body) and source_rig.weights.n_vertices == source_body.n_vertices
     R, turns = pose_difference(source_rig, target_joints, target_frames, source_body.V if body else None,
                                target_body.V if body else None)
     bone = max(turns, key=turns.get)
     info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES,
-            "twist": "frames" if target_frames is not None else ("body" if body else "joints")}
+            "twist": "frames" if target_frames is not None else ("body" if body else "joints"),
+            "skeletons": matched}
     info["warnings"] = rest_pose_warnings(info, target_body.name)
     return info, (source_rig.pose(source_body.V, source_rig.transforms(R)) if info["posed"] else None)
 
 
 def rest_pose_warnings(info, name) -> list:
     """What a user must be told about how the source was posed into a target's rest pose (``info["rest_pose"]``)."""
-    if not info["posed"] or info["twist"] != "joints":
+    if not info["posed"]:
         return []
-    return [f"{name}: posed from its joints alone (another mesh than the source's, without bone frames), which do "
-            "not say how far each bone turned about itself: where a limb or the spine twisted, the garment may sit "
-            "turned about it (measured onto a re-meshed body in MakeHuman's six shared poses: 4.9-17.5 mm on "
-            "average from the garment transferred at rest and fitted to the pose, against 1.1-1.8 mm with the "
-            "twists known). Give the target's armature (Blender), or a target of the source's own mesh, whose "
-            "shape tells the twists"]
+    out = []
+    matched = info.get("skeletons") or {}
+    if matched.get("by") == "landmarks":
+        out.append(f"{name}: its {matched['target']} skeleton was matched to the source's {matched['source']} one "
+                   f"by {matched['segments']} segments between the joints both have (pelvis, neck, head, shoulders, "
+                   "elbows, wrists, hips, knees, ankles): the fingers, a curve of the spine and the toes stay as the "
+                   "source has them before the transfer (measured with MakeHuman's shared poses taken as rest poses, "
+                   f"onto a body of the source's mesh: the garment {LANDMARK_FIGURES} on average from the garment "
+                   "transferred at rest and fitted to the pose, against 1.1-1.8 mm with the same skeleton). Look at "
+                   "the result where they matter")
+    if info["twist"] == "joints":
+        out.append(f"{name}: posed from its joints alone (another mesh than the source's, without bone frames), "
+                   "which do not say how far each bone turned about itself: where a limb or the spine twisted, the "
+                   "garment may sit turned about it (measured onto a re-meshed body in MakeHuman's six shared poses: "
+                   "4.9-17.5 mm on average from the garment transferred at rest and fitted to the pose, against "
+                   "1.1-1.8 mm with the twists known). Give "
+                   + ("a target of the source's own mesh, whose shape tells the twists"
+                      if matched.get("by") == "landmarks" else
+                      "the target's armature (Blender), or a target of the source's own mesh, whose shape tells "
+                      "the twists"))
+    return out
 
 
 def _fit_counts(fit):

@@ -5,10 +5,14 @@ sparse, read and written as JSON), their normalisation and limit to a few influe
 ``posing`` applies a BVH pose with each body's own joints and finds the rotations that take one body's skeleton
 into another's pose (a bone's turn about itself from the other's bone frames, or from its body:
 ``twist_from_body``); ``weight_transfer`` carries a body's weights to a garment, by the nearest surface point or
-matched where the surfaces agree and inpainted smoothly elsewhere. Built on ``geometry`` only.
+matched where the surfaces agree and inpainted smoothly elsewhere; ``naming`` finds the joints a body bends at in
+skeletons named otherwise (Mixamo's, Rigify's, Unreal's) and poses one skeleton onto another's by them. Built on
+``geometry`` only.
 """
 
 from .bvh import Motion, axes_between, parse_bvh, read_bvh
+from .naming import (NAMINGS, Landmarks, bone_key, bones_from_dict, landmarks_of, naming_of, pose_to_landmarks,
+                     read_target_skeleton)
 from .posing import Rig, bvh_rotations, matching_rotations, rig_from_bones, twist_from_body
 from .skeleton import Skeleton, bone_frames, plane_normals, read_joints, read_skeleton, skeleton_from_dict
 from .skinning import (SkinWeights, deforming, group_transforms, pose_transforms, read_weights, skin, skin_weights,
@@ -23,4 +27,5 @@ __all__ = ["Skeleton", "read_skeleton", "read_joints", "skeleton_from_dict", "bo
            "deforming", "Rig", "rig_from_bones", "bvh_rotations", "matching_rotations", "twist_from_body",
            "surface_weights",
            "nearest_weights", "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian",
-           "smoothness_matrix", "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES"]
+           "smoothness_matrix", "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES", "Landmarks", "landmarks_of",
+           "naming_of", "pose_to_landmarks", "read_target_skeleton", "bones_from_dict", "bone_key", "NAMINGS"]

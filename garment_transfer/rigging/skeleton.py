@@ -155,6 +155,15 @@ def read_skeleton(path) -> Skeleton:
     return skeleton_from_dict(_read_json(path), str(path))
 
 
+def point_of(value):
+    """``value`` as a (3,) float64 point where it is a list of three finite numbers, else None."""
+    if not isinstance(value, list) or len(value) != 3 or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        return None
+    p = np.asarray(value, dtype=np.float64)
+    return p if np.isfinite(p).all() else None
+
+
 def read_joints(path, skeleton: Skeleton | None = None, what="the joints file"):
     """Read a joints file: ``{joint: [x, y, z]}`` (``rig/joints/<body>.json``).
 
@@ -177,8 +186,8 @@ def read_joints(path, skeleton: Skeleton | None = None, what="the joints file"):
         raise RigError(str(path), "is not a mapping of joint names to [x, y, z] positions")
     joints = {}
     for joint, value in data.items():
-        p = np.asarray(value, dtype=np.float64) if isinstance(value, list) and len(value) == 3 else None
-        if p is None or not np.isfinite(p).all():
+        p = point_of(value)
+        if p is None:
             raise RigError(str(path), f"joint {joint!r} is not three finite numbers: {value!r}")
         joints[joint] = p
     missing = [] if skeleton is None else skeleton.missing_joints(joints)
