@@ -506,6 +506,7 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
 def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwise(tmp_path):
     from garment_transfer import Rig, bvh_rotations, read_bvh, read_joints, read_skeleton, read_weights
     from garment_transfer.pipeline.transfer import transfer_garment
+    from lab.rest_pose_study import named_bones
 
     root = require_makehuman()
     skeleton = read_skeleton(root / "rig" / "skeleton.json")
@@ -516,21 +517,33 @@ def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwis
     write_obj(tmp_path / "kicking.obj", pear.with_vertices(rig.pose(pear.V, T)))
     (tmp_path / "kicking.json").write_text(json.dumps({k: [float(x) for x in v]
                                                        for k, v in rig.posed_joints(T).items()}))
+    # The same character with a Mixamo skeleton: its bones as they stand.
+    bones = named_bones(skeleton, rig.posed_joints(T), "Mixamo", prefix="mixamorig:")
+    (tmp_path / "kicking_mixamo.json").write_text(json.dumps({"bones": {
+        b: {"parent": p, "head": h.tolist(), "tail": t.tolist()} for b, (p, h, t) in bones.items()}}))
     joints = root / "rig" / "joints"
-    cat = {"source": "female_average", "targets": ["female_pear", "kicking"],
+    cat = {"source": "female_average", "targets": ["female_pear", "kicking", "kicking_mixamo"],
            "bodies": {"female_average": str(root / "bodies" / "female_average.obj"),
-                      "female_pear": str(root / "bodies" / "female_pear.obj"), "kicking": "kicking.obj"},
+                      "female_pear": str(root / "bodies" / "female_pear.obj"), "kicking": "kicking.obj",
+                      "kicking_mixamo": "kicking.obj"},
            "rig": {"skeleton": str(root / "rig" / "skeleton.json"), "weights": str(root / "rig" / "weights.json"),
                    "joints": {"female_average": str(joints / "female_average.json"),
-                              "female_pear": str(joints / "female_pear.json"), "kicking": "kicking.json"}},
+                              "female_pear": str(joints / "female_pear.json"), "kicking": "kicking.json",
+                              "kicking_mixamo": "kicking_mixamo.json"}},
            "garments": [{"name": "suit", "file": str(root / "garments" / "female_sportsuit01" /
                                                       "female_average.obj")}]}
     (tmp_path / "cat.json").write_text(json.dumps(cat))
     catalogue = read_catalogue(tmp_path / "cat.json")
     assert str(tmp_path / "kicking.json") in catalogue.inputs()[0]
     summary = run_batch(catalogue, tmp_path / "out", workers=1)
-    assert summary.ok and summary.counts["done"] == 2
+    assert summary.ok and summary.counts["done"] == 3
     kicking = json.loads((tmp_path / "out" / "suit" / "kicking.json").read_text())
+    # Matched by its landmarks, said in the record with what they leave out; clean away from the body's contact.
+    mixamo = json.loads((tmp_path / "out" / "suit" / "kicking_mixamo.json").read_text())
+    assert kicking["rest_pose"]["skeletons"] == {"by": "names"}
+    assert mixamo["rest_pose"]["skeletons"]["by"] == "landmarks" and mixamo["rest_pose"]["posed"]
+    assert mixamo["rest_pose"]["written"]["crossings_outside_contact"] == 0
+    assert any("its Mixamo skeleton was matched" in w for w in mixamo["warnings"])
     pear_record = json.loads((tmp_path / "out" / "suit" / "female_pear.json").read_text())
     # The kicking target: posed into first, counted as written apart where the kick makes the body cross itself.
     assert kicking["rest_pose"]["posed"] and kicking["rest_pose"]["largest_turn"] > 45
