@@ -81,6 +81,22 @@ def posing(root, skeleton, weights, poses, say=print):
     return rows
 
 
+def _command(root, target, joints_path, tmp, what):
+    """The command line's transfer of the garment onto ``target`` (a Mesh, written to ``tmp``) standing as the
+    target joints (or bones) file says, as a user runs it: (its JSON, the file it wrote read back)."""
+    gt.write_obj(tmp / "posed.obj", target)
+    cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
+           str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"), "--garment",
+           str(root / "garments" / GARMENT / f"{SOURCE}.obj"), "--out", str(tmp / "out.obj"), "--skeleton",
+           str(root / "rig" / "skeleton.json"), "--source-joints", str(root / "rig" / "joints" / f"{SOURCE}.json"),
+           "--source-weights", str(root / "rig" / "weights.json"), "--target-joints", str(joints_path), "--json",
+           "--no-cache"]
+    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    if p.returncode != 0:
+        raise RuntimeError(f"{what}: {p.stderr[-2000:]}")
+    return json.loads(p.stdout), gt.read_obj(tmp / "out.obj").V
+
+
 def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
     """Rows of table 2: per pose (and target mesh), the command line's file against the reference."""
     source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
@@ -103,19 +119,7 @@ def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
                 U, G = remesh(posed, target.F, 50000)
                 meshes.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
             for label, mesh in meshes:
-                gt.write_obj(tmp / "posed.obj", mesh)
-                cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
-                       str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"),
-                       "--garment", str(garment_path), "--out", str(tmp / "out.obj"), "--skeleton",
-                       str(root / "rig" / "skeleton.json"), "--source-joints",
-                       str(root / "rig" / "joints" / f"{SOURCE}.json"), "--source-weights",
-                       str(root / "rig" / "weights.json"), "--target-joints", str(tmp / "joints.json"), "--json",
-                       "--no-cache"]
-                p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-                if p.returncode != 0:
-                    raise RuntimeError(f"{pose} ({label}): {p.stderr[-2000:]}")
-                out = json.loads(p.stdout)
-                written = gt.read_obj(tmp / "out.obj").V
+                out, written = _command(root, mesh, tmp / "joints.json", tmp, f"{pose} ({label})")
                 counts = out["rest_pose"]["written"]
                 row = {"pose": pose, "target": label, "to_reference": _spread(written, reference),
                        "twist": out["rest_pose"]["twist"], "crossings_outside_contact":
@@ -205,21 +209,10 @@ def named(root, skeleton, weights, poses, say=print):
             (tmp / "bones.json").write_text(json.dumps({"bones": {b: {"parent": p, "head": [float(x) for x in h],
                                                                       "tail": [float(x) for x in t]}
                                                                   for b, (p, h, t) in bones.items()}}))
-            gt.write_obj(tmp / "posed.obj", target.with_vertices(posed, name="posed"))
-            cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
-                   str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"),
-                   "--garment", str(garment_path), "--out", str(tmp / "out.obj"), "--skeleton",
-                   str(root / "rig" / "skeleton.json"), "--source-joints",
-                   str(root / "rig" / "joints" / f"{SOURCE}.json"), "--source-weights",
-                   str(root / "rig" / "weights.json"), "--target-joints", str(tmp / "bones.json"), "--json",
-                   "--no-cache"]
-            p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-            if p.returncode != 0:
-                raise RuntimeError(f"{pose} (named otherwise): {p.stderr[-2000:]}")
-            out = json.loads(p.stdout)
+            out, written = _command(root, target.with_vertices(posed, name="posed"), tmp / "bones.json", tmp,
+                                    f"{pose} (named otherwise)")
             counts = out["rest_pose"]["written"]
-            row = {"pose": pose, "posing": posing_rows,
-                   "to_reference": _spread(gt.read_obj(tmp / "out.obj").V, reference),
+            row = {"pose": pose, "posing": posing_rows, "to_reference": _spread(written, reference),
                    "skeletons": out["rest_pose"]["skeletons"], "twist": out["rest_pose"]["twist"],
                    "crossings_outside_contact": counts["crossings_outside_contact"],
                    "crossings_at_contact": counts["crossings_at_contact"], "warnings": len(out["warnings"]),

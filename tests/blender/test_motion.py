@@ -331,6 +331,21 @@ def rig_the_source(character):
     rigging.write_vertex_groups(source, core_rig.weights)
 
 
+def against_the_kick(character, rest_body, result):
+    """The reference: the suit transferred to the pear at rest by the core, on
+    the files, then fitted to the kick the pear stands in (``fit_to_pose``); and the result's counts against the
+    kicking pear as Blender has it (``posed_counts``: the source at rest tells which parts the kick pressed)."""
+    _, _, _, body, source, _, _, _, makehuman = character
+    src = read_obj(makehuman / "bodies" / "female_average.obj")
+    cloth = read_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj")
+    at_rest = cloth.with_vertices(to_world(transfer_garment(src, read_obj(makehuman / "bodies" / "female_pear.obj"),
+                                                            cloth).V))
+    expected = fit_to_pose(rest_body, world_vertices(body), at_rest)
+    counted = posed_counts(world_vertices(result), cloth, rest_body.with_vertices(world_vertices(body)),
+                           expected.info["offset"], rest_V=world_vertices(source))
+    return expected, counted
+
+
 def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_into_it_first(character):
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
     rest_body = kick_as_rest_pose(character)
@@ -359,17 +374,11 @@ def test_a_character_in_another_rest_pose_gets_the_source_and_its_garment_posed_
     assert "posed into the target's rest pose first" in settings.last_registration
     assert result.modifiers[0].type == 'ARMATURE' and result.modifiers[0].object == armature     # rigged (default)
     # As if transferred at rest and then fitted to the kick (the core, on the files): within 3 mm on average.
-    src = read_obj(makehuman / "bodies" / "female_average.obj")
-    cloth = read_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj")
-    at_rest = cloth.with_vertices(to_world(transfer_garment(src, read_obj(makehuman / "bodies" / "female_pear.obj"),
-                                                            cloth).V))
-    expected = fit_to_pose(rest_body, world_vertices(body), at_rest)
+    expected, counted = against_the_kick(character, rest_body, result)
     assert np.linalg.norm(world_vertices(result) - expected.V, axis=1).mean() < 3e-3
     # The figures are the object's against the posed character as Blender has it, counted afresh: none away from
     # where the kick makes the body cross or close on itself (the source at rest tells which parts it pressed).
     metrics = json.loads(settings.last_metrics)
-    counted = posed_counts(world_vertices(result), cloth, rest_body.with_vertices(world_vertices(body)),
-                           expected.info["offset"], rest_V=world_vertices(source))
     assert counted["crossings_outside_contact"] == 0 and counted["penetrating_vertices"] == 0
     assert metrics["crossings_outside_contact"] == 0
     assert metrics["crossings_at_contact"] == counted["crossings_at_contact"] == \
@@ -446,12 +455,6 @@ def test_a_character_whose_skeleton_is_named_otherwise_is_matched_by_its_landmar
     assert "the Mixamo skeleton matched by 17 segments" in settings.last_registration
     # As if transferred at rest and then fitted to the kick: within 3 mm on average (2.3 mm measured; the fingers,
     # the spine's curve and the toes are not in the landmarks).
-    src = read_obj(makehuman / "bodies" / "female_average.obj")
-    cloth = read_obj(makehuman / "garments" / "female_sportsuit01" / "female_average.obj")
-    at_rest = cloth.with_vertices(to_world(transfer_garment(src, read_obj(makehuman / "bodies" / "female_pear.obj"),
-                                                            cloth).V))
-    expected = fit_to_pose(rest_body, world_vertices(body), at_rest)
+    expected, counted = against_the_kick(character, rest_body, result)
     assert np.linalg.norm(world_vertices(result) - expected.V, axis=1).mean() < 3e-3
-    counted = posed_counts(world_vertices(result), cloth, rest_body.with_vertices(world_vertices(body)),
-                           expected.info["offset"], rest_V=world_vertices(source))
     assert counted["crossings_outside_contact"] == 0 and counted["penetrating_vertices"] == 0
