@@ -81,6 +81,15 @@ def posing(root, skeleton, weights, poses, say=print):
     return rows
 
 
+def _bodies(root, skeleton, weights):
+    """The source body, the target body at rest, its rig, and the garment transferred to it at rest."""
+    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
+    target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
+    rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
+    garment = gt.read_obj(root / "garments" / GARMENT / f"{SOURCE}.obj")
+    return source, target, rig, garment.with_vertices(gt.transfer_garment(source, target, garment).V)
+
+
 def _command(root, target, joints_path, tmp, what):
     """The command line's transfer of the garment onto ``target`` (a Mesh, written to ``tmp``) standing as the
     target joints (or bones) file says, as a user runs it: (its JSON, the file it wrote read back)."""
@@ -99,12 +108,7 @@ def _command(root, target, joints_path, tmp, what):
 
 def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
     """Rows of table 2: per pose (and target mesh), the command line's file against the reference."""
-    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
-    target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
-    rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
-    garment_path = root / "garments" / GARMENT / f"{SOURCE}.obj"
-    garment = gt.read_obj(garment_path)
-    at_rest = garment.with_vertices(gt.transfer_garment(source, target, garment).V)
+    _, target, rig, at_rest = _bodies(root, skeleton, weights)
     rows = []
     with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
         tmp = Path(tmp)
@@ -180,13 +184,8 @@ def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
 def named(root, skeleton, weights, poses, say=print):
     """Rows of table 3: per pose, the target's skeleton named Mixamo's way (a bones file): the source posed onto its
     landmarks against the pose itself, and the command line's file against the reference."""
-    source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
-    target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
+    source, target, rig, at_rest = _bodies(root, skeleton, weights)
     source_rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{SOURCE}.json", skeleton), weights)
-    rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
-    garment_path = root / "garments" / GARMENT / f"{SOURCE}.obj"
-    garment = gt.read_obj(garment_path)
-    at_rest = garment.with_vertices(gt.transfer_garment(source, target, garment).V)
     rows = []
     with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
         tmp = Path(tmp)
