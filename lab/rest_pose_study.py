@@ -17,7 +17,8 @@ pose taken as the target's rest pose (``female_pear`` posed by it, its posed joi
 3. **A skeleton named otherwise** (``--named``): the target's skeleton given as Mixamo's bones where the pose puts
    them (``named_bones``: Mixamo's joints at MakeHuman's, its three spine joints along MakeHuman's spine), in a
    bones file: the source posed onto its landmarks (``pose_to_landmarks``) against the pose itself, and the
-   command line's file against the reference, as in 2.
+   command line's file against the reference, as in 2 (with ``--remeshed``, also onto the re-meshed body: the case
+   of a character from another tool, another mesh and another skeleton).
 
     python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--named] [--json OUT.json]
 """
@@ -181,7 +182,7 @@ def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
     return out
 
 
-def named(root, skeleton, weights, poses, say=print):
+def named(root, skeleton, weights, poses, remeshed=False, say=print):
     """Rows of table 3: per pose, the target's skeleton named Mixamo's way (a bones file): the source posed onto its
     landmarks against the pose itself, and the command line's file against the reference."""
     source, target, rig, at_rest = _bodies(root, skeleton, weights)
@@ -208,19 +209,24 @@ def named(root, skeleton, weights, poses, say=print):
             (tmp / "bones.json").write_text(json.dumps({"bones": {b: {"parent": p, "head": [float(x) for x in h],
                                                                       "tail": [float(x) for x in t]}
                                                                   for b, (p, h, t) in bones.items()}}))
-            out, written = _command(root, target.with_vertices(posed, name="posed"), tmp / "bones.json", tmp,
-                                    f"{pose} (named otherwise)")
-            counts = out["rest_pose"]["written"]
-            row = {"pose": pose, "posing": posing_rows, "to_reference": _spread(written, reference),
-                   "skeletons": out["rest_pose"]["skeletons"], "twist": out["rest_pose"]["twist"],
-                   "crossings_outside_contact": counts["crossings_outside_contact"],
-                   "crossings_at_contact": counts["crossings_at_contact"], "warnings": len(out["warnings"]),
-                   "seconds": out["seconds"]["total"]}
-            rows.append(row)
-            lm, tw = posing_rows["landmarks"]["mean"], posing_rows["twists"]["mean"]
-            say(f"named {pose:10s} posing {lm:5.2f} mm ({tw:5.2f} with the twists); command "
-                f"{row['to_reference']['mean']:5.2f} mm from the reference, "
-                f"{row['crossings_outside_contact']} crossings away from contact, {row['seconds']:.2f} s")
+            meshes = [("same mesh", target.with_vertices(posed, name="posed"))]
+            if remeshed:
+                U, G = remesh(posed, target.F, 50000)
+                meshes.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
+            for label, mesh in meshes:
+                out, written = _command(root, mesh, tmp / "bones.json", tmp, f"{pose} ({label}, named otherwise)")
+                counts = out["rest_pose"]["written"]
+                row = {"pose": pose, "target": label, "posing": posing_rows,
+                       "to_reference": _spread(written, reference), "skeletons": out["rest_pose"]["skeletons"],
+                       "twist": out["rest_pose"]["twist"],
+                       "crossings_outside_contact": counts["crossings_outside_contact"],
+                       "crossings_at_contact": counts["crossings_at_contact"], "warnings": len(out["warnings"]),
+                       "seconds": out["seconds"]["total"]}
+                rows.append(row)
+                lm, tw = posing_rows["landmarks"]["mean"], posing_rows["twists"]["mean"]
+                say(f"named {pose:10s} {label:13s} posing {lm:5.2f} mm ({tw:5.2f} with the twists); command "
+                    f"{row['to_reference']['mean']:5.2f} mm from the reference, twists from {row['twist']}, "
+                    f"{row['crossings_outside_contact']} crossings away from contact, {row['seconds']:.2f} s")
     return rows
 
 
@@ -254,15 +260,17 @@ def main(argv=None):
         print(f"{r['pose']:10s} {r['target']:13s} | {r['to_reference']['mean']:7.2f} | {r['twist']:11s} | "
               f"{r['crossings_outside_contact']:17d} | {r['crossings_at_contact']:5d} | {r['seconds']:.2f}")
     if args.named:
-        rows["named"] = named(root, skeleton, weights, args.poses, say)
+        rows["named"] = named(root, skeleton, weights, args.poses, args.remeshed, say)
         print("\nthe target's skeleton named Mixamo's way: the source posed onto its landmarks against the pose, and "
               "the command line's file against the reference (mm, mean / 95% / max)")
-        print(f"{'pose':10s} | {'posing':>20s} | {'with the twists':>20s} | {'the file':>20s} | away | at | s")
+        print(f"{'pose':10s} {'target':13s} | {'posing':>20s} | {'with the twists':>20s} | {'the file':>20s} | "
+              "away | at | s")
         for r in rows["named"]:
             a, b, c = r["posing"]["landmarks"], r["posing"]["twists"], r["to_reference"]
-            print(f"{r['pose']:10s} | {a['mean']:6.2f} {a['p95']:6.2f} {a['max']:6.1f} | {b['mean']:6.2f} "
-                  f"{b['p95']:6.2f} {b['max']:6.1f} | {c['mean']:6.2f} {c['p95']:6.2f} {c['max']:6.1f} | "
-                  f"{r['crossings_outside_contact']:4d} | {r['crossings_at_contact']:3d} | {r['seconds']:.2f}")
+            print(f"{r['pose']:10s} {r['target']:13s} | {a['mean']:6.2f} {a['p95']:6.2f} {a['max']:6.1f} | "
+                  f"{b['mean']:6.2f} {b['p95']:6.2f} {b['max']:6.1f} | "
+                  f"{c['mean']:6.2f} {c['p95']:6.2f} {c['max']:6.1f} | {r['crossings_outside_contact']:4d} | "
+                  f"{r['crossings_at_contact']:3d} | {r['seconds']:.2f}")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0

@@ -33,7 +33,7 @@ SAME_POSE_DEGREES = 25.0
 #: How far the garment was from the reference (transferred at rest, then fitted to the pose) when the target's
 #: skeleton was named otherwise (``lab.rest_pose_study --named``: Mixamo's, onto the pear in MakeHuman's six shared
 #: poses), said in the warning.
-LANDMARK_FIGURES = "1.2-4.1 mm"
+LANDMARK_FIGURES = "1.1-3.2 mm"
 
 
 def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None):
@@ -106,11 +106,11 @@ def rest_pose_warnings(info, name) -> list:
     if matched.get("by") == "landmarks":
         out.append(f"{name}: its {matched['target']} skeleton was matched to the source's {matched['source']} one "
                    f"by {matched['segments']} segments between the joints both have (pelvis, neck, head, shoulders, "
-                   "elbows, wrists, hips, knees, ankles): the fingers, a curve of the spine and the toes stay as the "
-                   "source has them before the transfer (measured with MakeHuman's shared poses taken as rest poses, "
-                   f"onto a body of the source's mesh: the garment {LANDMARK_FIGURES} on average from the garment "
-                   "transferred at rest and fitted to the pose, against 1.1-1.8 mm with the same skeleton). Look at "
-                   "the result where they matter")
+                   "elbows, wrists, hips, knees, ankles): the fingers, the toes and the bend of a segment without "
+                   "joints between its ends stay as the source has them before the transfer (measured with "
+                   "MakeHuman's shared poses taken as rest poses, onto a body of the source's mesh: the garment "
+                   f"{LANDMARK_FIGURES} on average from the garment transferred at rest and fitted to the pose, "
+                   "against 1.1-1.8 mm with the same skeleton). Look at the result where they matter")
     if info["twist"] == "joints":
         out.append(f"{name}: posed from its joints alone (another mesh than the source's, without bone frames), "
                    "which do not say how far each bone turned about itself: where a limb or the spine twisted, the "

@@ -9,11 +9,11 @@ head (or tail) in every naming.
 
 To pose a body into a target's rest pose when the two skeletons are named otherwise, ``pose_to_landmarks`` turns
 the body's skeleton so that each segment between two landmarks (the upper arm from the shoulder to the elbow, the
-spine from the pelvis to the neck) points as the target's does: the segment's first bone turns by the smallest
-turn that does it, the bones after it in the segment follow rigidly, and the trunk as a whole takes the turn of
-the frame of its hips and neck. What the landmarks do not tell stays as the body has it: how a segment bends in
-between (a spine's curve) and how far a bone turned about itself (the twist: from the target body where it is the
-source's mesh, ``twist_from_body``). Built on ``skeleton`` and ``posing``.
+spine from the pelvis to the neck) points as the target's does, and bends as the target's where both have joints
+between its ends (a spine); the pelvis takes the turn of the frame of the hips and the spine's lowest part. What
+the landmarks do not tell stays as the body has it: the fingers, the toes, how a segment without joints between
+its ends bends, and how far a bone turned about itself (the twist: from the target body where it is the source's
+mesh, ``twist_from_body``). Built on ``skeleton`` and ``posing``.
 """
 
 from __future__ import annotations
@@ -211,13 +211,68 @@ def _trunk_frame(points):
     return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
+def _cut(P, Q):
+    """Points along the polyline ``P`` (m,3), from its start to its end, as far apart one from the next as the
+    joints of ``Q`` (k,3) are, scaled by the two ends' distances: where ``Q`` is ``P`` moved rigidly and cut at some
+    of its points, those points (the first such point along ``P`` each time; the end is ``P``'s end).
+
+    Returns
+    -------
+    points : (k,3) float64
+    shares : (k,) float64
+        Their shares of ``P``'s length, from its start.
+    """
+    step = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    before = np.concatenate([[0.0], np.cumsum(step)])
+    scale = np.linalg.norm(P[-1] - P[0]) / max(np.linalg.norm(Q[-1] - Q[0]), 1e-300)
+    points, shares, at, seg, t = [P[0]], [0.0], P[0], 0, 0.0
+    for length in np.linalg.norm(np.diff(Q, axis=0), axis=1)[:-1] * scale:
+        # The first point after (seg, t) at ``length`` from ``at``: |a + u (b - a) - at| = length, u >= t.
+        while seg < len(P) - 1:
+            a, d = P[seg], P[seg + 1] - P[seg]
+            A, B, C = d @ d, 2.0 * d @ (a - at), (a - at) @ (a - at) - length ** 2
+            root = B * B - 4.0 * A * C
+            u = (-B + np.sqrt(root)) / (2.0 * A) if A > 0 and root >= 0 else -1.0
+            if t <= u <= 1.0:
+                t, at = u, a + u * d
+                break
+            seg, t = seg + 1, 0.0
+        else:
+            at, t = P[-1], 1.0
+        points.append(at)
+        shares.append(before[min(seg, len(step) - 1)] + t * step[min(seg, len(step) - 1)])
+    points.append(P[-1])
+    shares.append(before[-1])
+    return np.array(points), np.array(shares) / max(before[-1], 1e-300)
+
+
+def _bent_turns(bones, P, Q, above):
+    """The turns ``{bone: (own direction, target direction)}`` of a segment whose bones (``P``: its joints at rest)
+    and the target's joints (``Q``) differ in number: the segment turned as one onto the target's ends first
+    (``above``: the turn of the bone it hangs from), then each bone by how the target's part it lies in bends
+    compared with the same part of the rig's segment at rest (both cut at the target's joints), then the whole
+    turned again so that its end points along the target's."""
+    whole = _swing(above @ (P[-1] - P[0]), Q[-1] - Q[0]) @ above
+    cut, cut_shares = _cut(P, Q)
+    parts = [_swing(whole @ (cut[j + 1] - cut[j]), Q[j + 1] - Q[j]) for j in range(len(Q) - 1)]
+    at = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))])
+    middle = (at[:-1] + at[1:]) / (2.0 * max(at[-1], 1e-300))
+    part_of = np.clip(np.searchsorted(cut_shares, middle, side="right") - 1, 0, len(parts) - 1)
+    D = np.array([parts[part_of[m]] @ whole @ (P[m + 1] - P[m]) for m in range(len(bones))])
+    end = _swing(D.sum(axis=0), Q[-1] - Q[0])
+    return {b: (P[m + 1] - P[m], end @ D[m]) for m, b in enumerate(bones) if np.linalg.norm(D[m]) > 0}
+
+
 def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
     """The rig's joints posed so that its skeleton takes the pose of a skeleton named otherwise, by landmarks.
 
-    The trunk takes the turn of the frame of the hips and the neck; each segment then turns by the smallest turn
-    that points it along the target's: bone by bone where the target has as many joints in it, else as one, by its
-    first bone (spreading a spine's bend over bones the target does not have moved the chest and the arms hung on
-    it further from the pose than keeping the source's curve: ``lab.rest_pose_study --named``).
+    The pelvis takes the turn of the frame of the hips and the spine (its lowest part where both spines have
+    joints between the pelvis and the neck, else the whole); each segment then turns by the smallest turn that
+    points it along the target's: bone by bone where the target has as many joints in it; where both have joints
+    between its ends but not as many (MakeHuman's spine of five bones, Mixamo's of three), as one onto the target's
+    ends, then each bone by how the target's part it lies in bends compared with the same part of the rig's segment
+    (both cut at the target's joints, as far apart: ``_cut``), the end kept on the target's; else as one, by its
+    first bone. A pose of the rig itself whose segments turn as wholes is found exactly, whatever the naming.
 
     Parameters
     ----------
@@ -243,7 +298,7 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
         raise RigError(name, f"lacks the landmarks {', '.join(missing[:4])}: its skeleton must have a bone at "
                              "the pelvis, the neck, the head, each shoulder, elbow, wrist, hip, knee and ankle")
     index = {b: i for i, b in enumerate(skeleton.names)}
-    turns, used = {}, []
+    turns, bent, used = {}, {}, []
     for segment, P in own.chains.items():
         Q = target.chains.get(segment)
         if Q is None:
@@ -256,11 +311,23 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
             for k, bone in enumerate(own.bones[segment]):
                 if step[k] > 0 and np.linalg.norm(Q[k + 1] - Q[k]) > 0:
                     turns[index[bone]] = (P[k + 1] - P[k], Q[k + 1] - Q[k])
+        elif len(P) > 2 and len(Q) > 2:
+            # Joints between the ends on both, fewer or more on the target's (a spine): bent where they are.
+            bent[index[own.bones[segment][0]]] = ([index[b] for b in own.bones[segment]], P, Q)
         else:
             # Otherwise the segment turns as one, by its first bone, from its ends.
             turns[index[own.bones[segment][0]]] = (P[-1] - P[0], Q[-1] - Q[0])
         used.append(segment)
-    F_own, F_target = _trunk_frame(own.points), _trunk_frame(target.points)
+    up = ("pelvis", "neck")
+    if up in own.chains and up in target.chains and len(target.chains[up]) > 2 and len(own.chains[up]) > 2:
+        # The pelvis turns with the spine's lowest part: the target's first spine joint, and the point as far up
+        # the rig's spine.
+        low = target.chains[up][1]
+        own_low = _cut(own.chains[up], target.chains[up])[0][1]
+        F_own = _trunk_frame(dict(own.points, neck=own_low))
+        F_target = _trunk_frame(dict(target.points, neck=low))
+    else:
+        F_own, F_target = _trunk_frame(own.points), _trunk_frame(target.points)
     if F_own is None or F_target is None:
         raise RigError(name if F_target is None else skeleton.name,
                        "has its hips or its neck at one point: its trunk's turn is not defined")
@@ -269,6 +336,8 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
     R = np.empty_like(G)
     for k, parent in enumerate(skeleton.parents):
         above = trunk if parent < 0 else G[parent]
+        if k in bent:
+            turns.update(_bent_turns(*bent[k], above))
         G[k] = above if k not in turns else _swing(above @ turns[k][0], turns[k][1]) @ above
         R[k] = G[k] if parent < 0 else G[parent].T @ G[k]
     joints = rig.posed_joints(rig.transforms(R))
