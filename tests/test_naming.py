@@ -78,9 +78,15 @@ def test_bones_files_are_read_or_refused_naming_the_file(tmp_path):
     (tmp_path / "rigify.json").write_text(json.dumps(data))
     landmarks = read_target_skeleton(tmp_path / "rigify.json", skeleton)
     assert landmarks.naming == "Rigify" and len(landmarks.chains[("pelvis", "neck")]) == 5
-    # The skeleton's own joints file is read as joints.
+    # The skeleton's own joints file is read as joints; so is a bones file of its own bones (matched by name).
     joints = read_target_skeleton(root / "rig" / "joints" / "female_pear.json", skeleton)
     assert set(skeleton.joint_names()) <= set(joints)
+    own = {f"character1:{b}": {"parent": None if p < 0 else f"character1:{skeleton.names[p]}",
+                                "head": joints[h].tolist(), "tail": joints[t].tolist()}
+           for b, p, h, t in zip(skeleton.names, skeleton.parents, skeleton.heads, skeleton.tails)}
+    (tmp_path / "own.json").write_text(json.dumps({"bones": own}))
+    again = read_target_skeleton(tmp_path / "own.json", skeleton)
+    assert isinstance(again, dict) and all(np.array_equal(again[j], joints[j]) for j in skeleton.joint_names())
     data["bones"]["DEF-shin.L"]["head"] = [0, "x", 0]
     (tmp_path / "bad.json").write_text(json.dumps(data))
     with pytest.raises(RigError, match=r"bad.json: bone 'DEF-shin.L': its head is not three finite numbers"):

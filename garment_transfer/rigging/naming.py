@@ -369,9 +369,9 @@ def bones_from_dict(data, name="bones"):
 
 
 def read_target_skeleton(path, skeleton, what="the target's joints"):
-    """A target's skeleton as it stands: the joints of ``skeleton`` (a joints file, ``read_joints``), or, from a
-    bones file of a skeleton named otherwise (``bones_from_dict``: Mixamo's, Rigify's, Unreal's), its
-    ``Landmarks``. Either is the ``target_joints`` of ``transfer_across_rest_poses``.
+    """A target's skeleton as it stands: the joints of ``skeleton`` (a joints file, ``read_joints``, or a bones file
+    of ``skeleton``'s own bones, ``bones_from_dict``), or, from a bones file of a skeleton named otherwise (Mixamo's,
+    Rigify's, Unreal's), its ``Landmarks``. Either is the ``target_joints`` of ``transfer_across_rest_poses``.
 
     Raises
     ------
@@ -384,5 +384,15 @@ def read_target_skeleton(path, skeleton, what="the target's joints"):
         return read_joints(path, skeleton, what)          # its own error, naming the file
     if isinstance(data, dict) and isinstance(data.get("bones"), dict) and any(
             isinstance(v, dict) and isinstance(v.get("head"), list) for v in data["bones"].values()):
-        return landmarks_of(bones_from_dict(data, str(path)), str(path))
+        bones = bones_from_dict(data, str(path))
+        by_key = {bone_key(b): v for b, v in bones.items()}
+        if all(bone_key(b) in by_key for b in skeleton.names):
+            # The skeleton's own bones: its joints, matched by name as a joints file is.
+            joints = {}
+            for b, head, tail in zip(skeleton.names, skeleton.heads, skeleton.tails):
+                joints.setdefault(head, by_key[bone_key(b)][1])
+                joints.setdefault(tail, by_key[bone_key(b)][2])
+            if not skeleton.missing_joints(joints):
+                return joints
+        return landmarks_of(bones, str(path))
     return read_joints(path, skeleton, what)
