@@ -46,6 +46,27 @@ SOURCE, TARGET, GARMENT = "female_average", "female_pear", "female_sportsuit01"
 MM_PER_UNIT = 100.0                 # MakeHuman's bodies are in decimetres
 
 
+def pose_rotations(root, skeleton, rig, pose):
+    """The local rotations of a shared pose (its BVH file), or of ``"tpose"``: the T-pose a character from another
+    tool often stands in, each upper arm swung from the rig's rest to straight out sideways (the arm kept as it
+    bends at the elbow)."""
+    if pose != "tpose":
+        return gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton)
+    heads, _ = rig.rest()
+    R = np.tile(np.eye(3), (skeleton.n_bones, 1, 1))
+    for side, out in (("L", 1.0), ("R", -1.0)):
+        b = skeleton.index(f"upperarm01.{side}")
+        d = heads[skeleton.index(f"lowerarm01.{side}")] - heads[b]
+        d /= np.linalg.norm(d)
+        axis = np.cross(d, [out, 0.0, 0.0])
+        angle = np.arctan2(np.linalg.norm(axis), d @ [out, 0.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+        # The bones above the upper arm do not turn: its local rotation is its turn in the body.
+        R[b] = np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+    return R
+
+
 def _spread(a, b):
     d = np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1) * MM_PER_UNIT
     return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max())}
@@ -61,7 +82,7 @@ def posing(root, skeleton, weights, poses, say=print):
         target = gt.read_obj(root / "bodies" / f"{target_name}.obj")
         rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{target_name}.json", skeleton), weights)
         for pose in poses:
-            T = rig.transforms(gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton))
+            T = rig.transforms(pose_rotations(root, skeleton, rig, pose))
             joints, posed = rig.posed_joints(T), rig.pose(target.V, T)
             R, _ = gt.matching_rotations(skeleton, source_rig.joints, joints)
             t = time.perf_counter()
@@ -114,7 +135,7 @@ def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
     with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
         tmp = Path(tmp)
         for pose in poses:
-            T = rig.transforms(gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton))
+            T = rig.transforms(pose_rotations(root, skeleton, rig, pose))
             posed = rig.pose(target.V, T)
             reference = gt.fit_to_pose(target, posed, at_rest).V
             (tmp / "joints.json").write_text(json.dumps({k: [float(x) for x in v]
@@ -191,7 +212,7 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
     with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
         tmp = Path(tmp)
         for pose in poses:
-            R_pose = gt.bvh_rotations(gt.read_bvh(root / "poses" / f"{pose}.bvh"), skeleton)
+            R_pose = pose_rotations(root, skeleton, rig, pose)
             # The source posed onto the landmarks of its own pose, against the pose.
             T_own = source_rig.transforms(R_pose)
             truth = source_rig.pose(source.V, T_own)
@@ -232,7 +253,8 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.rest_pose_study", description=__doc__.split("\n\n")[0])
-    p.add_argument("--poses", nargs="+", default=list(POSES), help="shared poses by name (default: all six)")
+    p.add_argument("--poses", nargs="+", default=list(POSES),
+                   help="shared poses by name (default: all six), or tpose (the upper arms straight out sideways)")
     p.add_argument("--remeshed", action="store_true", help="also onto the posed body re-meshed to 50K (registered)")
     p.add_argument("--named", action="store_true", help="also the target's skeleton named Mixamo's way (landmarks)")
     p.add_argument("--json", type=Path, help="write every row to this file")
