@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import garment_transfer as gt
-from garment_transfer.rigging.naming import SEGMENTS
+from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS
 
 from .paths import ROOT, makehuman_folder
 from .registration import remesh
@@ -192,6 +192,16 @@ def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
             tails[bone] = at[landmark]
         elif landmark in parent_of and landmark in at:
             heads[bone] = (parent_of[landmark], at[landmark])
+    # Each finger's three phalanges where MakeHuman's are, the last one's tail at its tip.
+    for s in ("L", "R"):
+        for f in FINGERS:
+            up = table[f"wrist.{s}"][0]
+            for k in (1, 2, 3):
+                mh = skeleton.index(PHALANX["MakeHuman"](f, k, s))
+                bone = PHALANX[naming](f, k, s)
+                heads[bone] = (up, np.asarray(joints[skeleton.heads[mh]]))
+                up = bone
+            tails[up] = np.asarray(joints[skeleton.tails[mh]])
     children = {}
     for bone, (up, _) in heads.items():
         children.setdefault(up, []).append(bone)
@@ -219,7 +229,8 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
             own_joints, _ = gt.pose_to_landmarks(source_rig, gt.landmarks_of(named_bones(
                 skeleton, source_rig.posed_joints(T_own))))
             R, _ = gt.matching_rotations(skeleton, source_rig.joints, own_joints)
-            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth)
+            # Joints made from landmarks fix no bone's twist but the roots' (as the transfer takes them).
+            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth, free=skeleton.parents >= 0)
             posing_rows = {"landmarks": _spread(source_rig.pose(source.V, source_rig.transforms(R)), truth),
                            "twists": _spread(source_rig.pose(source.V, source_rig.transforms(R_twist)), truth)}
             # The command line onto the pear in the pose, its skeleton as Mixamo's bones.

@@ -33,15 +33,17 @@ SAME_POSE_DEGREES = 25.0
 #: How far the garment was from the reference (transferred at rest, then fitted to the pose) when the target's
 #: skeleton was named otherwise (``lab.rest_pose_study --named``: Mixamo's, onto the pear in MakeHuman's six shared
 #: poses), said in the warning.
-LANDMARK_FIGURES = "1.1-3.2 mm"
+LANDMARK_FIGURES = "1.1-2.3 mm"
 
 
-def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None):
+def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None,
+                    free=None):
     """How far the target's rest pose is from the source's: each bone's turn, in degrees.
 
     The turns come from the joints (``rigging.matching_rotations``); how far a bone turned about itself, which
     joints do not say, from the target's bone frames where given, else from the target body itself where it is
-    the source's mesh (``source_V`` at rest and ``target_V``: ``rigging.twist_from_body``).
+    the source's mesh (``source_V`` at rest and ``target_V``: ``rigging.twist_from_body``; ``free``: the bones whose
+    twist the joints do not fix, whatever their children, as ``twist_from_body`` takes it).
 
     Returns
     -------
@@ -53,7 +55,7 @@ def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V
     R, angles = matching_rotations(source_rig.skeleton, source_rig.joints, target_joints, target_frames,
                                    source_rig.frames)
     if target_frames is None and source_V is not None and target_V is not None:
-        R, angles = twist_from_body(source_rig, R, source_V, target_joints, target_V)
+        R, angles = twist_from_body(source_rig, R, source_V, target_joints, target_V, free=free)
     weights = source_rig.weights.normalised()
     share = np.asarray(weights.W.sum(axis=0)).ravel() / max(weights.n_vertices, 1)
     carrying = {g for g, s in zip(weights.groups, share) if s >= MIN_WEIGHT_SHARE}
@@ -87,8 +89,10 @@ def posed_source(source_body: Mesh, source_rig: Rig, target_joints, target_frame
                    "source": landmarks_of(rig_bones(source_rig), source_rig.skeleton.name).naming,
                    "segments": len(segments)}
     body = same_mesh(source_body, target_body) and source_rig.weights.n_vertices == source_body.n_vertices
+    # Joints made from landmarks fix no bone's turn about itself but the roots' (the trunk's frame).
+    free = source_rig.skeleton.parents >= 0 if matched["by"] == "landmarks" else None
     R, turns = pose_difference(source_rig, target_joints, target_frames, source_body.V if body else None,
-                               target_body.V if body else None)
+                               target_body.V if body else None, free)
     bone = max(turns, key=turns.get)
     info = {"largest_turn": turns[bone], "largest_turn_bone": bone, "posed": turns[bone] >= SAME_POSE_DEGREES,
             "twist": "frames" if target_frames is not None else ("body" if body else "joints"),
@@ -106,11 +110,11 @@ def rest_pose_warnings(info, name) -> list:
     if matched.get("by") == "landmarks":
         out.append(f"{name}: its {matched['target']} skeleton was matched to the source's {matched['source']} one "
                    f"by {matched['segments']} segments between the joints both have (pelvis, neck, head, shoulders, "
-                   "elbows, wrists, hips, knees, ankles): the fingers, the toes and the bend of a segment without "
-                   "joints between its ends stay as the source has them before the transfer (measured with "
-                   "MakeHuman's shared poses taken as rest poses, onto a body of the source's mesh: the garment "
-                   f"{LANDMARK_FIGURES} on average from the garment transferred at rest and fitted to the pose, "
-                   "against 1.1-1.8 mm with the same skeleton). Look at the result where they matter")
+                   "elbows, wrists, hips, knees, ankles, knuckles): a finger's last joint, the toes, the bend of a "
+                   "segment without joints between its ends stay as the source has them before the transfer "
+                   "(measured with MakeHuman's shared poses taken as rest poses, onto a body of the source's mesh: "
+                   f"the garment {LANDMARK_FIGURES} on average from the garment transferred at rest and fitted to the "
+                   "pose, against 1.1-1.8 mm with the same skeleton). Look at the result where they matter")
     if info["twist"] == "joints":
         out.append(f"{name}: posed from its joints alone (another mesh than the source's, without bone frames), "
                    "which do not say how far each bone turned about itself: where a limb or the spine twisted, the "

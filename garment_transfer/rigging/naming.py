@@ -4,16 +4,16 @@ A character made in another tool has its own skeleton: Mixamo's (``mixamorig:Lef
 (``DEF-upper_arm.L``, or the metarig's ``upper_arm.L``), Unreal's mannequin (``upperarm_l``; MPFB's game-engine
 rig), MakeHuman's default (``upperarm01.L``). Their bones differ in number (MakeHuman's spine has five bones,
 Mixamo's three) but they share the joints a body bends at: the pelvis, the base of the neck and of the head, each
-shoulder, elbow, wrist, hip, knee and ankle, the ball of each foot. Those are the *landmarks* here, each a bone's
-head (or tail) in every naming.
+shoulder, elbow, wrist, hip, knee and ankle, the ball of each foot, each finger's first and third knuckle. Those
+are the *landmarks* here, each a bone's head (or tail) in every naming.
 
 To pose a body into a target's rest pose when the two skeletons are named otherwise, ``pose_to_landmarks`` turns
 the body's skeleton so that each segment between two landmarks (the upper arm from the shoulder to the elbow, the
 spine from the pelvis to the neck) points as the target's does, and bends as the target's where both have joints
 between its ends (a spine); the pelvis takes the turn of the frame of the hips and the spine's lowest part. What
-the landmarks do not tell stays as the body has it: the fingers, the toes, how a segment without joints between
-its ends bends, and how far a bone turned about itself (the twist: from the target body where it is the source's
-mesh, ``twist_from_body``). Built on ``skeleton`` and ``posing``.
+the landmarks do not tell stays as the body has it: a finger's last joint, the toes, how a segment without joints
+between its ends bends, and how far a bone turned about itself (the twist: from the target body where it is the
+source's mesh, ``twist_from_body``). Built on ``skeleton`` and ``posing``.
 """
 
 from __future__ import annotations
@@ -84,6 +84,26 @@ NAMINGS = {
         "knee.{s}": ("calf_{lr}", "head"), "ankle.{s}": ("foot_{lr}", "head"), "ball.{s}": ("ball_{lr}", "head")}),
 }
 
+#: The fingers, from the thumb, and each naming's bone of a finger's phalanx (1 to 3) on a side ("L", "R").
+FINGERS = ("thumb", "index", "middle", "ring", "pinky")
+PHALANX = {
+    "MakeHuman": lambda f, k, s: f"finger{FINGERS.index(f) + 1}-{k}.{s}",
+    "Mixamo": lambda f, k, s: f"{SIDES[s][0]}Hand{f.capitalize()}{k}",
+    "Rigify": lambda f, k, s: f"DEF-{'thumb' if f == 'thumb' else 'f_' + f}.0{k}.{s}",
+    "Rigify metarig": lambda f, k, s: f"{'thumb' if f == 'thumb' else 'f_' + f}.0{k}.{s}",
+    "Unreal": lambda f, k, s: f"{f}_0{k}_{SIDES[s][1]}",
+}
+
+
+def _fingers(naming):
+    """A naming's landmarks of the fingers: each finger's first and third phalanx's heads (its knuckles; a last
+    phalanx's tail is arbitrary in files from other tools)."""
+    return {f"{f} {where}.{s}": (PHALANX[naming](f, k, s), "head")
+            for f in FINGERS for s in SIDES for where, k in (("base", 1), ("end", 3))}
+
+
+NAMINGS = {naming: {**table, **_fingers(naming)} for naming, table in NAMINGS.items()}
+
 #: The landmarks a skeleton must have for its naming to be recognised (the rest are used where both have them).
 REQUIRED = ("pelvis", "neck", "head") + tuple(f"{j}.{s}" for j in ("shoulder", "elbow", "wrist", "hip", "knee",
                                                                    "ankle") for s in SIDES)
@@ -92,7 +112,8 @@ REQUIRED = ("pelvis", "neck", "head") + tuple(f"{j}.{s}" for j in ("shoulder", "
 SEGMENTS = (("pelvis", "neck"), ("neck", "head"), ("head", "head top")) + tuple(
     (a.format(s=s), b.format(s=s)) for s in SIDES for a, b in (
         ("clavicle.{s}", "shoulder.{s}"), ("shoulder.{s}", "elbow.{s}"), ("elbow.{s}", "wrist.{s}"),
-        ("wrist.{s}", "hand.{s}"), ("hip.{s}", "knee.{s}"), ("knee.{s}", "ankle.{s}"), ("ankle.{s}", "ball.{s}")))
+        ("wrist.{s}", "hand.{s}"), ("hip.{s}", "knee.{s}"), ("knee.{s}", "ankle.{s}"), ("ankle.{s}", "ball.{s}"))) + \
+    tuple((f"{f} base.{s}", f"{f} end.{s}") for s in SIDES for f in FINGERS)
 
 
 def bone_key(name):

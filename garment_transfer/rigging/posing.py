@@ -217,7 +217,7 @@ TWIST_VERTICES = 8
 TWIST_ROUNDS = 4
 
 
-def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds=TWIST_ROUNDS):
+def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds=TWIST_ROUNDS, free=None):
     """``matching_rotations``'s turns with each bone's turn about itself measured on the target body.
 
     Joints do not say how far a bone whose points lie on its line (a forearm, a shin, a spine bone with one child)
@@ -241,6 +241,9 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
     target_V : (n,3) float
         The target body: the same mesh in the target's shape and pose.
     rounds : int
+    free : (b,) bool, optional
+        Bones whose turn about themselves is fitted whatever their joints say (target joints made from landmarks,
+        ``naming.pose_to_landmarks``, fix no bone's twist); by default only the bones on their line.
 
     Returns
     -------
@@ -275,7 +278,8 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
         bone, bone_t = tails[b] - heads[b], tails_t[b] - heads_t[b]
         if min(np.linalg.norm(bone), np.linalg.norm(bone_t)) <= 1e-3 * scale:
             kind.append("rest")
-        elif not _on_line(np.vstack([tails[b], heads[children[b]]]) - heads[b], 1e-3 * scale):
+        elif not (free is not None and free[b]) and not _on_line(np.vstack([tails[b], heads[children[b]]])
+                                                                   - heads[b], 1e-3 * scale):
             kind.append("fixed")
         else:
             kind.append("line")
