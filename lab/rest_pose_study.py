@@ -112,6 +112,15 @@ def _bodies(root, skeleton, weights):
     return source, target, rig, garment.with_vertices(gt.transfer_garment(source, target, garment).V)
 
 
+def _targets(target, posed, remeshed):
+    """(label, Mesh) of the target body in the pose: its own mesh, and re-meshed to 50K triangles when asked."""
+    out = [("same mesh", target.with_vertices(posed, name="posed"))]
+    if remeshed:
+        U, G = remesh(posed, target.F, 50000)
+        out.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
+    return out
+
+
 def _command(root, target, joints_path, tmp, what):
     """The command line's transfer of the garment onto ``target`` (a Mesh, written to ``tmp``) standing as the
     target joints (or bones) file says, as a user runs it: (its JSON, the file it wrote read back)."""
@@ -140,11 +149,7 @@ def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
             reference = gt.fit_to_pose(target, posed, at_rest).V
             (tmp / "joints.json").write_text(json.dumps({k: [float(x) for x in v]
                                                          for k, v in rig.posed_joints(T).items()}))
-            meshes = [("same mesh", target.with_vertices(posed, name="posed"))]
-            if remeshed:
-                U, G = remesh(posed, target.F, 50000)
-                meshes.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
-            for label, mesh in meshes:
+            for label, mesh in _targets(target, posed, remeshed):
                 out, written = _command(root, mesh, tmp / "joints.json", tmp, f"{pose} ({label})")
                 counts = out["rest_pose"]["written"]
                 row = {"pose": pose, "target": label, "to_reference": _spread(written, reference),
@@ -241,11 +246,7 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
             (tmp / "bones.json").write_text(json.dumps({"bones": {b: {"parent": p, "head": [float(x) for x in h],
                                                                       "tail": [float(x) for x in t]}
                                                                   for b, (p, h, t) in bones.items()}}))
-            meshes = [("same mesh", target.with_vertices(posed, name="posed"))]
-            if remeshed:
-                U, G = remesh(posed, target.F, 50000)
-                meshes.append(("re-meshed 50K", gt.mesh_from_triangles(U, G, name="posed")))
-            for label, mesh in meshes:
+            for label, mesh in _targets(target, posed, remeshed):
                 out, written = _command(root, mesh, tmp / "bones.json", tmp, f"{pose} ({label}, named otherwise)")
                 counts = out["rest_pose"]["written"]
                 row = {"pose": pose, "target": label, "posing": posing_rows,
