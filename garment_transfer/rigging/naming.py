@@ -219,7 +219,9 @@ def rig_bones(rig: Rig):
 
 
 def _trunk_frame(points):
-    """The frame (3,3) of the hips and the neck: X from the right hip to the left, Y up the spine, Z across."""
+    """The frame (3,3) of the hips and the spine: X from the right hip to the left, Y from the pelvis towards
+    ``points["neck"]`` (the neck, or a point lower on the spine) across X, Z the third axis; None where either has no
+    length."""
     x = points["hip.L"] - points["hip.R"]
     y = points["neck"] - points["pelvis"]
     if min(np.linalg.norm(x), np.linalg.norm(y)) <= 0:
