@@ -154,3 +154,22 @@ def test_joints_made_from_landmarks_have_every_twist_fitted_on_a_target_of_the_s
     every, _ = twist_from_body(rig, R, body.V, joints, truth, free=skeleton.parents >= 0)
     # Measured: 32.2 mm by the landmarks, 28.5 with the twists of the bones on their line, 12.6 with every bone's.
     assert off(every) < 14.0 < 25.0 < off(lines) < off(R)
+
+
+def test_a_target_of_another_mesh_and_another_naming_is_warned_of_both():
+    from garment_transfer.geometry.mesh import mesh_from_triangles
+    from garment_transfer.pipeline.rest_pose import posed_source
+
+    root, skeleton, bodies = rigs()
+    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
+    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
+    landmarks = landmarks_of(named_bones(skeleton, target_rig.posed_joints(T), "Rigify", spine=3))
+    posed = target.with_vertices(target_rig.pose(target.V, T), name="running.obj")
+    info, _ = posed_source(source, source_rig, landmarks, None, posed)
+    assert info["twist"] == "body" and info["skeletons"]["target"] == "Rigify"
+    assert len(info["warnings"]) == 1 and "its Rigify skeleton was matched" in info["warnings"][0]
+    # As a scan's or an export's triangles: another mesh, whose twists nothing tells; both said, by name.
+    info, _ = posed_source(source, source_rig, landmarks, None, mesh_from_triangles(posed.V, posed.F, name="scan"))
+    assert info["posed"] and info["twist"] == "joints" and len(info["warnings"]) == 2
+    assert all(w.startswith("scan: ") for w in info["warnings"])
+    assert "by a Mixamo skeleton's landmarks" in info["warnings"][1] and "armature" not in info["warnings"][1]

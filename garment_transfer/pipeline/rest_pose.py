@@ -34,6 +34,10 @@ SAME_POSE_DEGREES = 25.0
 #: skeleton was named otherwise (``lab.rest_pose_study --named``: Mixamo's, onto the pear in MakeHuman's six shared
 #: poses), said in the warning.
 LANDMARK_FIGURES = "1.1-2.3 mm"
+#: The same onto that body re-meshed (another mesh: posed from its joints alone), by MakeHuman's skeleton and by a
+#: Mixamo skeleton's landmarks (``lab.rest_pose_study --remeshed --named``).
+REMESHED_FIGURES = "4.9-17.5 mm"
+REMESHED_LANDMARK_FIGURES = "4.7-23.7 mm"
 
 
 def pose_difference(source_rig: Rig, target_joints, target_frames=None, source_V=None, target_V=None,
@@ -116,13 +120,15 @@ def rest_pose_warnings(info, name) -> list:
                    f"the garment {LANDMARK_FIGURES} on average from the garment transferred at rest and fitted to the "
                    "pose, against 1.1-1.8 mm with the same skeleton). Look at the result where they matter")
     if info["twist"] == "joints":
+        landmarks = matched.get("by") == "landmarks"
         out.append(f"{name}: posed from its joints alone (another mesh than the source's, without bone frames), "
                    "which do not say how far each bone turned about itself: where a limb or the spine twisted, the "
                    "garment may sit turned about it (measured onto a re-meshed body in MakeHuman's six shared poses: "
-                   "4.9-17.5 mm on average from the garment transferred at rest and fitted to the pose, against "
-                   "1.1-1.8 mm with the twists known). Give "
-                   + ("a target of the source's own mesh, whose shape tells the twists"
-                      if matched.get("by") == "landmarks" else
+                   + (f"{REMESHED_LANDMARK_FIGURES} by a Mixamo skeleton's landmarks" if landmarks else
+                      f"{REMESHED_FIGURES}")
+                   + " on average from the garment transferred at rest and fitted to the pose, against 1.1-1.8 mm "
+                   "with the twists known). Give "
+                   + ("a target of the source's own mesh, whose shape tells the twists" if landmarks else
                       "the target's armature (Blender), or a target of the source's own mesh, whose shape tells "
                       "the twists"))
     return out
