@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import garment_transfer as gt
-from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS
+from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS, rig_bones
 
 from .paths import ROOT, makehuman_folder
 from .registration import remesh
@@ -231,11 +231,13 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
             # The source posed onto the landmarks of its own pose, against the pose.
             T_own = source_rig.transforms(R_pose)
             truth = source_rig.pose(source.V, T_own)
-            own_joints, _ = gt.pose_to_landmarks(source_rig, gt.landmarks_of(named_bones(
+            own_joints, segments = gt.pose_to_landmarks(source_rig, gt.landmarks_of(named_bones(
                 skeleton, source_rig.posed_joints(T_own))))
             R, _ = gt.matching_rotations(skeleton, source_rig.joints, own_joints)
-            # Joints made from landmarks fix no bone's twist but the roots' (as the transfer takes them).
-            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth, free=skeleton.parents >= 0)
+            # Joints made from landmarks fix no twist of the posed segments' bones (as the transfer takes them).
+            posed_bones = {b for segment in segments for b in gt.landmarks_of(rig_bones(source_rig)).bones[segment]}
+            R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth,
+                                            free=np.array([b in posed_bones for b in skeleton.names]))
             posing_rows = {"landmarks": _spread(source_rig.pose(source.V, source_rig.transforms(R)), truth),
                            "twists": _spread(source_rig.pose(source.V, source_rig.transforms(R_twist)), truth)}
             # The command line onto the pear in the pose, its skeleton as Mixamo's bones.

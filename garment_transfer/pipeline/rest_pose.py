@@ -84,17 +84,18 @@ def posed_source(source_body: Mesh, source_rig: Rig, target_joints, target_frame
     V : (n,3) float64 or None
         The source's positions posed, or None when the poses are one.
     """
-    matched = {"by": "names"}
+    matched, free = {"by": "names"}, None
     if isinstance(target_joints, Landmarks):
         target = target_joints
         target_joints, segments = pose_to_landmarks(source_rig, target, target_body.name)
         target_frames = None
-        matched = {"by": "landmarks", "target": target.naming,
-                   "source": landmarks_of(rig_bones(source_rig), source_rig.skeleton.name).naming,
-                   "segments": len(segments)}
+        own = landmarks_of(rig_bones(source_rig), source_rig.skeleton.name)
+        matched = {"by": "landmarks", "target": target.naming, "source": own.naming, "segments": len(segments)}
+        # Joints made from landmarks fix no turn of a segment's bones about themselves (a head whose children lie
+        # off its line included): each is measured on the body, where it is the source's mesh.
+        posed = {b for segment in segments for b in own.bones[segment]}
+        free = np.array([b in posed for b in source_rig.skeleton.names])
     body = same_mesh(source_body, target_body) and source_rig.weights.n_vertices == source_body.n_vertices
-    # Joints made from landmarks fix no bone's turn about itself but the roots' (the trunk's frame).
-    free = source_rig.skeleton.parents >= 0 if matched["by"] == "landmarks" else None
     R, turns = pose_difference(source_rig, target_joints, target_frames, source_body.V if body else None,
                                target_body.V if body else None, free)
     bone = max(turns, key=turns.get)
