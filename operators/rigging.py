@@ -197,16 +197,15 @@ def rest_pose_rigs(source_body, target_body, depsgraph, evaluated, n_vertices, f
         return None, (f"turn off Use Modifiers and Shape Keys: a modifier of {source_body.name} changes its "
                       f"vertex count ({len(source_body.data.vertices)} to {n_vertices}), so its vertex groups "
                       "cannot pose it")
-    names = [b for b in bones if b in needed]
+    # By landmarks, every bone of the source's naming (the landmarks' included), not only those its vertex groups
+    # need.
+    names = [b for b in bones if by_landmarks or b in needed]
     rig = rig_from_bones({b: (bones[b][0], bones[b][1] @ frame.T, bones[b][2] @ frame.T, frame @ bones[b][3])
                           for b in names}, vertex_group_weights(source_body, sorted(groups)), source_armature.name)
     if by_landmarks:
-        # Every bone of the source's naming (the landmarks' included), not only those its vertex groups need.
-        whole = rig_from_bones({b: (p, h @ frame.T, t @ frame.T, frame @ F) for b, (p, h, t, F) in bones.items()},
-                               rig.weights, source_armature.name)
         landmarks = landmarks_of({b: (p, h @ frame.T, t @ frame.T) for b, (p, h, t, _) in target_bones.items()},
                                  target_armature.name)
-        return (whole, landmarks, None), ""
+        return (rig, landmarks, None), ""
     joints = {}
     for b in names:
         joints[f"{b} head"] = target[b][1] @ frame.T

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import PoseError
 from ..geometry.mesh import Mesh, same_mesh
-from ..rigging.naming import Landmarks, landmarks_of, pose_to_landmarks, rig_bones
+from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
@@ -89,11 +89,11 @@ def posed_source(source_body: Mesh, source_rig: Rig, target_joints, target_frame
         target = target_joints
         target_joints, segments = pose_to_landmarks(source_rig, target, target_body.name)
         target_frames = None
-        own = landmarks_of(rig_bones(source_rig), source_rig.skeleton.name)
-        matched = {"by": "landmarks", "target": target.naming, "source": own.naming, "segments": len(segments)}
+        matched = {"by": "landmarks", "target": target.naming, "source": naming_of(source_rig.skeleton.names),
+                   "segments": len(segments)}
         # Joints made from landmarks fix no turn of a segment's bones about themselves (a head whose children lie
         # off its line included): each is measured on the body, where it is the source's mesh.
-        posed = {b for segment in segments for b in own.bones[segment]}
+        posed = {b for bones in segments.values() for b in bones}
         free = np.array([b in posed for b in source_rig.skeleton.names])
     body = same_mesh(source_body, target_body) and source_rig.weights.n_vertices == source_body.n_vertices
     R, turns = pose_difference(source_rig, target_joints, target_frames, source_body.V if body else None,

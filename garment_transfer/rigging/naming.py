@@ -18,15 +18,13 @@ source's mesh, ``twist_from_body``). Built on ``skeleton`` and ``posing``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import RigError
 from .posing import Rig, _swing
-from .skeleton import point_of, read_joints
+from .skeleton import read_json, joints_from_dict, point_of
 
 SIDES = {"L": ("Left", "l"), "R": ("Right", "r")}
 
@@ -311,8 +309,8 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
     joints : dict of str to (3,) float64
         Every joint of the rig's skeleton in the target's pose (its own bone lengths), its pelvis on the target's:
         the target joints ``matching_rotations`` and ``twist_from_body`` take.
-    segments : list of (str, str)
-        The segments posed (both skeletons have them).
+    segments : dict of (str, str) to list of str
+        The segments posed (both skeletons have them), each with the rig's bones in it.
     """
     skeleton = rig.skeleton
     own = landmarks_of(rig_bones(rig), skeleton.name)
@@ -321,7 +319,7 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
         raise RigError(name, f"lacks the landmarks {', '.join(missing[:4])}: its skeleton must have a bone at "
                              "the pelvis, the neck, the head, each shoulder, elbow, wrist, hip, knee and ankle")
     index = {b: i for i, b in enumerate(skeleton.names)}
-    turns, bent, used = {}, {}, []
+    turns, bent, used = {}, {}, {}
     for segment, P in own.chains.items():
         Q = target.chains.get(segment)
         if Q is None:
@@ -340,7 +338,7 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
         else:
             # Otherwise the segment turns as one, by its first bone, from its ends.
             turns[index[own.bones[segment][0]]] = (P[-1] - P[0], Q[-1] - Q[0])
-        used.append(segment)
+        used[segment] = own.bones[segment]
     up = ("pelvis", "neck")
     if up in own.chains and up in target.chains and len(target.chains[up]) > 2 and len(own.chains[up]) > 2:
         # The pelvis turns with the spine's lowest part: the target's first spine joint, and the point as far up
@@ -364,8 +362,8 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
         G[k] = above if k not in turns else _swing(above @ turns[k][0], turns[k][1]) @ above
         R[k] = G[k] if parent < 0 else G[parent].T @ G[k]
     joints = rig.posed_joints(rig.transforms(R))
-    pelvis = skeleton.heads[index[own.bones[("pelvis", "neck")][0]]] if ("pelvis", "neck") in own.bones else None
-    shift = target.points["pelvis"] - joints[pelvis] if pelvis is not None else np.zeros(3)
+    # The pelvis is required, so its segment to the neck is always there (from end to end at least).
+    shift = target.points["pelvis"] - joints[skeleton.heads[index[own.bones[("pelvis", "neck")][0]]]]
     return {j: p + shift for j, p in joints.items()}, used
 
 
@@ -401,10 +399,7 @@ def read_target_skeleton(path, skeleton, what="the target's joints"):
     RigError
         Naming the file: neither the skeleton's joints nor the bones of a naming that is known.
     """
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return read_joints(path, skeleton, what)          # its own error, naming the file
+    data = read_json(path)
     if isinstance(data, dict) and isinstance(data.get("bones"), dict) and any(
             isinstance(v, dict) and isinstance(v.get("head"), list) for v in data["bones"].values()):
         bones = bones_from_dict(data, str(path))
@@ -418,4 +413,4 @@ def read_target_skeleton(path, skeleton, what="the target's joints"):
             if not skeleton.missing_joints(joints):
                 return joints
         return landmarks_of(bones, str(path))
-    return read_joints(path, skeleton, what)
+    return joints_from_dict(data, str(path), skeleton, what)

@@ -261,6 +261,7 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
     heads, tails = skeleton.rest(rig.joints)
     heads_t, tails_t = skeleton.rest(target_joints)
     scale = max(float(np.ptp(heads, axis=0).max()), 1e-300)
+    free = np.zeros(skeleton.n_bones, bool) if free is None else np.asarray(free, dtype=bool)
     W = weights.W.tocsc()
     column = {g: k for k, g in enumerate(weights.groups)}
     children = [[] for _ in range(skeleton.n_bones)]
@@ -278,8 +279,7 @@ def twist_from_body(rig: Rig, rotations, body_V, target_joints, target_V, rounds
         bone, bone_t = tails[b] - heads[b], tails_t[b] - heads_t[b]
         if min(np.linalg.norm(bone), np.linalg.norm(bone_t)) <= 1e-3 * scale:
             kind.append("rest")
-        elif not (free is not None and free[b]) and not _on_line(np.vstack([tails[b], heads[children[b]]])
-                                                                   - heads[b], 1e-3 * scale):
+        elif not free[b] and not _on_line(np.vstack([tails[b], heads[children[b]]]) - heads[b], 1e-3 * scale):
             kind.append("fixed")
         else:
             kind.append("line")

@@ -135,7 +135,8 @@ def _parents_first(bones, name):
     return order
 
 
-def _read_json(path):
+def read_json(path):
+    """A rig file's JSON content (RigError naming the file where it cannot be read or is not JSON)."""
     try:
         with open(path, encoding="utf-8") as fh:
             return json.load(fh)
@@ -152,7 +153,7 @@ def read_skeleton(path) -> Skeleton:
     -------
     Skeleton
     """
-    return skeleton_from_dict(_read_json(path), str(path))
+    return skeleton_from_dict(read_json(path), str(path))
 
 
 def point_of(value):
@@ -179,21 +180,26 @@ def read_joints(path, skeleton: Skeleton | None = None, what="the joints file"):
     -------
     dict of str to (3,) float64
     """
-    data = _read_json(path)
+    return joints_from_dict(read_json(path), str(path), skeleton, what)
+
+
+def joints_from_dict(data, name, skeleton: Skeleton | None = None, what="the joints file"):
+    """A joints file's content (``{joint: [x, y, z]}``, or those under ``"joints"``) as ``read_joints`` returns it;
+    ``name`` (the file) in its errors."""
     if isinstance(data, dict) and isinstance(data.get("joints"), dict):
         data = data["joints"]
     if not isinstance(data, dict) or not data:
-        raise RigError(str(path), "is not a mapping of joint names to [x, y, z] positions")
+        raise RigError(name, "is not a mapping of joint names to [x, y, z] positions")
     joints = {}
     for joint, value in data.items():
         p = point_of(value)
         if p is None:
-            raise RigError(str(path), f"joint {joint!r} is not three finite numbers: {value!r}")
+            raise RigError(name, f"joint {joint!r} is not three finite numbers: {value!r}")
         joints[joint] = p
     missing = [] if skeleton is None else skeleton.missing_joints(joints)
     if missing:
-        raise RigError(str(path), f"lacks {len(missing)} joints of the skeleton {skeleton.name} (first: "
-                                  f"{', '.join(missing[:3])}): give {what} the joints of that skeleton")
+        raise RigError(name, f"lacks {len(missing)} joints of the skeleton {skeleton.name} (first: "
+                             f"{', '.join(missing[:3])}): give {what} the joints of that skeleton")
     return joints
 
 
