@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import garment_transfer as gt
-from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS, rig_bones
+from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS
 
 from .paths import ROOT, makehuman_folder
 from .registration import remesh
@@ -218,6 +218,12 @@ def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
     return out
 
 
+def bones_data(bones):
+    """A bones file's content (``gt.bones_from_dict`` reads it) of ``{bone: (parent, head, tail)}``."""
+    return {"bones": {b: {"parent": p, "head": [float(x) for x in h], "tail": [float(x) for x in t]}
+                      for b, (p, h, t) in bones.items()}}
+
+
 def named(root, skeleton, weights, poses, remeshed=False, say=print):
     """Rows of table 3: per pose, the target's skeleton named Mixamo's way (a bones file): the source posed onto its
     landmarks against the pose itself, and the command line's file against the reference."""
@@ -235,7 +241,7 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
                 skeleton, source_rig.posed_joints(T_own))))
             R, _ = gt.matching_rotations(skeleton, source_rig.joints, own_joints)
             # Joints made from landmarks fix no twist of the posed segments' bones (as the transfer takes them).
-            posed_bones = {b for segment in segments for b in gt.landmarks_of(rig_bones(source_rig)).bones[segment]}
+            posed_bones = {b for bones in segments.values() for b in bones}
             R_twist, _ = gt.twist_from_body(source_rig, R, source.V, own_joints, truth,
                                             free=np.array([b in posed_bones for b in skeleton.names]))
             posing_rows = {"landmarks": _spread(source_rig.pose(source.V, source_rig.transforms(R)), truth),
@@ -245,9 +251,7 @@ def named(root, skeleton, weights, poses, remeshed=False, say=print):
             posed = rig.pose(target.V, T)
             reference = gt.fit_to_pose(target, posed, at_rest).V
             bones = named_bones(skeleton, rig.posed_joints(T), prefix="mixamorig:")
-            (tmp / "bones.json").write_text(json.dumps({"bones": {b: {"parent": p, "head": [float(x) for x in h],
-                                                                      "tail": [float(x) for x in t]}
-                                                                  for b, (p, h, t) in bones.items()}}))
+            (tmp / "bones.json").write_text(json.dumps(bones_data(bones)))
             for label, mesh in _targets(target, posed, remeshed):
                 out, written = _command(root, mesh, tmp / "bones.json", tmp, f"{pose} ({label}, named otherwise)")
                 counts = out["rest_pose"]["written"]

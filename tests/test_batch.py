@@ -506,7 +506,7 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
 def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwise(tmp_path):
     from garment_transfer import Rig, bvh_rotations, read_bvh, read_joints, read_skeleton, read_weights
     from garment_transfer.pipeline.transfer import transfer_garment
-    from lab.rest_pose_study import named_bones
+    from lab.rest_pose_study import bones_data, named_bones
 
     root = require_makehuman()
     skeleton = read_skeleton(root / "rig" / "skeleton.json")
@@ -519,8 +519,7 @@ def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwis
                                                        for k, v in rig.posed_joints(T).items()}))
     # The same character with a Mixamo skeleton: its bones as they stand.
     bones = named_bones(skeleton, rig.posed_joints(T), "Mixamo", prefix="mixamorig:")
-    (tmp_path / "kicking_mixamo.json").write_text(json.dumps({"bones": {
-        b: {"parent": p, "head": h.tolist(), "tail": t.tolist()} for b, (p, h, t) in bones.items()}}))
+    (tmp_path / "kicking_mixamo.json").write_text(json.dumps(bones_data(bones)))
     joints = root / "rig" / "joints"
     cat = {"source": "female_average", "targets": ["female_pear", "kicking", "kicking_mixamo"],
            "bodies": {"female_average": str(root / "bodies" / "female_average.obj"),

@@ -7,12 +7,12 @@ import sys
 
 import numpy as np
 import pytest
-from test_rest_pose import rigs
+from test_rest_pose import rig_options, rigs
 
 from garment_transfer import (NAMINGS, RigError, bvh_rotations, fit_to_pose, landmarks_of, matching_rotations,
                               naming_of, pose_to_landmarks, read_bvh, read_obj, read_target_skeleton,
                               transfer_garment, write_obj)
-from lab.rest_pose_study import named_bones
+from lab.rest_pose_study import bones_data, named_bones
 
 
 def _about(axis, angle):
@@ -74,7 +74,7 @@ def test_bones_files_are_read_or_refused_naming_the_file(tmp_path):
     root, skeleton, bodies = rigs()
     rig = bodies["female_pear"][1]
     bones = named_bones(skeleton, rig.joints, "Rigify", spine=3)
-    data = {"bones": {b: {"parent": p, "head": h.tolist(), "tail": t.tolist()} for b, (p, h, t) in bones.items()}}
+    data = bones_data(bones)
     (tmp_path / "rigify.json").write_text(json.dumps(data))
     landmarks = read_target_skeleton(tmp_path / "rigify.json", skeleton)
     assert landmarks.naming == "Rigify" and len(landmarks.chains[("pelvis", "neck")]) == 5
@@ -109,16 +109,12 @@ def test_the_command_line_poses_the_source_onto_a_target_skeleton_named_otherwis
     write_obj(tmp_path / "standing.obj", posed)
     # The character's skeleton is Mixamo's (its joints where a rig made for the body puts them), as it stands.
     bones = named_bones(skeleton, target_rig.posed_joints(T), "Mixamo", prefix="mixamorig:")
-    (tmp_path / "mixamo.json").write_text(json.dumps({"bones": {
-        b: {"parent": p, "head": h.tolist(), "tail": t.tolist()} for b, (p, h, t) in bones.items()}}))
+    (tmp_path / "mixamo.json").write_text(json.dumps(bones_data(bones)))
     garment = root / "garments" / "female_sportsuit01" / "female_average.obj"
-    p = subprocess.run([sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
-                        str(root / "bodies" / "female_average.obj"), "--target-body", str(tmp_path / "standing.obj"),
-                        "--garment", str(garment), "--out", str(tmp_path / "out.obj"), "--json", "--skeleton",
-                        str(root / "rig" / "skeleton.json"), "--source-joints",
-                        str(root / "rig" / "joints" / "female_average.json"), "--source-weights",
-                        str(root / "rig" / "weights.json"), "--target-joints", str(tmp_path / "mixamo.json")],
-                       capture_output=True, text=True, timeout=300)
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", *map(str, [
+        "transfer", "--source-body", root / "bodies" / "female_average.obj", "--target-body", tmp_path / "standing.obj",
+        "--garment", garment, "--out", tmp_path / "out.obj", "--json", *rig_options(root), "--target-joints",
+        tmp_path / "mixamo.json"])], capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
     pose = out["rest_pose"]

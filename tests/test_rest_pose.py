@@ -22,6 +22,12 @@ def rigs():
     return root, skeleton, out
 
 
+def rig_options(root):
+    """The command line's options of the source's skeleton, joints and weights (the shared rig)."""
+    return ["--skeleton", root / "rig" / "skeleton.json", "--source-joints",
+            root / "rig" / "joints" / "female_average.json", "--source-weights", root / "rig" / "weights.json"]
+
+
 def test_the_same_rest_pose_is_a_plain_transfer():
     root, _, bodies = rigs()
     (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
@@ -147,8 +153,7 @@ def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_
     garment = root / "garments" / "female_sportsuit01" / "female_average.obj"
     plain = ["transfer", "--source-body", root / "bodies" / "female_average.obj", "--target-body",
              tmp_path / "running.obj", "--garment", garment, "--out", tmp_path / "out.obj", "--json"]
-    rig = ["--skeleton", root / "rig" / "skeleton.json", "--source-joints", root / "rig" / "joints" /
-           "female_average.json", "--source-weights", root / "rig" / "weights.json"]
+    rig = rig_options(root)
 
     def run(*args):
         return subprocess.run([sys.executable, "-m", "garment_transfer", *map(str, args)], capture_output=True,
@@ -208,9 +213,7 @@ def test_an_outfit_onto_a_target_standing_otherwise_is_posed_layer_by_layer(tmp_
     p = subprocess.run([sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
                         root / "bodies" / "female_average.obj", "--target-body", tmp_path / "kicking.obj",
                         "--garment", tmp_path / "tshirt.obj", "--garment", tmp_path / "dress.obj", "--out",
-                        tmp_path / "out", "--skeleton", root / "rig" / "skeleton.json", "--source-joints",
-                        root / "rig" / "joints" / "female_average.json", "--source-weights",
-                        root / "rig" / "weights.json", "--target-joints", tmp_path / "joints.json", "--json"],
+                        tmp_path / "out", *rig_options(root), "--target-joints", tmp_path / "joints.json", "--json"],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
