@@ -34,9 +34,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 import garment_transfer as gt
-from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS
+from garment_transfer.rigging.naming import FINGERS, PHALANX, SEGMENTS, skeleton_bones
 
 from .paths import ROOT, makehuman_folder
 from .registration import remesh
@@ -60,10 +61,8 @@ def pose_rotations(root, skeleton, rig, pose):
         d /= np.linalg.norm(d)
         axis = np.cross(d, [out, 0.0, 0.0])
         angle = np.arctan2(np.linalg.norm(axis), d @ [out, 0.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
         # The bones above the upper arm do not turn: its local rotation is its turn in the body.
-        R[b] = np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+        R[b] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
     return R
 
 
@@ -173,9 +172,7 @@ def named_bones(skeleton, joints, naming="Mixamo", spine=3, prefix=""):
     ``{prefix + bone: (parent, head, tail)}``, each landmark's bone at MakeHuman's landmark and ``spine`` spine bones
     (0 to 3) spread along MakeHuman's spine from the pelvis to the neck, at equal shares of its length, as a rig
     made for that body would put them (the bones of each segment of ``gt.NAMINGS`` chained as the segments are)."""
-    own = gt.landmarks_of({b: (skeleton.names[p] if p >= 0 else None, joints[skeleton.heads[i]],
-                               joints[skeleton.tails[i]]) for i, (b, p) in enumerate(zip(skeleton.names,
-                                                                                          skeleton.parents))})
+    own = gt.landmarks_of(skeleton_bones(skeleton, joints))
     at, table = own.points, gt.NAMINGS[naming]
     line = own.chains[("pelvis", "neck")]
     length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from test_rest_pose import rig_options, rigs
 
 from garment_transfer import (NAMINGS, RigError, bvh_rotations, fit_to_pose, landmarks_of, matching_rotations,
@@ -16,9 +17,7 @@ from lab.rest_pose_study import bones_data, named_bones
 
 
 def _about(axis, angle):
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+    return Rotation.from_rotvec(angle * np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)).as_matrix()
 
 
 def segments_pose(skeleton, rig):

@@ -208,12 +208,13 @@ def landmarks_of(bones, name="skeleton"):
     return Landmarks(naming, points, chains, members)
 
 
-def rig_bones(rig: Rig):
-    """The rig's bones as ``{name: (parent, head, tail)}`` on its body (for ``landmarks_of``)."""
-    heads, tails = rig.rest()
-    names = rig.skeleton.names
+def skeleton_bones(skeleton, joints):
+    """A skeleton's bones as ``{name: (parent, head, tail)}`` on a body whose joints are ``joints`` (for
+    ``landmarks_of``)."""
+    heads, tails = skeleton.rest(joints)
+    names = skeleton.names
     return {b: (names[p] if p >= 0 else None, heads[i], tails[i]) for i, (b, p) in
-            enumerate(zip(names, rig.skeleton.parents))}
+            enumerate(zip(names, skeleton.parents))}
 
 
 def _trunk_frame(points):
@@ -313,7 +314,7 @@ def pose_to_landmarks(rig: Rig, target: Landmarks, name="target"):
         The segments posed (both skeletons have them), each with the rig's bones in it.
     """
     skeleton = rig.skeleton
-    own = landmarks_of(rig_bones(rig), skeleton.name)
+    own = landmarks_of(skeleton_bones(skeleton, rig.joints), skeleton.name)
     missing = [m for m in REQUIRED if m not in target.points]
     if missing:
         raise RigError(name, f"lacks the landmarks {', '.join(missing[:4])}: its skeleton must have a bone at "
