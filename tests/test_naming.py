@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_rest_pose import rig_options, rigs
+from test_rest_pose import in_pose, rig_options, rigs
 
 from garment_transfer import (NAMINGS, RigError, bvh_rotations, fit_to_pose, landmarks_of, matching_rotations,
                               naming_of, pose_to_landmarks, read_bvh, read_obj, read_target_skeleton,
@@ -103,8 +103,7 @@ def test_bones_files_are_read_or_refused_naming_the_file(tmp_path):
 def test_the_command_line_poses_the_source_onto_a_target_skeleton_named_otherwise(tmp_path):
     root, skeleton, bodies = rigs()
     (source, _), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "standing01.bvh"), skeleton))
-    posed = target.with_vertices(target_rig.pose(target.V, T))
+    T, posed = in_pose(root, skeleton, target, target_rig, "standing01")
     write_obj(tmp_path / "standing.obj", posed)
     # The character's skeleton is Mixamo's (its joints where a rig made for the body puts them), as it stands.
     bones = named_bones(skeleton, target_rig.posed_joints(T), "Mixamo", prefix="mixamorig:")
@@ -157,9 +156,8 @@ def test_a_target_of_another_mesh_and_another_naming_is_warned_of_both():
 
     root, skeleton, bodies = rigs()
     (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
+    T, posed = in_pose(root, skeleton, target, target_rig, "run01", "running.obj")
     landmarks = landmarks_of(named_bones(skeleton, target_rig.posed_joints(T), "Rigify", spine=3))
-    posed = target.with_vertices(target_rig.pose(target.V, T), name="running.obj")
     info, _ = posed_source(source, source_rig, landmarks, None, posed)
     assert info["twist"] == "body" and info["skeletons"]["target"] == "Rigify"
     assert len(info["warnings"]) == 1 and "its Rigify skeleton was matched" in info["warnings"][0]

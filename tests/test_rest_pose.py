@@ -22,6 +22,12 @@ def rigs():
     return root, skeleton, out
 
 
+def in_pose(root, skeleton, body, rig, pose, name=None):
+    """The pose's transforms of ``rig`` (a shared pose by name) and ``body`` posed by them."""
+    T = rig.transforms(bvh_rotations(read_bvh(root / "poses" / f"{pose}.bvh"), skeleton))
+    return T, body.with_vertices(rig.pose(body.V, T), name=name)
+
+
 def rig_options(root):
     """The command line's options of the source's skeleton, joints and weights (the shared rig)."""
     return ["--skeleton", root / "rig" / "skeleton.json", "--source-joints",
@@ -43,8 +49,7 @@ def test_a_target_in_another_rest_pose_gets_the_garment_as_if_transferred_at_res
     root, skeleton, bodies = rigs()
     (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
     garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "fight01.bvh"), skeleton))
-    posed = target.with_vertices(target_rig.pose(target.V, T), name="pear kicking")
+    T, posed = in_pose(root, skeleton, target, target_rig, "fight01", "pear kicking")
     at_rest = garment.with_vertices(transfer_garment(source, target, garment).V)
     expected = fit_to_pose(target, posed.V, at_rest).V
     result, _ = transfer_across_rest_poses(source, posed, garment, source_rig, target_rig.posed_joints(T),
@@ -119,8 +124,7 @@ def test_a_target_of_another_mesh_posed_from_its_joints_alone_is_said_to_be():
 
     root, skeleton, bodies = rigs()
     (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
-    posed = target.with_vertices(target_rig.pose(target.V, T), name="running.obj")
+    T, posed = in_pose(root, skeleton, target, target_rig, "run01", "running.obj")
     joints, frames = target_rig.posed_joints(T), target_rig.posed_frames(T)
     info, _ = posed_source(source, source_rig, joints, frames, posed)
     assert info["posed"] and info["twist"] == "frames" and info["warnings"] == []
@@ -145,8 +149,7 @@ def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_
 
     root, skeleton, bodies = rigs()
     (source, _), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
-    posed = target.with_vertices(target_rig.pose(target.V, T))
+    T, posed = in_pose(root, skeleton, target, target_rig, "run01")
     write_obj(tmp_path / "running.obj", posed)
     (tmp_path / "running_joints.json").write_text(json.dumps({k: [float(x) for x in v]
                                                               for k, v in target_rig.posed_joints(T).items()}))
@@ -204,8 +207,7 @@ def test_an_outfit_onto_a_target_standing_otherwise_is_posed_layer_by_layer(tmp_
     outer, _, _, _ = fit("shift_dress", mannequin, source, registration)
     write_obj(tmp_path / "tshirt.obj", inner)
     write_obj(tmp_path / "dress.obj", outer)
-    T = target_rig.transforms(bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton))
-    posed = target.with_vertices(target_rig.pose(target.V, T))
+    T, posed = in_pose(root, skeleton, target, target_rig, "run01")
     write_obj(tmp_path / "kicking.obj", posed)
     (tmp_path / "joints.json").write_text(json.dumps({k: [float(x) for x in v]
                                                       for k, v in target_rig.posed_joints(T).items()}))
