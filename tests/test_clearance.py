@@ -10,6 +10,7 @@ from meshes import icosphere, require_makehuman
 from garment_transfer.geometry.clearance import (
     Obstacle,
     SelfCheck,
+    blend_edges,
     crossings_again,
     garment_crossings,
     largest_per_vertex,
@@ -217,6 +218,30 @@ def test_restore_source_shape_moves_nothing_an_affine_map_explains():
     far = np.linalg.norm(W[:, None] - W[seeds][None], axis=2).min(axis=1) > 0.16
     assert far.any()
     np.testing.assert_array_equal(out[far], W[far])
+
+
+def test_blend_edges_solves_the_ring_for_the_blended_edges():
+    """On a chain, the ring vertex between a fixed end and the exactly held core lies where its two blended edges
+    put it on average (the least-squares answer); the outside stays, the core is the restored shape; a shape equal
+    to the cloth moves nothing, held exactly or loosely."""
+    rng = np.random.default_rng(11)
+    V, restored = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    E = np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
+    weight = np.array([0.0, 0.5, 1.0, 0.5, 0.0])
+    out = blend_edges(V, E, restored, weight)
+    np.testing.assert_array_equal(out[[0, 4]], V[[0, 4]])
+    np.testing.assert_array_equal(out[2], restored[2])
+    w = 0.5 * (weight[E[:, 0]] + weight[E[:, 1]])[:, None]
+    t = w * (restored[E[:, 0]] - restored[E[:, 1]]) + (1 - w) * (V[E[:, 0]] - V[E[:, 1]])
+    # x0 - x1 = t0 and x1 - x2 = t1 in the least-squares sense; likewise x2 - x3 = t2, x3 - x4 = t3.
+    np.testing.assert_allclose(out[1], 0.5 * ((V[0] - t[0]) + (restored[2] + t[1])), atol=1e-7)
+    np.testing.assert_allclose(out[3], 0.5 * ((restored[2] - t[2]) + (V[4] + t[3])), atol=1e-7)
+    for hold in (np.inf, 2.0):
+        np.testing.assert_allclose(blend_edges(V, E, V.copy(), weight, hold), V, rtol=0, atol=1e-9)
+    # Held loosely, the core gives way toward the cloth around it, and the ends still do not move.
+    loose = blend_edges(V, E, restored, weight, 2.0)
+    np.testing.assert_array_equal(loose[[0, 4]], V[[0, 4]])
+    assert 0 < np.linalg.norm(loose[2] - restored[2])
 
 
 def test_source_shape_must_match():

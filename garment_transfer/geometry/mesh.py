@@ -234,6 +234,42 @@ def triangle_normals(V, F):
     return N, 0.5 * dbl
 
 
+def discrete_curvature(V, F):
+    """Per-vertex ``r(s) = min over pairs of triangles around s of n_i . n_j`` (paper eq. 9).
+
+    1 where the surface is flat around s (or s has fewer than two triangles), down to -1 at a
+    sharp crease.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    F : (m,3) int
+
+    Returns
+    -------
+    r : (n,) float64
+    """
+    n = V.shape[0]
+    N, _ = triangle_normals(np.asarray(V, dtype=np.float64), F)
+    vert = F.reshape(-1)
+    tri = np.repeat(np.arange(F.shape[0]), 3)
+    order = np.argsort(vert, kind="stable")
+    vert, tri = vert[order], tri[order]
+    deg = np.bincount(vert, minlength=n)
+    start = np.concatenate([[0], np.cumsum(deg)])
+    r = np.ones(n)
+    for d in np.unique(deg):
+        if d < 2:
+            continue
+        vs = np.flatnonzero(deg == d)
+        idx = start[vs][:, None] + np.arange(d)
+        Nv = N[tri[idx]]
+        dots = np.einsum("kid,kjd->kij", Nv, Nv)
+        dots[:, np.arange(d), np.arange(d)] = np.inf
+        r[vs] = dots.min(axis=(1, 2))
+    return r
+
+
 def edge_length_and_degenerate(V, F):
     """``edge_lengths_mean`` and ``degenerate_triangles`` together, from one gathering of the corners.
 
