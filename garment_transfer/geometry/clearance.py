@@ -40,8 +40,9 @@ body already), then its source shape (``RESTORE_SHAPES``), each mapped by the af
 where it is (an invertible affine map keeps which parts meet and which do not), blended into the rest over a
 ring by its edges (``blend_edges``: each edge turns from one shape's to the other's, so the ring bends no more
 than the two shapes do); the body is then cleared again where that moved, and a larger ring is tried if pairs
-are left. A clean try is looked at once more with its core held loosely, kept if that is clean too and bends the
-cloth less (``RESTORE_LOOSE_HOLD``). What is left is counted (``self_intersections_new``), never hidden.
+are left. A clean try that bends the cloth much more than the pass was given is looked at once more with its
+core held loosely, kept if that is clean too and bends the cloth less (``RESTORE_LOOSE_HOLD``). What is left is
+counted (``self_intersections_new``), never hidden.
 
 What it costs: the body does not move, so its triangles, edges and vertices are binned once
 (``Obstacle``: grids of ``broad_phase.BoxGrid``) and every check asks about the garment's parts only;
@@ -106,11 +107,16 @@ RESTORE_PATIENCE = 8
 #: A local affine fit whose smallest singular value is under this share of its largest would
 #: flatten the cloth: a similarity is fitted instead.
 FIT_CONDITION = 0.2
-#: A restore that comes out clean is tried once more with its core held this loosely (``blend_edges``: the core
-#: then shares the mismatch with the ring), and kept if it is clean too and keeps the source's curvature better
-#: (paper eq. 9, ``discrete_curvature``). Held exactly, the core is the affine image that undoes the pairs; held
-#: loosely it may not be, hence only as a second look (lab/notes/file-check-study.md).
+#: A restore that comes out clean but bends the cloth away from its source more than ``LOOSE_LOOK_FROM`` times as
+#: much as the cloth the pass was given (mean change of ``discrete_curvature``, paper eq. 9: the measure of MDC)
+#: is tried again with its core held this loosely (``blend_edges``: the core then shares the mismatch with the
+#: ring), at each of ``LOOSE_RINGS``, and the one that bends the cloth least is kept if it is clean too. Held
+#: exactly, the core is the affine image that undoes the pairs; held loosely it may not be, hence only as a second
+#: look (lab/notes/file-check-study.md).
 RESTORE_LOOSE_HOLD = 2.0
+LOOSE_LOOK_FROM = 1.05
+#: The second look's rings, as shares of the try's radius: the same, and half as wide again.
+LOOSE_RINGS = (1.0, 1.5)
 
 
 class Lifts:
@@ -702,8 +708,8 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
         if tried[4] <= base[4] and 0 < new_w.shape[0] < new_b.shape[0]:
             base = tried
     if best_how is not None and best[4] == 0 and best[2].shape[0] == 0:
-        best = _held_loosely(best, best_how, source_V, tangles, G, A, obstacle, offset, spread_rings, max_rounds,
-                             keep_offset, check)
+        best = _held_loosely(best, best_how, V_start, source_V, tangles, G, A, obstacle, offset, spread_rings,
+                             max_rounds, keep_offset, check)
     V, pairs, new, _, info["crossings_after"], info["near_after"], rounds, undone = best
     info["rounds"] += rounds
     info["undone"] += undone
@@ -740,23 +746,34 @@ def _restore_try(base, how, hold, G, A, obstacle, offset, spread_rings, max_roun
                       known=(base[0], base[3]))
 
 
-def _held_loosely(best, best_how, source_V, tangles, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset,
-                  check):
-    """A clean restore's best state, or the same try with the core held loosely (``RESTORE_LOOSE_HOLD``) where that
-    is clean too (no crossing, no pair the source lacks, no more close pairs) and bends the cloth less away from
-    the source (mean ``discrete_curvature`` change, the measure of MDC)."""
-    base, how = best_how
-    W, again, state_w = _restore_try(base, how, RESTORE_LOOSE_HOLD, G, A, obstacle, offset, spread_rings,
-                                     max_rounds, keep_offset, check)
-    new_w = tangles.beyond(state_w[2])
-    if again["crossings_after"] or new_w.shape[0] or again["near_after"] > best[5]:
-        return best
+def _held_loosely(best, best_how, V_start, source_V, tangles, G, A, obstacle, offset, spread_rings, max_rounds,
+                  keep_offset, check):
+    """A clean restore's best state, or, where it bends the cloth away from the source more than ``LOOSE_LOOK_FROM``
+    times as much as ``V_start`` (the cloth the pass was given) does, the same try with the core held loosely
+    (``RESTORE_LOOSE_HOLD``) and its radius times each of ``LOOSE_RINGS``: the one that bends it least (mean
+    ``discrete_curvature`` change), if less than the best and clean too (no crossing, no pair the source lacks, no
+    more close pairs)."""
     r = discrete_curvature(source_V, G.F)
-    if np.abs(discrete_curvature(W, G.F) - r).mean() >= np.abs(discrete_curvature(best[0], G.F) - r).mean():
+
+    def bend(X):
+        return np.abs(discrete_curvature(X, G.F) - r).mean()
+
+    bent = bend(best[0])
+    if bent <= LOOSE_LOOK_FROM * bend(V_start):
         return best
-    log.debug("the restore held loosely kept: it bends the cloth less")
-    return (W, state_w[2], new_w, state_w, 0, again["near_after"], base[6] + again["rounds"],
-            base[7] + again["undone"])
+    base, (shape, seeds, radius, body) = best_how
+    for wider in LOOSE_RINGS:
+        W, again, state_w = _restore_try(base, (shape, seeds, wider * radius, body), RESTORE_LOOSE_HOLD, G, A,
+                                         obstacle, offset, spread_rings, max_rounds, keep_offset, check)
+        new_w = tangles.beyond(state_w[2])
+        if again["crossings_after"] or new_w.shape[0] or again["near_after"] > best[5]:
+            continue
+        b = bend(W)
+        if b < bent:
+            log.debug("the restore held loosely kept: it bends the cloth less")
+            bent, best = b, (W, state_w[2], new_w, state_w, 0, again["near_after"], base[6] + again["rounds"],
+                             base[7] + again["undone"])
+    return best
 
 
 def _as_given(V_start, info, **counts):
