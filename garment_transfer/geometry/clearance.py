@@ -114,7 +114,7 @@ FIT_CONDITION = 0.2
 #: exactly, the core is the affine image that undoes the pairs; held loosely it may not be, hence only as a second
 #: look (lab/notes/file-check-study.md).
 RESTORE_LOOSE_HOLD = 2.0
-LOOSE_LOOK_FROM = 1.05
+LOOSE_LOOK_FROM = 1.08
 #: The second look's rings, as shares of the try's radius: the same, and half as wide again.
 LOOSE_RINGS = (1.0, 1.5)
 
