@@ -514,9 +514,8 @@ def blend_edges(V, E, restored, weight, hold=np.inf):
     Each edge with a vertex of weight above 0 takes the blend of its two vectors, ``restored``'s and V's, by its
     ends' mean weight; the positions of those vertices are solved (least squares) for the blended edges, the
     vertices of weight 0 held where they are and those of weight 1 held to ``restored`` with weight ``hold``
-    (``np.inf``: exactly).
-    Blending the positions instead shears the ring by the gap between the two shapes, which creases it; blended
-    edges bend it no more than the two shapes do. Where ``restored`` is V, the answer is V.
+    (``np.inf``: exactly). Blending the positions instead shears the ring by the gap between the two shapes, which
+    creases it; blended edges bend it no more than the two shapes do. Where ``restored`` is V, the answer is V.
 
     Parameters
     ----------
@@ -738,8 +737,9 @@ def _restore(V, V_start, start_pairs, G, A, obstacle, offset, spread_rings, max_
 
 def _restore_try(base, how, hold, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check):
     """One try of the restore from ``base`` (a state of ``_restore``): the cloth around ``how``'s seeds restored
-    (``how``: shape, seeds, radius, the body to move it out of or None; ``hold``: ``blend_edges``'), then the body
-    cleared again where that moved it. Returns ``clear_body``'s answer."""
+    (``how``: shape, seeds, radius, the body to move it out of or None; ``hold``: how strongly the core is held,
+    as ``blend_edges`` takes it), then the body cleared again where that moved it. Returns ``clear_body``'s
+    answer."""
     shape, seeds, radius, body = how
     W = restore_source_shape(base[0], G.F, G.E, shape, seeds, radius, body, offset, hold)
     return clear_body(W, G, A, obstacle, offset, spread_rings, max_rounds, keep_offset, check,
