@@ -85,6 +85,25 @@ def test_self_contact_finds_where_a_body_crosses_itself():
     assert none == 0 and not apart.any()
 
 
+def test_self_contact_takes_parts_pressed_together_only_if_apart_at_rest():
+    # Two spheres of radius 1 whose surfaces come within 0.04 of each other (no crossing): contact where they were
+    # farther apart at rest than three gaps, not where they were as close already.
+    V1, F1 = icosphere(2)
+    V2, F2 = icosphere(2, centre=(2.04, 0, 0))
+    V, F = np.vstack([V1, V2]), np.vstack([F1, F2 + len(V1)])
+    gap = 0.1
+    close = np.linalg.norm(V[:len(V1), None] - V[None, len(V1):], axis=2) < gap
+    expected = np.zeros(len(V), bool)
+    expected[np.flatnonzero(close.any(axis=1))] = True
+    expected[len(V1) + np.flatnonzero(close.any(axis=0))] = True
+    assert expected.any()
+    far_rest = np.vstack([V1, V2 + [1.0, 0, 0]])
+    contact, pairs = self_contact(V, F, rings=0, rest_V=far_rest, gap=gap)
+    assert pairs == 0 and np.array_equal(contact, expected)
+    as_now, _ = self_contact(V, F, rings=0, rest_V=V, gap=gap)
+    assert not as_now.any()
+
+
 def sphere_body_and_garment():
     """A round body and a round garment over it: (V, body, G, garment)."""
     V, F = icosphere(3)
