@@ -17,8 +17,8 @@ from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.clearance import separate
 from garment_transfer.geometry.obstacle import Obstacle, garment_crossings
 from garment_transfer.geometry.readings import kept_triangle_readings
-from garment_transfer.pipeline.pose_fit import (CONTACT_GAP, CONTACT_RINGS, crossing_counts, free_readings,
-                                                garment_readings, kept_split)
+from garment_transfer.pipeline.pose_fit import (CONTACT_GAP, CONTACT_RINGS, at_contact_and_inside, crossing_counts,
+                                                free_readings, garment_readings, kept_split)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,6 +104,19 @@ def test_self_contact_takes_parts_pressed_together_only_if_apart_at_rest():
     assert not as_now.any()
 
 
+def test_vertices_known_outside_are_not_counted_again():
+    V, F = icosphere(2)
+    body = mesh_from_triangles(V, F, "body")
+    G = np.array([[0.0, 0.0, 0.5], [0.0, 0.0, 2.0], [0.0, 0.0, -0.5], [2.0, 0.0, 0.0]])
+    contact = np.zeros(len(V), bool)
+    garment_F = np.array([[0, 1, 3]])
+    assert at_contact_and_inside(G, garment_F, body, F, contact) == (0, 2)
+    # Told which vertices are outside (those a pass did not move since a count found none inside), it measures
+    # the others only.
+    assert at_contact_and_inside(G, garment_F, body, F, contact, outside=np.array([0, 1, 1, 1], bool)) == (0, 1)
+    assert at_contact_and_inside(G, garment_F, body, F, contact, outside=np.ones(4, bool)) == (0, 0)
+
+
 def sphere_body_and_garment():
     """A round body and a round garment over it: (V, body, G, garment)."""
     V, F = icosphere(3)
@@ -179,6 +192,11 @@ def test_a_makehuman_suit_fitted_to_a_pose_is_clean_and_keeps_its_design_better_
     free = body_F[~contact[body_F].any(axis=1)]
     assert own > 0 and sum(crossing_counts(result.V, every_split(rest), posed, free)) == 0
     assert result.info["crossings_outside_contact"] == 0
+    # The vertices inside the posed body, counted by the fit from what its pass moved, are those a full search
+    # finds on the result.
+    assert result.info["inside_after"] == 0
+    inside = TriangleSurface(posed, body.F).signed_distance(result.V)[0] < 0
+    assert result.penetrating_vertices == int(inside.sum())
     weights, _ = inpainted_weights(body.V, body.F, rig.weights, rest.V, rest.F)
     skinned = rig.pose(rest.V, T, weights)
     assert mdc(rest.V, result.V, rest.F) < mdc(rest.V, skinned, rest.F)

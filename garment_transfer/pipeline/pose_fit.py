@@ -213,7 +213,8 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
                                                              resolve_crossings=resolve_crossings,
                                                              contact_rings=contact_rings, name=name,
                                                              contact=result.contact, free=result.obstacle,
-                                                             surface=result.surface)
+                                                             surface=result.surface,
+                                                             clear_of_body=result.penetrating_vertices == 0)
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     return result
@@ -306,7 +307,8 @@ def free_readings(body: Mesh, contact, at_contact=False) -> Readings:
 
 
 def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve_crossings=True,
-                     contact_rings=CONTACT_RINGS, name="pose", contact=None, free=None, surface=None):
+                     contact_rings=CONTACT_RINGS, name="pose", contact=None, free=None, surface=None,
+                     clear_of_body=False):
     """The crossing pass against a posed body, without where the body crosses itself or closes on itself.
 
     Parameters
@@ -331,6 +333,9 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         ``free_body(body, contact[0], garment, V)``, when made already.
     surface : TriangleSurface, optional
         Of ``body``'s own triangles, when made already (``TransferResult.surface`` of the transfer to it).
+    clear_of_body : bool
+        No vertex of V is inside the body (measured: the penetration fix's count after it ran, 0): only the
+        vertices the pass moves are measured again for the count of those inside.
 
     Returns
     -------
@@ -339,6 +344,7 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
         Garment vertices inside the posed body.
     """
     offset = float(info["offset"])
+    given = np.array(V, dtype=np.float64) if clear_of_body else None
     # The body without its own contact, binned once for every count and pass of this pose.
     V, garment_F, body_F, (contact, body_self), free = _posed_parts(V, garment, body, offset, rest_V, contact_rings,
                                                                     contact, free)
@@ -364,7 +370,8 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
             V, outside = W, after
             if not outside:
                 break
-    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact, surface)
+    at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact, surface,
+                                       outside=None if given is None else np.all(V == given, axis=1))
     info.update(crossings_outside_contact=int(outside), crossings_at_contact=at)
     info["warnings"] += pose_warnings(int(outside), at, int(body_self), name)
     return V, inside
@@ -395,16 +402,18 @@ def edges_crossing(c):
     return int(c["a_edges_through_b"] + c["b_edges_through_a"])
 
 
-def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=None):
+def at_contact_and_inside(V, garment_F, body: Mesh, body_F, contact, surface=None, outside=None):
     """The garment's crossings with the body's triangles at its own contact (each edge once, both ways), and the
-    garment vertices inside the body (``surface``: of the body's own triangles, when made already)."""
+    garment vertices inside the body (``surface``: of the body's own triangles, when made already; ``outside``:
+    (g,) bool, vertices known to be outside, not measured again)."""
     at = 0
     if contact[body_F].any():
         near = Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, garment_F))
         at = edges_crossing(garment_crossings(V, garment_F, near))
     if not made_of(surface, body.V, body.F):
         surface = TriangleSurface(body.V, body.F)
-    return at, int((surface.signed_distance(V)[0] < 0).sum())
+    measure = slice(None) if outside is None else ~np.asarray(outside, dtype=bool)
+    return at, int((surface.signed_distance(V[measure])[0] < 0).sum())
 
 
 def pose_warnings(outside, at_contact, body_self, name):
