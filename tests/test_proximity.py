@@ -9,6 +9,7 @@ import pytest
 from meshes import MAKEHUMAN, grid, icosphere, random_rotation, require_makehuman
 
 import garment_transfer.geometry.penetration as penetration
+import garment_transfer.geometry.proximity as proximity
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 
@@ -375,7 +376,10 @@ def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band():
         assert points.size < P.shape[0]
 
 
-def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force():
+@pytest.mark.parametrize("full_share", [0.0, 2.0], ids=["the surface's tree", "a tree of the near triangles"])
+def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force(monkeypatch, full_share):
+    # Either way a bounded search goes (most points near: the surface's own tree; else one of the near triangles).
+    monkeypatch.setattr(proximity, "FULL_SEARCH_SHARE", full_share)
     for P, V, F, within in _near_pairs_cases():
         s = TriangleSurface(V, F)
         bounded = s.closest(P, within=within)

@@ -203,6 +203,11 @@ def _closest_on_segments(P, A, B, C):
 
 #: The grid of ``near_boxes`` has at most this many cells along its longest side.
 NEAR_GRID_CELLS = 128
+#: A bounded search (``TriangleSurface.closest(P, within)``) whose points are at least this share near the surface
+#: asks the surface's own tree instead of building one over the near triangles: a garment that lies on the body (a
+#: MakeHuman suit, 8,426 vertices: 51 ms with the tree built against 83 ms) gains nothing from the bound, and the
+#: tree serves the later queries on the same body; a loose dress (40% of its points near) keeps the bound.
+FULL_SEARCH_SHARE = 0.75
 
 
 def near_boxes(P, V, F, within):
@@ -513,6 +518,13 @@ class TriangleSurface:
         bary = np.full((p, 3), np.nan)
         faces, points = near_boxes(P, self.V, self.F, float(within))
         if faces.size == 0 or points.size == 0:
+            return closest, dist, triangle, bary
+        if points.size >= FULL_SEARCH_SHARE * p:
+            _, tri, _ = self.tree.squared_distance(self.V, self.F, P[points])
+            c, d, t, w = self._on_triangles(P[points], tri)
+            found = d < within
+            near = points[found]
+            closest[near], dist[near], triangle[near], bary[near] = c[found], d[found], t[found], w[found]
             return closest, dist, triangle, bary
         # libigl's bounded search answers NaN beyond the bound. It builds a tree of its own, here over
         # the triangles that can be that near (a garment is near a small part of the body), for the
