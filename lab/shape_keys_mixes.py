@@ -8,9 +8,10 @@ triangle or a body edge through a garment triangle under some triangulation, it 
 way, where on the body (the nearest body vertex's height as a share of the body's height, its height band, left
 or right, front or back), the garment vertices involved (their bands, or "no band" where the Shrinkwrap would
 misjudge them at a key at 1), how deep (the edge's deepest sample inside the blended body, exact sign) and the
-Shrinkwrap's own reading of those vertices at the mix. With ``--remedies``, the candidate remedies of
-``REMEDIES`` measured as ``lab.shape_keys`` measures (mixes crossing, key at 1 moved, distance to the exact
-transfer).
+Shrinkwrap's own reading of those vertices at the mix, and the edges through away from where that body crosses
+itself (the pose fit's rule). With ``--remedies``, the candidate remedies of ``REMEDIES`` measured as
+``lab.shape_keys`` measures (mixes crossing, key at 1 moved, distance to the exact transfer), each with the lift of
+the mix (``shape_keys.mix_lift``, the default) and without.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.readings import readings_of
 from garment_transfer.pipeline.shape_keys import (KEEP_OUTSIDE_BANDS, SHAPE_KEY_BANDS, body_at, fit_shape_keys,
                                                   keep_outside_banded, keep_outside_bands, shrinkwrap_distance)
+from garment_transfer.pipeline.pose_fit import CONTACT_GAP, CONTACT_RINGS, crossing_counts, every_split, self_contact
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 
 from .paths import MAKEHUMAN_SOURCE, makehuman_folder
@@ -98,6 +100,9 @@ def diagnose(s, bands, verbose=True):
               f"({c['b_edge_pairs']} pairs); {int((sd < 0).sum())} garment vertices inside after the stack; "
               f"the body crosses itself {self_intersections(body, basis.F)[0]} times (the basis "
               f"{self_intersections(basis.V, basis.F)[0]})")
+        away = away_from_contact(V, s, body)
+        print(f"  away from where this body crosses itself or closes on itself (the pose fit's rule: "
+              f"{away['contact_vertices']} body vertices of contact): {away['edges']} edges through")
         if s["exact"] is not None:
             e = crossings(s["exact"][k], G, body, B)
             print(f"  the exact transfer to this body: {e['a_edges_through_b']} garment edges through the body, "
@@ -126,12 +131,30 @@ def diagnose(s, bands, verbose=True):
                           f"{v} [{band_names(bands, v)}] sd {sd[v] / MM:+.2f} shrinkwrap {sw[v] / MM:+.2f}"
                           for v in gv))
         out.append({"mix": k, "garment_edges": c["a_edges_through_b"], "body_edges": c["b_edges_through_a"],
-                    "rows": rows})
+                    "away_from_contact": away["edges"], "rows": rows})
+    away = [m["mix"] for m in out if m["away_from_contact"]]
+    print(f"\n{len(out)} of {len(s['combos'])} mixes cross {[m['mix'] for m in out]}; away from where the mixed "
+          f"body crosses itself or closes on itself: {len(away)} {away}")
     return out
 
 
-def measure(s, rule):
-    """Mixes crossing, key at 1 moved (mm) and mean distance to the exact transfer (mm) of ``rule(V, surface)``."""
+def away_from_contact(V, s, body):
+    """Edges through (both ways, under every split of both meshes) of garment positions V on the mixed body, away
+    from where that body crosses itself or two of its parts press together that were apart on the basis: the pose
+    fit's rule (``pose_fit.self_contact`` with the basis as the rest shape, ``CONTACT_RINGS`` rings, a gap of
+    ``CONTACT_GAP`` offsets), where no garment can be outside both surfaces."""
+    basis, garment = s["basis"], s["garment"]
+    offset = s["fit"].info["Basis"]["offset"]
+    contact, _ = self_contact(body, basis.F, CONTACT_RINGS, basis.V, CONTACT_GAP * offset)
+    body_F = every_split(basis)
+    free = body_F[~contact[body_F].any(axis=1)]
+    return {"edges": int(sum(crossing_counts(V, every_split(garment), body, free))),
+            "contact_vertices": int(contact.sum())}
+
+
+def measure(s, rule, lift=True):
+    """Mixes crossing, key at 1 moved (mm) and mean distance to the exact transfer (mm) of ``rule(V, surface)`` on
+    the blend (with the lift of the mix, ``shape_keys.mix_lift``, or without)."""
     fit, basis, shapes = s["fit"], s["basis"], s["shapes"]
     G, B = readings_of(s["garment"]), readings_of(basis)
     moved = max(float(np.linalg.norm(rule(fit.keys[k], TriangleSurface(V, basis.F)) - fit.keys[k], axis=1).max())
@@ -140,7 +163,7 @@ def measure(s, rule):
                                             axis=1).max()))
     crossing, edges, error = [], [], []
     for k, (w, surface, body) in enumerate(zip(s["combos"], s["surfaces"], s["bodies"])):
-        V = rule(fit.blend(w), surface)
+        V = rule(fit.blend(w, lift=lift), surface)
         c = crossings(V, G, body, B)
         n = c["a_edges_through_b"] + c["b_edges_through_a"]
         if n:
@@ -174,9 +197,11 @@ def main(argv=None):
         print("\nremedy: mixes crossing (edges each), key at 1 or basis moved, mean distance to the exact transfer")
         for label, shares in REMEDIES.items():
             b = keep_outside_bands(s["fit"], s["basis"], s["shapes"], bands=shares)
-            m = measure(s, lambda V, surface, b=b: keep_outside_banded(V, surface, b))
-            print(f"  {label:40s} {len(m['crossing'])} of {len(s['combos'])} {m['crossing']} {m['edges']}; "
-                  f"moved {m['key_moved_mm']:.4f} mm; to exact {m['to_exact_mm']:.3f} mm", flush=True)
+            for lift in (True, False):
+                m = measure(s, lambda V, surface, b=b: keep_outside_banded(V, surface, b), lift=lift)
+                print(f"  {label:40s} {'with' if lift else 'without'} the lift: {len(m['crossing'])} of "
+                      f"{len(s['combos'])} {m['crossing']} {m['edges']}; moved {m['key_moved_mm']:.4f} mm; "
+                      f"to exact {m['to_exact_mm']:.3f} mm", flush=True)
     return 0
 
 

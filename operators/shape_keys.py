@@ -126,14 +126,16 @@ def body_weights(body):
     return W, names
 
 
-def add_driver(key_block, body_key, variables, expression=None):
-    """Drive ``key_block.value`` from the values of ``body_key``'s key blocks ``variables``."""
+def add_driver(key_block, body_key, variables, expression=None, names=None):
+    """Drive ``key_block.value`` from the values of ``body_key``'s key blocks ``variables``: their average, or
+    ``expression`` of them named ``names`` (default a, b, ...; an expression Blender evaluates without Python)."""
     fc = key_block.driver_add("value")
     drv = fc.driver
     drv.type = 'SCRIPTED' if expression else 'AVERAGE'
+    names = names or [chr(ord("a") + i) for i in range(len(variables))]
     for i, name in enumerate(variables):
         var = drv.variables.new()
-        var.name = "ab"[i] if expression else "value"
+        var.name = names[i] if expression else "value"
         var.type = 'SINGLE_PROP'
         var.targets[0].id_type = 'KEY'
         var.targets[0].id = body_key
@@ -149,13 +151,31 @@ def add_driver(key_block, body_key, variables, expression=None):
     return fc
 
 
+#: The key that lifts a mix of sliders adding up to more than 1 (``shape_keys.mix_lift``).
+MIX_LIFT_KEY = "Mix Lift"
+
+
+def mix_lift_name(body_keys):
+    """``MIX_LIFT_KEY``, numbered when the body has a key of that name."""
+    name, i = MIX_LIFT_KEY, 1
+    while name in body_keys:
+        name, i = f"{MIX_LIFT_KEY} {i}", i + 1
+    return name
+
+
+def mix_lift_expression(count):
+    """The driver of the lift: ``max(0, abs(k0) + ... - 1)`` of ``count`` sliders, ``shape_keys.mix_excess``."""
+    return "max(0, " + " + ".join(f"abs(k{i})" for i in range(count)) + " - 1)"
+
+
 def write_key(me, key_block, V_local):
     key_block.data.foreach_set("co", np.ascontiguousarray(V_local, dtype=np.float32).reshape(-1))
 
 
 def build_result(context, garment, body, fit, garment_basis_local, weights=None, keep_outside=None):
     """The new object: the garment's copy with the fitted basis, a driven key per body key and per
-    corrective pair, the garment's own keys moved with the basis, its parent, modifiers and groups, and with
+    corrective pair, the key lifting mixes (``fit.lift``), the garment's own keys moved with the basis, its parent,
+    modifiers and groups, and with
     ``keep_outside`` (``shape_keys.keep_outside_bands``) a Shrinkwrap per band last in the stack."""
     key_body = body.data.shape_keys
     me = garment.data.copy()
@@ -192,6 +212,13 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
             kb.relative_key = reference
             kb.slider_min, kb.slider_max = -10.0, 10.0
             add_driver(kb, key_body, [a, b], expression="a * b")
+        if fit.lift is not None:
+            kb = obj.shape_key_add(name=mix_lift_name(fit.keys), from_mix=False)
+            write_key(me, kb, convert.local_from_world(fit.basis + fit.lift, garment.matrix_world, garment.name))
+            kb.relative_key = reference
+            kb.slider_min, kb.slider_max = 0.0, 10.0
+            add_driver(kb, key_body, list(fit.keys), expression=mix_lift_expression(len(fit.keys)),
+                       names=[f"k{i}" for i in range(len(fit.keys))])
         if weights is not None:
             W, names = weights
             for j, name in enumerate(names):
@@ -238,7 +265,7 @@ def bone_weights(context, body, body_mesh, cloth):
 
 
 def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0.0,
-              weights_from_body=False, keep_outside=False, offset=None):
+              weights_from_body=False, keep_outside=False, offset=None, mix_lift=True):
     """Read the objects, transfer one key per step, then make the object: a generator.
 
     Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note, warnings)``:
@@ -252,7 +279,8 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
     if body == garment:
         raise MeshError(garment.name, "is chosen both as the garment and as the body")
     basis_V, shapes = body_key_shapes(body, names)
-    kept = check_garment(garment, body, set(shapes) | {f"{a}+{b}" for a, b in all_pairs(shapes)})
+    kept = check_garment(garment, body, set(shapes) | {f"{a}+{b}" for a, b in all_pairs(shapes)}
+                         | ({mix_lift_name(shapes)} if mix_lift and not correctives else set()))
     depsgraph = context.evaluated_depsgraph_get()
     body_mesh = convert.core_mesh_from_object(body, depsgraph, False, "source body").with_vertices(basis_V)
     cloth = convert.core_mesh_from_object(garment, depsgraph, False, "garment")
@@ -275,7 +303,7 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
                 weights = (surface_weights(body_mesh.V, body_mesh.F, W, cloth.V), group_names)
             note = f"took {len(weights[1])} vertex groups from {body.name}"
     steps = core_steps(body_mesh, shapes, cloth, pairs=all_pairs(shapes) if correctives else (),
-                       margin=margin, offset=offset)
+                       margin=margin, offset=offset, lift=mix_lift)
     while True:
         try:
             done, total, _name = next(steps)
@@ -340,6 +368,12 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
         description="When the garment has no vertex groups, take the body's (nearest surface point, "
                     "interpolated) and its Armature modifier, so that the result follows the rig")
 
+    mix_lift: BoolProperty(
+        name="Lift Mixes", default=True,
+        description="Add a key, driven by how far the sliders add up beyond 1, that moves the garment out along "
+                    "the body's normals where its edges are long, so that a mix of several keys does not cut "
+                    "through the body between vertices (nothing at the basis, at any key at 1 or with corrective "
+                    "keys)")
     keep_outside: BoolProperty(
         name="Keep Outside Body", default=True,
         description="Add Shrinkwrap modifiers (Outside mode, last in the stack) that move only the vertices "
@@ -363,7 +397,7 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
         self._steps = fit_steps(context, settings.source_body, settings.garment, names=names,
                                 correctives=self.correctives, margin=self.margin,
                                 weights_from_body=self.weights_from_body,
-                                keep_outside=self.keep_outside,
+                                keep_outside=self.keep_outside, mix_lift=self.mix_lift,
                                 offset=None if settings.auto_offset else settings.offset)
 
     def _finish(self, context, outcome):
@@ -376,6 +410,8 @@ class GARMENT_TRANSFER_OT_fit_shape_keys(ModalSteps, bpy.types.Operator):
         parts = [f"{result.name}: {len(fit.keys)} shape keys driven by {settings.source_body.name}'s"]
         if fit.correctives:
             parts.append(f"{len(fit.correctives)} corrective pair keys")
+        if fit.lift is not None:
+            parts.append("a key lifting mixes beyond 1")
         if kept:
             parts.append(f"kept the garment's own shape keys {', '.join(kept)} (moved with the basis)")
         if note:

@@ -13,8 +13,10 @@ from garment_transfer.errors import MeshError
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
-from garment_transfer.pipeline.shape_keys import (SHAPE_KEY_BANDS, body_at, fit_shape_keys, keep_outside,
-                                                  keep_outside_banded, keep_outside_bands, transfer_to_shapes)
+from garment_transfer.geometry.embedding import body_scale
+from garment_transfer.pipeline.shape_keys import (MIX_LIFT_RADIUS, SHAPE_KEY_BANDS, ShapeKeyFit, body_at,
+                                                  fit_shape_keys, keep_outside, keep_outside_banded,
+                                                  keep_outside_bands, mix_excess, mix_lift, transfer_to_shapes)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 from garment_transfer import surface_weights
 from lab.paths import makehuman_folder
@@ -63,6 +65,39 @@ def test_a_corrective_pair_makes_both_keys_at_one_exact(keyed):
     half = fit.blend({k: 0.5 for k in KEYS})
     assert np.allclose(half, fit.blend({k: 0.5 for k in KEYS}, correctives=False)
                        + 0.25 * fit.correctives[KEYS])
+
+
+def test_the_lift_of_a_mix_is_zero_within_the_fitted_shapes_and_outward_by_the_sagitta_of_the_longest_edge():
+    assert mix_excess({}) == mix_excess({"a": 1.0}) == mix_excess({"a": 0.4, "b": 0.6}) == 0.0
+    assert mix_excess({"a": 0.9, "b": 0.8, "c": -0.5}) == pytest.approx(1.2)
+    # A round body and a garment over it: the lift is along the body's outward normal at each vertex's closest point
+    # (here the radial direction) and its length the longest edge's square over 8 r.
+    V, F = icosphere(3)
+    body = mesh_from_triangles(V, F, "body")
+    G, GF = icosphere(1, radius=1.1)
+    garment = mesh_from_triangles(G, GF, "garment")
+    lift = mix_lift(body, garment, G)
+    E = np.concatenate([GF[:, [0, 1]], GF[:, [1, 2]], GF[:, [2, 0]]])
+    longest = np.zeros(len(G))
+    np.maximum.at(longest, E[:, 0], np.linalg.norm(G[E[:, 0]] - G[E[:, 1]], axis=1))
+    expected = longest ** 2 / (8 * MIX_LIFT_RADIUS * body_scale(V))
+    np.testing.assert_allclose(np.linalg.norm(lift, axis=1), expected, rtol=1e-12)
+    radial = G / np.linalg.norm(G, axis=1)[:, None]
+    normal = lift / np.linalg.norm(lift, axis=1)[:, None]
+    assert np.einsum("ij,ij->i", normal, radial).min() > 0.99
+    # Blended: nothing at the basis, at a key at 1 or at a mix adding up to 1; beyond, the excess times the lift.
+    key = G * 1.2
+    fit = ShapeKeyFit(G, {"a": key, "b": G + [0.1, 0, 0]}, lift=lift)
+    assert np.array_equal(fit.blend({}), G) and np.array_equal(fit.blend({"a": 1.0}), key)
+    np.testing.assert_allclose(fit.blend({"a": 0.5, "b": 0.5}), fit.blend({"a": 0.5, "b": 0.5}, lift=False), atol=0)
+    w = {"a": 0.9, "b": 0.7}
+    np.testing.assert_allclose(fit.blend(w) - fit.blend(w, lift=False), 0.6 * lift, rtol=1e-12, atol=1e-15)
+    # A fit lifts from its basis; not with corrective pairs (exact at both keys at 1), nor when asked not to.
+    shapes = {"big": V * 1.05, "long": V * [1.0, 1.0, 1.08]}
+    fitted = fit_shape_keys(body, shapes, garment)
+    np.testing.assert_array_equal(fitted.lift, mix_lift(body, garment, fitted.basis))
+    assert fit_shape_keys(body, shapes, garment, pairs=[("big", "long")]).lift is None
+    assert fit_shape_keys(body, shapes, garment, lift=False).lift is None
 
 
 def test_transfer_to_shapes_gives_positions_per_shape(keyed):

@@ -121,7 +121,7 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
         if name.startswith("object:"):
             assert after[name] == before[name], name       # the inputs are unchanged
     blocks = result.data.shape_keys.key_blocks
-    assert [kb.name for kb in blocks] == ["Basis", "pear", "slim"]
+    assert [kb.name for kb in blocks] == ["Basis", "pear", "slim", "Mix Lift"]
     drivers = {fc.data_path: fc.driver for fc in result.data.shape_keys.animation_data.drivers}
     for key in KEYS:
         drv = drivers[f'key_blocks["{key}"].value']
@@ -129,6 +129,11 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
         assert var.targets[0].id == body.data.shape_keys
         assert var.targets[0].data_path == f'key_blocks["{key}"].value'
         assert blocks[key].relative_key == blocks["Basis"]
+    # The lift of a mix: driven by how far the sliders add up beyond 1, in an expression Blender evaluates without
+    # Python (no auto-run of scripts needed).
+    drv = drivers['key_blocks["Mix Lift"].value']
+    assert drv.type == 'SCRIPTED' and drv.expression == "max(0, abs(k0) + abs(k1) - 1)" and drv.is_simple_expression
+    assert [v.targets[0].data_path for v in drv.variables] == [f'key_blocks["{k}"].value' for k in KEYS]
 
     fit = expected_fit(body, garment)
     assert np.abs(evaluated_world(result) - fit.basis).max() < 1e-5        # every slider at 0
@@ -140,9 +145,13 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
     set_key(body, "pear", 0.3)
     set_key(body, "slim", 0.6)
     assert np.abs(evaluated_world(result) - fit.blend({"pear": 0.3, "slim": 0.6})).max() < 1e-5
-    body.data.shape_keys.key_blocks["pear"].slider_max = 2.0     # beyond 1: extrapolated linearly
+    assert np.array_equal(fit.blend({"pear": 0.3, "slim": 0.6}), fit.blend({"pear": 0.3, "slim": 0.6}, lift=False))
+    body.data.shape_keys.key_blocks["pear"].slider_max = 2.0     # beyond 1: extrapolated linearly, and lifted
     set_key(body, "pear", 1.5)
     assert np.abs(evaluated_world(result) - fit.blend({"pear": 1.5, "slim": 0.6})).max() < 1e-5
+    lifted = fit.blend({"pear": 1.5, "slim": 0.6}) - fit.blend({"pear": 1.5, "slim": 0.6}, lift=False)
+    assert np.linalg.norm(lifted, axis=1).max() > 1e-3
+    assert result.data.shape_keys.key_blocks["Mix Lift"].value == pytest.approx(1.1)
 
 
 def test_corrective_pair_key_makes_both_keys_at_one_exact(keyed):
@@ -364,7 +373,7 @@ def test_a_garment_with_shape_keys_keeps_them(keyed):
     assert bpy.ops.garment_transfer.fit_shape_keys() == {'FINISHED'}
     result = bpy.data.objects["suit_fitted"]
     names = [kb.name for kb in result.data.shape_keys.key_blocks]
-    assert names == ["Basis", "wind", "pear", "slim"]
+    assert names == ["Basis", "wind", "pear", "slim", "Mix Lift"]
     offset = key_world(result, "wind") - key_world(result, "Basis")
     assert np.allclose(offset, key_world(garment, "wind") - key_world(garment, "Basis"), atol=1e-5)
 
