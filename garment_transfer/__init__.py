@@ -59,7 +59,7 @@ LAYERS = {
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
                  "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS",
                  "keep_outside_bands",
-                 "held_bands", "all_pairs", "fit_steps",
+                 "held_bands", "all_pairs", "fit_steps", "mix_excess", "pair_warnings", "self_crossing_pairs",
                  "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
                  "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
                  "fit_poses", "in_threads", "posed_counts", "poses_to_files", "every_split",

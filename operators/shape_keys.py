@@ -327,10 +327,10 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
 def key_warnings(result, fit, cloth, body_mesh, shapes):
     """What each key at 1 crosses, as stored in the new object (its 32-bit coordinates, in world space) against
     the body at that key, under every triangulation (``check_result``): the warnings to report."""
-    from ..garment_transfer import check_result, result_warnings
+    from ..garment_transfer import check_result, pair_warnings, result_warnings
 
     blocks = result.data.shape_keys.key_blocks
-    out = []
+    out = pair_warnings(fit, body_mesh.name)
     for name, V_body in shapes.items():
         V = world(key_coordinates(blocks[name]), result)
         check = check_result(cloth, V, body_mesh.with_vertices(V_body), source_pairs=fit.prepared.source_pairs(),

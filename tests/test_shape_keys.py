@@ -16,7 +16,8 @@ from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.embedding import body_scale
 from garment_transfer.pipeline.shape_keys import (MIX_LIFT_RADIUS, SHAPE_KEY_BANDS, ShapeKeyFit, body_at,
                                                   fit_shape_keys, keep_outside, keep_outside_banded,
-                                                  keep_outside_bands, mix_excess, mix_lift, transfer_to_shapes)
+                                                  keep_outside_bands, mix_excess, mix_lift, pair_warnings,
+                                                  self_crossing_pairs, transfer_to_shapes)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
 from garment_transfer import surface_weights
 from lab.paths import makehuman_folder
@@ -98,6 +99,32 @@ def test_the_lift_of_a_mix_is_zero_within_the_fitted_shapes_and_outward_by_the_s
     np.testing.assert_array_equal(fitted.lift, mix_lift(body, garment, fitted.basis))
     assert fit_shape_keys(body, shapes, garment, pairs=[("big", "long")]).lift is None
     assert fit_shape_keys(body, shapes, garment, lift=False).lift is None
+
+
+def test_a_pair_of_keys_whose_body_crosses_itself_only_together_is_found():
+    from garment_transfer.geometry.intersections import self_intersections
+    from garment_transfer.geometry.readings import readings_of
+
+    # Two balls 3 apart; each key brings one of them 0.7 nearer: alone they stay apart, together they overlap.
+    V1, F1 = icosphere(2)
+    V = np.vstack([V1, V1 + [3.0, 0, 0]])
+    F = np.vstack([F1, F1 + len(V1)])
+    body = mesh_from_triangles(V, F, "balls")
+    n = len(V1)
+    shapes = {"left": V + np.where(np.arange(2 * n)[:, None] < n, [0.7, 0, 0], 0.0),
+              "right": V - np.where(np.arange(2 * n)[:, None] >= n, [0.7, 0, 0], 0.0),
+              "up": V + [0, 0.5, 0]}
+    both = shapes["left"] + shapes["right"] - V
+    expected = self_intersections(both, readings_of(body))[0]
+    assert expected > 0 and self_intersections(shapes["left"], readings_of(body))[0] == 0
+    garment = np.vstack([V1 * 1.05, V1 * 1.05 + [3.0, 0, 0]])
+    assert self_crossing_pairs(body, shapes, garment, 0.01) == [("left", "right", expected)]
+    assert self_crossing_pairs(body, shapes, garment, 0.01, least=expected + 1) == []
+    # Keys that move nothing under the garment are not paired (a garment far away: none).
+    assert self_crossing_pairs(body, shapes, garment + [100.0, 0, 0], 0.01) == []
+    fit = ShapeKeyFit(V, {}, info={"self_crossing_pairs": [{"keys": ["left", "right"], "new_crossings": expected}]})
+    (warning,) = pair_warnings(fit, "balls")
+    assert "left and right both at 1 crosses itself" in warning and str(expected) in warning
 
 
 def test_transfer_to_shapes_gives_positions_per_shape(keyed):

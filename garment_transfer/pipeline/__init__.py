@@ -19,8 +19,8 @@ from .pose_fit import every_split, fit_poses, fit_to_pose, in_threads, posed_cou
 from .rest_pose import outfit_across_rest_poses, pose_difference, transfer_across_rest_poses
 from .result_check import check_result, result_warnings
 from .shape_keys import (KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, SHAPE_KEY_BANDS, ShapeKeyFit, all_pairs,
-                         fit_shape_keys, fit_steps, held_bands, keep_outside_bands, shapes_to_files,
-                         transfer_to_shapes)
+                         fit_shape_keys, fit_steps, held_bands, keep_outside_bands, mix_excess, pair_warnings,
+                         self_crossing_pairs, shapes_to_files, transfer_to_shapes)
 from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
 
@@ -30,6 +30,7 @@ __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment
            "held_bands",
            "OutfitError", "OutfitResult", "transfer_outfit",
            "ShapeKeyFit", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps",
+           "mix_excess", "pair_warnings", "self_crossing_pairs",
            "evaluate", "mdc",
            "drape_error", "vertex_error", "per_vertex_change", "training_garments", "check_model",
            "check_after_training", "check_lines", "fit_to_pose", "fit_poses", "in_threads", "posed_counts",

@@ -41,7 +41,8 @@ from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface, as_same_mesh
-from ..geometry.readings import readings_of
+from ..geometry.readings import readings_of, split_readings
+from ..geometry.self_check import pairs_in_full
 from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
@@ -72,6 +73,12 @@ KEEP_OUTSIDE_SLACK = 0.999
 #: --remedies`` (female_casualsuit01, 100 mixes of seeds 0 and 1): every mix whose body does not cross itself where
 #: both legs keys meet is clean with it, 3 of the 4 such mixes left at half this lift.
 MIX_LIFT_RADIUS = 0.2
+#: A pair of keys is reported (``self_crossing_pairs``) when the body with both at 1 has at least this many
+#: crossings of its own (an edge through a triangle of its own triangulation) that neither the basis nor either key
+#: at 1 has. The ten keys of ``python -m lab.shape_keys`` (45 pairs): the male and the slim body's legs at once 466
+#: (the one pair whose mixes stay crossed with the lift), every other pair at most 14. About 2.5 s for those ten
+#: keys on 2 cores (56 checks of the 13,380-vertex body), against 8 s for the keys' transfers.
+SELF_CROSSING_PAIRS_FROM = 50
 
 
 @dataclass
@@ -128,6 +135,14 @@ class ShapeKeyFit:
         return V
 
 
+def pair_warnings(fit: ShapeKeyFit, body_name="the body"):
+    """The pairs of keys of ``fit.info["self_crossing_pairs"]``, said in words."""
+    return [f"{body_name} with {p['keys'][0]} and {p['keys'][1]} both at 1 crosses itself "
+            f"({p['new_crossings']} crossings of its own that neither key alone nor the basis has): a mix with both "
+            f"near 1 puts body parts inside each other, and the garment there is not kept outside both"
+            for p in fit.info.get("self_crossing_pairs", [])]
+
+
 def mix_excess(weights):
     """How far slider values ``weights`` (dict name -> value) reach beyond the fitted shapes: ``max(0, sum |w| -
     1)``; 0 at the basis, at each key at 1 and wherever the values add up to at most 1."""
@@ -151,6 +166,59 @@ def mix_lift(source_body: Mesh, garment: Mesh, V, radius=MIX_LIFT_RADIUS):
     np.maximum.at(longest, E[:, 1], length)
     normal = TriangleSurface(source_body.V, source_body.F).signed_distance(V)[2]
     return normal * (longest ** 2 / (8.0 * radius * body_scale(source_body.V)))[:, None]
+
+
+def self_crossing_pairs(source_body: Mesh, shapes, garment_V, offset, least=SELF_CROSSING_PAIRS_FROM):
+    """Pairs of keys whose body with both at 1 crosses itself where neither the basis nor either key at 1 does (its
+    own triangulation, as the pose fit counts a body's own crossings): a mix with both near 1 is a body with parts
+    inside each other, and no garment there can be outside both.
+
+    Only keys that move the body under the garment are paired (by more than ``offset`` somewhere within ten offsets
+    of ``garment_V``): a face's or a hand's keys are left out.
+
+    Parameters
+    ----------
+    source_body : Mesh
+    shapes : dict of str to (n,3) float
+    garment_V : (g,3) float
+        The garment on the basis.
+    offset : float
+    least : int
+        New crossings (edge, triangle) from which a pair is reported.
+
+    Returns
+    -------
+    list of (str, str, int)
+        The pair and its new crossings, in the order of ``all_pairs``.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from scipy.spatial import cKDTree
+
+    R = split_readings(source_body)
+    near = np.isfinite(cKDTree(np.asarray(garment_V, dtype=np.float64)).query(
+        source_body.V, distance_upper_bound=10.0 * offset)[0])
+    moving = [k for k, V in shapes.items()
+              if near.any() and np.linalg.norm(V[near] - source_body.V[near], axis=1).max() > offset]
+    pairs = all_pairs(moving)
+    if not pairs:
+        return []
+
+    def own(V):
+        found = pairs_in_full(V, R)
+        return found[:, 0] * R.n_triangles + found[:, 1]
+
+    bodies = [source_body.V] + [shapes[k] for k in moving] + [body_at(source_body.V, shapes, {a: 1.0, b: 1.0})
+                                                             for a, b in pairs]
+    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="shape-key-pairs") as pool:
+        found = list(pool.map(own, bodies))
+    basis, single = found[0], dict(zip(moving, found[1:1 + len(moving)]))
+    out = []
+    for (a, b), both in zip(pairs, found[1 + len(moving):]):
+        new = np.setdiff1d(both, np.concatenate([basis, single[a], single[b]])).size
+        if new >= least:
+            out.append((a, b, int(new)))
+    return out
 
 
 def check_shapes(basis: Mesh, shapes):
@@ -207,7 +275,7 @@ def all_pairs(names):
 
 def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None, margin=0.0,
               fix_penetration=True, resolve_crossings=True, interpolate=True, stiffness=None,
-              with_basis=True, prepared: PreparedGarment | None = None, lift=True):
+              with_basis=True, prepared: PreparedGarment | None = None, lift=True, check_pairs=True):
     """Fit ``garment`` to every shape, one transfer per step: a generator.
 
     Yields ``(done, total, name)`` after each transfer (the basis first, then the keys, then the
@@ -239,6 +307,9 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
     lift : bool
         Lift a mix whose sliders add up to more than 1 (``mix_lift``). Not with corrective ``pairs``: the blend is
         then exact at each pair of keys at 1, which the lift would move.
+    check_pairs : bool
+        Find the pairs of keys whose body with both at 1 crosses itself (``self_crossing_pairs``), for
+        ``info["self_crossing_pairs"]`` and ``pair_warnings``.
     """
     shapes = check_shapes(source_body, shapes)
     pairs = [tuple(p) for p in pairs]
@@ -290,6 +361,13 @@ def fit_steps(source_body: Mesh, shapes, garment: Mesh, *, pairs=(), offset=None
         correctives[(a, b)] = exact - (keys[a] + keys[b] - basis)
         yield 2 + len(shapes) + i, total, f"{a}+{b}"
     seconds["correctives"] = time.perf_counter() - t
+    if check_pairs:
+        t = time.perf_counter()
+        info["self_crossing_pairs"] = [
+            {"keys": [a, b], "new_crossings": n}
+            for a, b, n in self_crossing_pairs(source_body, shapes, basis,
+                                               OFFSET_SHARE * body_scale(source_body.V) if offset is None else offset)]
+        seconds["pairs"] = time.perf_counter() - t
     seconds["total"] = time.perf_counter() - t0
     return ShapeKeyFit(basis, keys, correctives, info, seconds, prepared,
                        mix_lift(source_body, garment, basis) if lift and not pairs else None)
