@@ -59,10 +59,9 @@ KEEP_OUTSIDE_SHARE = 0.5
 KEEP_OUTSIDE_BANDS = (0.5, 0.75, 1.0)
 #: The bands of size shape keys (``keep_outside_bands``): those of ``KEEP_OUTSIDE_BANDS`` and more above the
 #: offset, so that a vertex the basis and every key at 1 hold farther out than the offset is kept that far at a
-#: mix too (a long garment edge over the buttocks then no longer meets the body). ``python -m lab.shape_keys``
-#: (50 mixes, seed 0): 5 of 50 mixes crossing, 6 with ``KEEP_OUTSIDE_BANDS`` (``lab/shape_keys_mixes.py``, the
-#: diagnosis): three on bodies that cross themselves 3-4 times as often as the basis, one that crosses itself 23
-#: times as often (the exact transfer to it crosses it too), one a long edge over the buttock.
+#: mix too. ``python -m lab.shape_keys`` (50 mixes, seed 0), without the lift of a mix (``mix_lift``): 5 of 50 mixes
+#: crossing, 6 with ``KEEP_OUTSIDE_BANDS``; with it 1 (both legs keys: the body crosses itself 23 times as often as
+#: the basis; ``lab/shape_keys_mixes.py``, the diagnosis).
 SHAPE_KEY_BANDS = (0.5, 0.75, 1.0, 1.1, 1.2, 1.35, 1.5, 2.0)
 #: A vertex joins a band only if the basis and every key at 1 hold it at least ``band / KEEP_OUTSIDE_SLACK``
 #: away: room for Blender's 32-bit coordinates and its own nearest-point search.
