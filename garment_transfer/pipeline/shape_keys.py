@@ -410,7 +410,8 @@ def fit_shape_keys(source_body: Mesh, shapes, garment: Mesh, *, progress=None, *
 
 
 def transfer_to_shapes(source_body: Mesh, shapes, garment: Mesh, **options):
-    """The garment on each of ``shapes`` (one preparation for all).
+    """The garment on each of ``shapes`` (one preparation for all): each shape on its own, not keys to mix (no lift
+    of a mix, no check of pairs).
 
     Returns
     -------
@@ -418,7 +419,7 @@ def transfer_to_shapes(source_body: Mesh, shapes, garment: Mesh, **options):
     info : dict of str to dict
         Per shape: ``seconds`` by stage, ``penetrating_vertices``, ``offset``; ``"prepare"``: seconds.
     """
-    fit = fit_shape_keys(source_body, shapes, garment, **options)
+    fit = fit_shape_keys(source_body, shapes, garment, **dict(dict(lift=False, check_pairs=False), **options))
     info = {name: fit.info[name] for name in fit.keys}
     info["prepare"] = {"seconds": fit.seconds["prepare"]}
     return fit.keys, info
