@@ -126,16 +126,15 @@ def body_weights(body):
     return W, names
 
 
-def add_driver(key_block, body_key, variables, expression=None, names=None):
+def add_driver(key_block, body_key, variables, expression=None):
     """Drive ``key_block.value`` from the values of ``body_key``'s key blocks ``variables``: their average, or
-    ``expression`` of them named ``names`` (default a, b, ...; an expression Blender evaluates without Python)."""
+    ``expression`` of them named a, b, ... (an expression Blender evaluates without Python)."""
     fc = key_block.driver_add("value")
     drv = fc.driver
     drv.type = 'SCRIPTED' if expression else 'AVERAGE'
-    names = names or [chr(ord("a") + i) for i in range(len(variables))]
     for i, name in enumerate(variables):
         var = drv.variables.new()
-        var.name = names[i] if expression else "value"
+        var.name = "ab"[i] if expression else ("value" if len(variables) == 1 else f"k{i}")
         var.type = 'SINGLE_PROP'
         var.targets[0].id_type = 'KEY'
         var.targets[0].id = body_key
@@ -163,9 +162,18 @@ def mix_lift_name(body_keys):
     return name
 
 
-def mix_lift_expression(count):
-    """The driver of the lift: ``max(0, abs(k0) + ... - 1)`` of ``count`` sliders, ``shape_keys.mix_excess``."""
-    return "max(0, " + " + ".join(f"abs(k{i})" for i in range(count)) + " - 1)"
+def add_lift_driver(key_block, body_key, variables):
+    """Drive the lift key ``key_block`` by ``shape_keys.mix_excess`` of ``body_key``'s sliders ``variables``: their
+    sum (a Sum driver, evaluated without Python and for any number of keys), less 1 (a Generator modifier), held at 0
+    below by the key's slider range."""
+    fc = add_driver(key_block, body_key, variables)
+    fc.driver.type = 'SUM'
+    generator = fc.modifiers.new('GENERATOR')
+    generator.mode = 'POLYNOMIAL'
+    generator.poly_order = 1
+    generator.coefficients = (-1.0, 1.0)
+    key_block.slider_min = 0.0
+    return fc
 
 
 def write_key(me, key_block, V_local):
@@ -217,8 +225,7 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
             write_key(me, kb, convert.local_from_world(fit.basis + fit.lift, garment.matrix_world, garment.name))
             kb.relative_key = reference
             kb.slider_min, kb.slider_max = 0.0, 10.0
-            add_driver(kb, key_body, list(fit.keys), expression=mix_lift_expression(len(fit.keys)),
-                       names=[f"k{i}" for i in range(len(fit.keys))])
+            add_lift_driver(kb, key_body, list(fit.keys))
         if weights is not None:
             W, names = weights
             for j, name in enumerate(names):

@@ -70,7 +70,8 @@ def test_a_corrective_pair_makes_both_keys_at_one_exact(keyed):
 
 def test_the_lift_of_a_mix_is_zero_within_the_fitted_shapes_and_outward_by_the_sagitta_of_the_longest_edge():
     assert mix_excess({}) == mix_excess({"a": 1.0}) == mix_excess({"a": 0.4, "b": 0.6}) == 0.0
-    assert mix_excess({"a": 0.9, "b": 0.8, "c": -0.5}) == pytest.approx(1.2)
+    assert mix_excess({"a": 0.9, "b": 0.8, "c": -0.5}) == pytest.approx(0.2)
+    assert mix_excess({"a": 1.5, "b": -0.7}) == 0.0          # negative values count negatively, as a Sum driver
     # A round body and a garment over it: the lift is along the body's outward normal at each vertex's closest point
     # (here the radial direction) and its length the longest edge's square over 8 r.
     V, F = icosphere(3)

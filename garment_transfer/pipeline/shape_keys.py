@@ -19,10 +19,10 @@ value 1, but only close to the transfer at a mix of keys: where two keys both mo
 And one is on by default, the lift of a mix (``mix_lift``): where the sliders add up to more than 1 the blend
 goes beyond every fitted shape (three keys that each round the hips, at once), and a long garment edge over a
 curve of the body (the buttocks) that clears it at every key at 1 can be cut through between its vertices. The
-garment then moves out along the body's normals by ``mix_excess(w) = max(0, sum_k |w_k| - 1)`` times ``lift``,
+garment then moves out along the body's normals by ``mix_excess(w) = max(0, sum_k w_k - 1)`` times ``lift``,
 which grows with the square of each vertex's longest edge (the sagitta of that edge over a curve); at the basis,
-at every key at 1 and at any mix whose values add up to at most 1 it is 0 (a Blender key driven by
-``max(0, abs(a) + abs(b) + ... - 1)``).
+at every key at 1 and at any mix whose values add up to at most 1 it is 0 (a Blender key driven by the sum of
+the sliders less 1, held at 0 by its slider range).
 """
 
 from __future__ import annotations
@@ -143,9 +143,10 @@ def pair_warnings(fit: ShapeKeyFit, body_name="the body"):
 
 
 def mix_excess(weights):
-    """How far slider values ``weights`` (dict name -> value) reach beyond the fitted shapes: ``max(0, sum |w| -
-    1)``; 0 at the basis, at each key at 1 and wherever the values add up to at most 1."""
-    return max(0.0, float(sum(abs(float(w)) for w in weights.values())) - 1.0)
+    """How far slider values ``weights`` (dict name -> value) reach beyond the fitted shapes: ``max(0, sum w - 1)``;
+    0 at the basis, at each key at 1 and wherever the values add up to at most 1 (in Blender a Sum driver of the
+    sliders, less 1, held at 0 by the key's slider range)."""
+    return max(0.0, float(sum(float(w) for w in weights.values())) - 1.0)
 
 
 def mix_lift(source_body: Mesh, garment: Mesh, V, radius=MIX_LIFT_RADIUS):

@@ -129,11 +129,14 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
         assert var.targets[0].id == body.data.shape_keys
         assert var.targets[0].data_path == f'key_blocks["{key}"].value'
         assert blocks[key].relative_key == blocks["Basis"]
-    # The lift of a mix: driven by how far the sliders add up beyond 1, in an expression Blender evaluates without
-    # Python (no auto-run of scripts needed).
-    drv = drivers['key_blocks["Mix Lift"].value']
-    assert drv.type == 'SCRIPTED' and drv.expression == "max(0, abs(k0) + abs(k1) - 1)" and drv.is_simple_expression
-    assert [v.targets[0].data_path for v in drv.variables] == [f'key_blocks["{k}"].value' for k in KEYS]
+    # The lift of a mix: driven by how far the sliders add up beyond 1, with no Python to run (a Sum driver, a
+    # Generator modifier taking 1 off, the key's slider range holding it at 0 below) and for any number of keys.
+    fc, = [f for f in result.data.shape_keys.animation_data.drivers if f.data_path == 'key_blocks["Mix Lift"].value']
+    assert fc.driver.type == 'SUM' and not fc.keyframe_points
+    assert [v.targets[0].data_path for v in fc.driver.variables] == [f'key_blocks["{k}"].value' for k in KEYS]
+    (generator,) = fc.modifiers
+    assert generator.type == 'GENERATOR' and list(generator.coefficients) == [-1.0, 1.0]
+    assert (blocks["Mix Lift"].slider_min, blocks["Mix Lift"].slider_max) == (0.0, 10.0)
 
     fit = expected_fit(body, garment)
     assert np.abs(evaluated_world(result) - fit.basis).max() < 1e-5        # every slider at 0
@@ -146,6 +149,7 @@ def test_keys_and_drivers_follow_the_body_sliders(keyed):
     set_key(body, "slim", 0.6)
     assert np.abs(evaluated_world(result) - fit.blend({"pear": 0.3, "slim": 0.6})).max() < 1e-5
     assert np.array_equal(fit.blend({"pear": 0.3, "slim": 0.6}), fit.blend({"pear": 0.3, "slim": 0.6}, lift=False))
+    assert result.data.shape_keys.key_blocks["Mix Lift"].value == 0.0
     body.data.shape_keys.key_blocks["pear"].slider_max = 2.0     # beyond 1: extrapolated linearly, and lifted
     set_key(body, "pear", 1.5)
     assert np.abs(evaluated_world(result) - fit.blend({"pear": 1.5, "slim": 0.6})).max() < 1e-5
