@@ -70,7 +70,8 @@ KEEP_OUTSIDE_SLACK = 0.999
 #: edge (sides and diagonals) over a sphere of this radius, a share of the body's scale (``body_scale``; about
 #: 0.39 m on a 1.7 m body: 0.5 mm for an edge of 40 mm, 1.9 mm for one of 78 mm). ``python -m lab.shape_keys_mixes
 #: --remedies`` (female_casualsuit01, 100 mixes of seeds 0 and 1): every mix whose body does not cross itself where
-#: both legs keys meet is clean with it, 3 of the 4 such mixes left at half this lift.
+#: both legs keys meet is clean with it (6 cross without it, 3 of them at half this lift); the same on two more
+#: suits.
 MIX_LIFT_RADIUS = 0.2
 #: A pair of keys is reported (``self_crossing_pairs``) when the body with both at 1 has at least this many
 #: crossings of its own (an edge through a triangle of its own triangulation) that neither the basis nor either key
