@@ -332,8 +332,9 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
 
 
 def key_warnings(result, fit, cloth, body_mesh, shapes):
-    """What each key at 1 crosses, as stored in the new object (its 32-bit coordinates, in world space) against
-    the body at that key, under every triangulation (``check_result``): the warnings to report."""
+    """The warnings to report: the pairs of keys whose body crosses itself (``pair_warnings``), then what each key
+    at 1 crosses, as stored in the new object (its 32-bit coordinates, in world space) against the body at that
+    key, under every triangulation (``check_result``)."""
     from ..garment_transfer import check_result, pair_warnings, result_warnings
 
     blocks = result.data.shape_keys.key_blocks
