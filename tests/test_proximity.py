@@ -376,15 +376,21 @@ def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band():
         assert points.size < P.shape[0]
 
 
+@pytest.fixture(scope="module")
+def near_pairs_with_brute_force():
+    """``_near_pairs_cases`` with each one's brute-force distances (the slow part, made once)."""
+    return [(P, V, F, within, brute_force(P, V, F)) for P, V, F, within in _near_pairs_cases()]
+
+
 @pytest.mark.parametrize("full_share", [0.0, 2.0], ids=["the surface's tree", "a tree of the near triangles"])
-def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force(monkeypatch, full_share):
+def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force(monkeypatch, full_share,
+                                                                         near_pairs_with_brute_force):
     # Either way a bounded search goes (most points near: the surface's own tree; else one of the near triangles).
     monkeypatch.setattr(proximity, "FULL_SEARCH_SHARE", full_share)
-    for P, V, F, within in _near_pairs_cases():
+    for P, V, F, within, ref in near_pairs_with_brute_force:
         s = TriangleSurface(V, F)
         bounded = s.closest(P, within=within)
         full = s.closest(P)
-        ref = brute_force(P, V, F)
         near = ref < within * (1 - 1e-9)
         far = ref > within * (1 + 1e-9)
         assert near.sum() > 10 and far.sum() > 10
