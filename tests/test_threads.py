@@ -1,6 +1,6 @@
 """``geometry.threads.together``: the calls' results in order, every call ended before an error is raised, and
 the work done in the caller's thread when no helper is free; ``ahead``: a call started early, its result (or its
-error) when asked for, in the caller's thread when no helper is free."""
+error) when asked for, in the caller's thread when no helper is free; ``in_threads``: a map in threads of its own."""
 
 import threading
 import time
@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from garment_transfer.geometry.threads import HELPERS, ahead, together
+from garment_transfer.geometry.threads import HELPERS, ahead, in_threads, together
 
 
 def test_results_in_order_as_one_after_the_other():
@@ -114,3 +114,15 @@ def test_ahead_without_a_free_helper_runs_when_asked_in_the_callers_thread():
     assert late.result() == "done" and ran == [here]
     release.set()
     assert all(b.result() for b in busy)
+
+
+def test_in_threads_maps_in_order_and_one_worker_stays_in_the_callers_thread():
+    rng = np.random.default_rng(1)
+    A = [rng.random((200, 200)) for _ in range(5)]
+    got = in_threads(lambda a: a @ a.T, A, workers=2)
+    for a, g in zip(A, got):
+        np.testing.assert_array_equal(g, a @ a.T)
+    here = threading.current_thread().name
+    assert in_threads(lambda _: threading.current_thread().name, [0, 1], workers=1) == [here, here]
+    assert set(in_threads(lambda _: threading.current_thread().name, [0, 1, 2], workers=2)) != {here}
+    assert in_threads(len, []) == []

@@ -1,4 +1,5 @@
-"""Independent array computations at once, where a core is free (``together``), or one started early (``ahead``).
+"""Independent array computations at once, where a core is free (``together``), or one started early (``ahead``);
+many of one kind spread over the cores (``in_threads``).
 
 Most of a check's time is numpy's, scipy's and libigl's work on whole arrays, which runs outside Python's lock:
 two checks that do not depend on each other (a garment's crossings and its close pairs against a body that does
@@ -15,6 +16,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 #: Helper threads for ``together`` (the cores but one, at most 3; none on one core).
 HELPERS = max(0, min(3, (os.cpu_count() or 1) - 1))
+#: Threads of ``in_threads`` (the cores, at most 4).
+WORKERS = max(1, min(4, os.cpu_count() or 1))
 
 _free = threading.BoundedSemaphore(HELPERS) if HELPERS else None
 _pool = None
@@ -87,3 +90,14 @@ def _released(call):
         return call()
     finally:
         _free.release()
+
+
+def in_threads(fn, items, workers=None):
+    """``[fn(x) for x in items]``, ``workers`` at once (default ``WORKERS``) in threads of their own: for many
+    computations of one kind that are numpy's, scipy's and libigl's work on whole arrays (outside Python's lock),
+    such as the counts of many poses or the self-checks of many shapes of one body."""
+    workers = WORKERS if workers is None else max(1, int(workers))
+    if workers == 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(min(workers, len(items)), thread_name_prefix="in-threads") as pool:
+        return list(pool.map(fn, items))

@@ -19,7 +19,6 @@ a reader of the written file may split a quad along either diagonal.
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -37,6 +36,7 @@ from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.pc2 import write_pc2
 from ..geometry.proximity import TriangleSurface, made_of
+from ..geometry.threads import WORKERS, in_threads
 from ..geometry.readings import (Readings, kept_triangle_readings, polygon_triangles_readings, readings_of,
                                  readings_with_graph, split_readings)
 from .shape_keys import shapes_outputs
@@ -55,7 +55,7 @@ PASSES = 3
 #: Poses fitted at once by ``fit_poses`` (threads): a fit is numpy's, scipy's and libigl's work on whole arrays,
 #: which runs outside Python's lock, so two poses at once on 2 cores take about 0.6 of the time of one after the
 #: other (``python -m lab.motion --speed``).
-POSE_WORKERS = max(1, min(4, os.cpu_count() or 1))
+POSE_WORKERS = WORKERS
 
 
 def every_split(mesh: Mesh):
@@ -151,9 +151,10 @@ def _apart_at_rest(rest_V, pairs, distance):
     coordinate column at a time (a posed body has about 700,000 pairs closer than the contact gap, nearly all
     neighbours on the skin: a row gather of them took as long as the body's own crossings)."""
     i, j = pairs[:, 0], pairs[:, 1]
+    rest_V = np.asarray(rest_V)
     squared = np.zeros(pairs.shape[0])
     for k in range(3):
-        x = np.ascontiguousarray(np.asarray(rest_V)[:, k], dtype=np.float64)
+        x = np.ascontiguousarray(rest_V[:, k], dtype=np.float64)
         d = x[i] - x[j]
         squared += d * d
     return squared > distance * distance
@@ -274,16 +275,6 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
             yield name, job.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-
-
-def in_threads(fn, items, workers=None):
-    """``[fn(x) for x in items]``, ``workers`` at once (default ``POSE_WORKERS``) in threads: for counts of many
-    poses (numpy's work, outside Python's lock)."""
-    workers = POSE_WORKERS if workers is None else max(1, int(workers))
-    if workers == 1 or len(items) < 2:
-        return [fn(x) for x in items]
-    with ThreadPoolExecutor(min(workers, len(items)), thread_name_prefix="pose-counts") as pool:
-        return list(pool.map(fn, items))
 
 
 def free_body(body: Mesh, contact, garment: Mesh, V):

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..errors import Cancelled, MeshError
 from ..files import check_outputs, write_json_atomic
@@ -43,6 +44,7 @@ from ..geometry.obj import read_obj, write_obj
 from ..geometry.proximity import TriangleSurface, as_same_mesh
 from ..geometry.readings import readings_of, split_readings
 from ..geometry.self_check import pairs_in_full
+from ..geometry.threads import in_threads
 from .result_check import check_result, result_warnings
 from .transfer import OFFSET_SHARE, PreparedGarment, prepare_garment, transfer_garment
 
@@ -192,10 +194,6 @@ def self_crossing_pairs(source_body: Mesh, shapes, garment_V, offset, least=SELF
     list of (str, str, int)
         The pair and its new crossings, in the order of ``all_pairs``.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
-    from scipy.spatial import cKDTree
-
     R = split_readings(source_body)
     near = np.isfinite(cKDTree(np.asarray(garment_V, dtype=np.float64)).query(
         source_body.V, distance_upper_bound=10.0 * offset)[0])
@@ -211,8 +209,7 @@ def self_crossing_pairs(source_body: Mesh, shapes, garment_V, offset, least=SELF
 
     bodies = [source_body.V] + [shapes[k] for k in moving] + [body_at(source_body.V, shapes, {a: 1.0, b: 1.0})
                                                              for a, b in pairs]
-    with ThreadPoolExecutor(max(1, min(2, os.cpu_count() or 1)), thread_name_prefix="shape-key-pairs") as pool:
-        found = list(pool.map(own, bodies))
+    found = in_threads(own, bodies)
     basis, single = found[0], dict(zip(moving, found[1:1 + len(moving)]))
     out = []
     for (a, b), both in zip(pairs, found[1 + len(moving):]):

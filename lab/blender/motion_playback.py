@@ -239,17 +239,19 @@ def bake(character, rig_module, result, R, pose_name, frames):
         world(result, True)
     play = (time.perf_counter() - t) / frames
     # The bake as the extension runs it (a few frames fitted at once), beside the same bake one frame at a time.
-    pose_fit = importlib.import_module(rig_module.__name__.rsplit(".", 2)[0] + ".garment_transfer").pipeline.pose_fit
+    core = importlib.import_module(rig_module.__name__.rsplit(".", 2)[0] + ".garment_transfer")
+    pose_fit, threads = core.pipeline.pose_fit, core.geometry.threads
     default = pose_fit.POSE_WORKERS
     seconds = {}
     try:
         for workers in (1, default):
-            pose_fit.POSE_WORKERS = workers
+            # The poses fitted at once and the frames' counts made at once (``in_threads``).
+            pose_fit.POSE_WORKERS = threads.WORKERS = workers
             t = time.perf_counter()
             assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=frames) == {'FINISHED'}
             seconds[workers] = time.perf_counter() - t
     finally:
-        pose_fit.POSE_WORKERS = default
+        pose_fit.POSE_WORKERS = threads.WORKERS = default
     one, many = seconds[1], seconds[default]
     print(f"\nbake of {frames} frames ({result.name}, rest to {pose_name}): {many:.1f} s, {many / frames:.2f} s a "
           f"frame ({100 * many / frames:.0f} s for 100 frames), {default} frames at once; one frame at a time "
