@@ -140,7 +140,8 @@ def layer_checks(context, results, cloths, target, posed_offsets=None, rest_V=No
         checks.append(check_result(cloth, V, target, layers_below=below))
         below.append((V, readings_of(cloth)))
         if posed_offsets is not None:
-            counts = posed_counts(V, cloth, target, posed_offsets[k], rest_V=rest_V, name=f"{target.name} ({obj.name})")
+            counts = posed_counts(V, cloth, target, posed_offsets[k], rest_V=rest_V, name=f"{target.name} ({obj.name})",
+                                  own=False)
             checks[-1].update(crossings_outside_contact=counts["crossings_outside_contact"],
                               crossings_at_contact=counts["crossings_at_contact"], pose_warnings=counts["warnings"])
     return checks

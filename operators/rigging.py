@@ -21,7 +21,7 @@ import time
 
 import bpy
 import numpy as np
-from bpy.props import IntProperty, StringProperty
+from bpy.props import BoolProperty, IntProperty, StringProperty
 from mathutils import Matrix
 
 from . import convert
@@ -417,8 +417,9 @@ def fitted_name(obj, frame):
     return f"{obj.name}_fitted_{frame}"
 
 
-def fit_current_pose(context, obj, body):
-    """The garment fitted to the body's pose at the current frame: a new object (the inputs unchanged).
+def fit_current_pose(context, obj, body, untangle=False):
+    """The garment fitted to the body's pose at the current frame: a new object (the inputs unchanged); ``untangle``:
+    where the fit made the cloth cross itself, undone (the core's ``untangle_fit``).
 
     Returns
     -------
@@ -432,7 +433,7 @@ def fit_current_pose(context, obj, body):
     rest, posed, cloth = rest_and_posed(context, obj, body)
     require_same_topology(rest, posed)
     frame = context.scene.frame_current
-    outcome = fit_to_pose(rest, posed.V, cloth, name=f"frame {frame}")
+    outcome = fit_to_pose(rest, posed.V, cloth, name=f"frame {frame}", untangle=untangle)
     result = convert.new_result_object(obj, outcome.V, fitted_name(obj, frame), context.evaluated_depsgraph_get(),
                                        False, scene=context.scene, view_layer=context.view_layer)
     try:
@@ -478,7 +479,7 @@ def _posed_counts(rest, cloth, outcome, name, posed, V):
                         surface=outcome.surface)
 
 
-def bake_steps(context, obj, body, start, end):
+def bake_steps(context, obj, body, start, end, untangle=False):
     """Fit the garment to every frame from ``start`` to ``end``: a generator of fractions done; its value
     (``StopIteration.value``) is ``(frames, positions, fits, seconds)``, ``fits`` what ``measure_baked`` needs:
     the rest body, the garment, and per frame the posed body and the fit. The scene's frame is put back.
@@ -509,7 +510,7 @@ def bake_steps(context, obj, body, start, end):
         rest, _, cloth = rest_and_posed(context, obj, body)
         prepared = prepare_garment(rest, cloth)
         positions, fits = [], {"rest": rest, "garment": cloth, "frames": []}
-        fitting = fit_poses(rest, posed_frames(), cloth, prepared=prepared)
+        fitting = fit_poses(rest, posed_frames(), cloth, prepared=prepared, untangle=untangle)
         try:
             for i, (frame, outcome) in enumerate(fitting):
                 positions.append(outcome.V)
@@ -552,7 +553,8 @@ def measure_baked(context, baked, frames, fits):
                       "frames_with_crossings": sum(1 for r in rows if r["crossings_outside_contact"]),
                       "crossings_outside_contact": sum(r["crossings_outside_contact"] for r in rows),
                       "crossings_at_contact": sum(r["crossings_at_contact"] for r in rows),
-                      "penetrating_vertices": sum(r["penetrating_vertices"] for r in rows)}
+                      "penetrating_vertices": sum(r["penetrating_vertices"] for r in rows),
+                      "self_intersections_new": sum(r["self_intersections_new"] for r in rows)}
     return {"frames": rows, "warnings": warnings}
 
 
@@ -724,6 +726,10 @@ class GARMENT_TRANSFER_OT_rig_garment(bpy.types.Operator):
         return {'FINISHED'}
 
 
+UNTANGLE_TEXT = ("Undo where the fit makes the cloth cross itself (the lap sitting, under the arms) without crossing "
+                 "the body more: seconds more a frame where it does")
+
+
 class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
     """Fit the result to the target body's pose at the current frame, keeping its folds and the body inside:
     a new object <result>_fitted_<frame>"""
@@ -731,6 +737,8 @@ class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
     bl_idname = "garment_transfer.fit_pose"
     bl_label = "Fit to Pose"
     bl_options = {'REGISTER', 'UNDO'}
+
+    untangle: BoolProperty(name="Untangle", default=False, description=UNTANGLE_TEXT)
 
     @classmethod
     def poll(cls, context):
@@ -740,7 +748,7 @@ class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
         try:
-            result, outcome = fit_current_pose(context, settings.result, settings.target_body)
+            result, outcome = fit_current_pose(context, settings.result, settings.target_body, self.untangle)
         except Exception as exc:
             return report_failure(self, exc)
         info = outcome.info
@@ -764,6 +772,7 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
     frame_end: IntProperty(name="End", default=0, description="Last frame to bake (0: the scene's end)")
     cache_file: StringProperty(name="Point Cache", subtype='FILE_PATH', default="",
                                description="PC2 file to bake into (a Mesh Cache modifier plays it); empty: shape keys")
+    untangle: BoolProperty(name="Untangle", default=False, description=UNTANGLE_TEXT)
 
     status_text = "Baking the pose fit"
     cancel_text = "Pose fit bake cancelled; nothing was made"
@@ -779,7 +788,7 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
         end = self.frame_end or context.scene.frame_end
         self._cache = bake_cache_path(self.cache_file) if self.cache_file else None
         self._began = time.perf_counter()
-        self._steps = bake_steps(context, settings.result, settings.target_body, self.frame_start, end)
+        self._steps = bake_steps(context, settings.result, settings.target_body, self.frame_start, end, self.untangle)
 
     def _finish(self, context, outcome):
         frames, positions, fits, seconds = outcome

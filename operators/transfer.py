@@ -204,7 +204,7 @@ def result_metrics(context, result, garment, target, posed=None):
         written = convert.core_mesh_from_object(result, depsgraph, False, "result")
     metrics = evaluate(garment, garment.with_vertices(written.V), target)
     if posed is not None:
-        counts = posed_counts(written.V, garment, target, posed[0], rest_V=posed[1], name=target.name)
+        counts = posed_counts(written.V, garment, target, posed[0], rest_V=posed[1], name=target.name, own=False)
         metrics.update(crossings_outside_contact=counts["crossings_outside_contact"],
                        crossings_at_contact=counts["crossings_at_contact"], pose_warnings=counts["warnings"])
     return metrics

@@ -111,7 +111,7 @@ def cmd_transfer(args):
             # The source at rest tells, on a target of its mesh, which parts the pose pressed together.
             pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
                                            rest_V=source_body.V if registration is None else None,
-                                           name=os.path.basename(args.target_body))
+                                           name=os.path.basename(args.target_body), own=False)
             out["warnings"] += pose["written"]["warnings"]
             lines.append(_written_pose_line(args.out, pose["written"]))
     lines += [f"warning: {w}" for w in out["warnings"]]
@@ -219,9 +219,10 @@ def cmd_shapes(args):
     if args.poses:
         summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
                                  progress=stderr_progress("poses") if args.verbose else None, workers=args.workers,
-                                 cache=args.cache)
+                                 cache=args.cache, untangle=args.untangle)
         emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
-                             f"{s['crossings_at_contact']} where the body crosses itself"
+                             f"{s['crossings_at_contact']} where the body crosses itself, "
+                             f"{s['self_intersections_new']} of the garment with itself beyond its rest shape's"
                              for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
         return
     summary = shapes_to_files(args.source_body, args.target_body, args.garment, args.out,
@@ -318,7 +319,8 @@ def cmd_transfer_outfit(args):
             offsets = [i["offset"] for i in result.info]
             for layer, g, p, (V, _), offset in zip(out["layers"], garments, paths, below, offsets):
                 layer["rest_pose_written"] = posed_counts(V, g, target_body, offset,
-                                                          rest_V=source_body.V, name=os.path.basename(args.target_body))
+                                                          rest_V=source_body.V, name=os.path.basename(args.target_body),
+                                                          own=False)
                 out["warnings"] += layer["rest_pose_written"]["warnings"]
                 lines.append(_written_pose_line(p, layer["rest_pose_written"]))
     emit(args, out, lines + [f"{result.seconds['total']:.3f} s (outfit transfer)"]
@@ -507,6 +509,9 @@ def build_parser():
                    help="with --poses: also every pose's result, in the order of the --target-body files, as one PC2 "
                         "point cache (frames 1, 2, ...): the garment's animation for Blender's Mesh Cache modifier "
                         "and other tools")
+    h.add_argument("--untangle", action="store_true",
+                   help="with --poses: undo where a fit makes the cloth cross itself (the bends: the lap sitting, "
+                        "under the arms), without crossing the body more; seconds more a pose where it does")
     h.add_argument("--json", action="store_true", help="print one JSON object")
     h.set_defaults(func=cmd_shapes)
 
@@ -638,6 +643,8 @@ def main(argv=None):
             parser.error("--workers is for --poses (the poses fitted at once)")
         if args.command == "shapes" and args.cache is not None and not args.poses:
             parser.error("--cache is for --poses (the poses' animation as one point cache)")
+        if args.command == "shapes" and args.untangle and not args.poses:
+            parser.error("--untangle is for --poses (a fit to a pose folds cloth through itself)")
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
         check_command_paths(args)

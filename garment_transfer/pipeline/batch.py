@@ -406,7 +406,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             if rest_pose is not None and rest_pose["posed"]:
                 # Where the posed target crosses or closes on itself no cloth can be outside both surfaces.
                 rest_pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
-                                                    rest_V=source_body.V, name=str(obj_path))
+                                                    rest_V=source_body.V, name=str(obj_path), own=False)
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue

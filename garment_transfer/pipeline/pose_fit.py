@@ -35,7 +35,9 @@ from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.pc2 import write_pc2
+from ..geometry.penetration import vertex_adjacency
 from ..geometry.proximity import TriangleSurface, made_of
+from ..geometry.self_check import beyond_source, pairs_in_full
 from ..geometry.threads import WORKERS, in_threads
 from ..geometry.readings import (Readings, kept_triangle_readings, polygon_triangles_readings, readings_of,
                                  readings_with_graph, split_readings)
@@ -52,6 +54,11 @@ CONTACT_RINGS = 2
 CONTACT_GAP = 4.0
 #: Crossing passes at most, each from the last one's result, while each leaves fewer crossings than the last.
 PASSES = 3
+#: Untangling a fit (``untangle``): rings of garment vertices around each crossing it made where the body crosses or
+#: closes on itself that take back their positions from before it, and how many times that is done before the fit is
+#: kept as it was.
+UNTANGLE_RINGS = 2
+UNTANGLE_TRIES = 3
 #: Poses fitted at once by ``fit_poses`` (threads): a fit is numpy's, scipy's and libigl's work on whole arrays,
 #: which runs outside Python's lock, so two poses at once on 2 cores take about 0.6 of the time of one after the
 #: other (``python -m lab.motion --speed``).
@@ -103,6 +110,22 @@ def kept_split(mesh: Mesh):
 #: Meshes whose ``every_split`` is kept.
 KEPT = 4
 _kept_splits = []
+
+
+def kept_rest_pairs(garment: Mesh):
+    """The garment's own self-intersecting pairs at rest (``self_check.pairs_in_full`` of ``garment.V`` on
+    ``garment_readings``), kept per garment (by the identity of its positions and polygons: every pose of a bake
+    counts against the same rest garment)."""
+    for V, fv, pairs in _kept_rest_pairs:
+        if V is garment.V and fv is garment.face_vertices:
+            return pairs
+    pairs = pairs_in_full(garment.V, garment_readings(garment))
+    _kept_rest_pairs.insert(0, (garment.V, garment.face_vertices, pairs))
+    del _kept_rest_pairs[KEPT:]
+    return pairs
+
+
+_kept_rest_pairs = []
 
 
 def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
@@ -167,7 +190,8 @@ def crossing_counts(V, F, body_V, body_F):
 
 
 def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGarment | None = None,
-                offset=None, resolve_crossings=True, contact_rings=CONTACT_RINGS, name=None) -> TransferResult:
+                offset=None, resolve_crossings=True, contact_rings=CONTACT_RINGS, name=None,
+                untangle=False) -> TransferResult:
     """Fit a garment dressed on the rest body to the same body posed.
 
     Parameters
@@ -188,15 +212,17 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
         Rings around the body's own crossings left out of the pass.
     name : str, optional
         The pose's name, for messages.
+    untangle : bool
+        Then undo where the fit made the cloth cross itself (``untangle_fit``; seconds more a pose where it does).
 
     Returns
     -------
     TransferResult
         ``info`` adds ``crossings_outside_contact`` and ``crossings_at_contact`` (garment edges through the
         body plus body edges through the garment, under every split of both), ``body_self_crossings``,
-        ``contact_vertices`` and ``warnings``; ``contact`` is the posed body's own contact, ``obstacle`` the
-        posed body away from it as the pass binned it (``free_body``), both for counting the result as written
-        (``posed_counts``).
+        ``contact_vertices``, ``warnings`` and, untangled, ``untangle`` (``untangle_fit``'s figures); ``contact``
+        is the posed body's own contact, ``obstacle`` the posed body away from it as the pass binned it
+        (``free_body``), both for counting the result as written (``posed_counts``).
     """
     name = name or "pose"
     posed = rest_body.with_vertices(posed_V, name=name)
@@ -218,11 +244,147 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
                                                              clear_of_body=result.penetrating_vertices == 0)
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
+    if untangle and resolve_crossings:
+        t = time.perf_counter()
+        result.V, result.penetrating_vertices, result.info["untangle"] = untangle_fit(
+            result.V, garment, posed, result.info, result.contact[0], result.obstacle, surface=result.surface,
+            inside=result.penetrating_vertices)
+        result.info["warnings"] = pose_warnings(result.info["crossings_outside_contact"],
+                                                result.info["crossings_at_contact"], result.info["body_self_crossings"],
+                                                name)
+        result.seconds["untangle"] = time.perf_counter() - t
+        result.seconds["total"] += result.seconds["untangle"]
     return result
 
 
+def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=None, inside=None, rest_pairs=None):
+    """Undo where a pose fit made the cloth cross itself.
+
+    The transfer to a pose folds cloth through itself where the body bends (the lap sitting, the inside of an elbow,
+    under the arms): measured on the MakeHuman suits in the six shared poses, 20 to 2,300 edge-triangle pairs the
+    garment at rest does not have. The crossing pass is run again with the rest garment as its source shape
+    (``clearance.separate``: around each such pair the cloth takes its shape from before, then its rest shape, and
+    is cleared of the body again), against the body away from its own contact. Where that made the cloth cross the
+    body at its contact (no cloth is outside both surfaces there, but it was not through them), those vertices and
+    ``UNTANGLE_RINGS`` rings around them take back their fitted positions, up to ``UNTANGLE_TRIES`` times. The result is
+    kept only if it crosses itself less than the fit and crosses the body no more, away from the contact or at it,
+    with no more vertices inside.
+
+    Parameters
+    ----------
+    V : (g,3) float
+        The fit (``clear_posed_body``'s result).
+    garment : Mesh
+        At rest: its positions are the shape the cloth is given back.
+    body : Mesh
+        The posed body.
+    info : dict
+        The fit's ``info`` (``offset``, ``crossings_outside_contact``, ``crossings_at_contact``); the counts are
+        updated there when the result is kept.
+    contact : (n,) bool
+        The posed body's own contact (``self_contact``).
+    free : Obstacle
+        The body away from it (``free_body``).
+    surface : TriangleSurface, optional
+        Of the posed body's own triangles.
+    inside : int, optional
+        The fit's vertices inside the posed body, when counted already.
+    rest_pairs : (k,2) int, optional
+        The rest garment's own self-intersecting pairs, when known.
+
+    Returns
+    -------
+    V : (g,3) float64
+    inside : int
+    untangled : dict
+        ``self_intersections_new_before`` and ``_after`` (pairs the rest garment does not have), ``kept`` (whether
+        the untangled cloth was kept), ``restored_vertices``, ``given_back`` (vertices that took back their fitted
+        positions at the body's contact).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    G = garment_readings(garment)
+    rest_pairs = kept_rest_pairs(garment) if rest_pairs is None else rest_pairs
+    before = int(beyond_source(pairs_in_full(V, G), G, garment.V, rest_pairs).shape[0])
+    out = {"self_intersections_new_before": before, "self_intersections_new_after": before, "kept": False,
+           "restored_vertices": 0, "given_back": 0}
+    if not made_of(surface, body.V, body.F):
+        surface = TriangleSurface(body.V, body.F)
+    if inside is None:
+        inside = int((surface.signed_distance(V)[0] < 0).sum())
+    if before == 0:
+        return V, inside, out
+    offset = float(info["offset"])
+    body_F = kept_split(body)
+    near = (Obstacle(body.V, free_readings(body, contact, at_contact=True), cell=edge_length(V, G))
+            if contact[body_F].any() else None)
+    obstacle = free
+    if near is not None:
+        # The body's contact is an obstacle too, but where the fit crosses it (and a ring around).
+        crossed = _crossed_body(V, G, near, body.V.shape[0])
+        ring = sp.csr_matrix((np.ones(body_F.size), (body_F.reshape(-1), np.roll(body_F, 1, axis=1).reshape(-1))),
+                             shape=(body.V.shape[0],) * 2)
+        crossed |= (ring @ crossed.astype(np.float64)) > 0
+        obstacle = Obstacle(body.V, free_readings(body, crossed & contact), cell=edge_length(V, G))
+    W, sep = clearance.separate(V, G, body.V, obstacle, offset, keep_offset=False, source_V=garment.V,
+                                source_pairs=rest_pairs)
+    out["restored_vertices"] = int(sep.get("restored_vertices", 0))
+    if near is not None:
+        fitted = _new_crossing_vertices(V, G, near)[1]
+        A = vertex_adjacency(V.shape[0], G.split)
+        back = np.zeros(V.shape[0], dtype=bool)
+        for _ in range(UNTANGLE_TRIES):
+            new = _new_crossing_vertices(W, G, near, fitted)[0]
+            if not new.any():
+                break
+            for _ in range(UNTANGLE_RINGS):
+                new |= (A @ new.astype(np.float64)) > 0
+            W[new] = V[new]
+            back |= new
+        out["given_back"] = int(back.sum())
+    outside = edges_crossing(garment_crossings(W, G, free))
+    at = 0 if near is None else edges_crossing(garment_crossings(W, G, near))
+    inside_after = int((surface.signed_distance(W)[0] < 0).sum())
+    after = int(beyond_source(pairs_in_full(W, G), G, garment.V, rest_pairs).shape[0])
+    log.debug("untangle: %d -> %d self-intersections beyond the rest garment's, %d -> %d crossings away from the "
+              "body's contact, %d -> %d at it, %d -> %d vertices inside", before, after,
+              info["crossings_outside_contact"], outside, info["crossings_at_contact"], at, inside, inside_after)
+    if (after < before and outside <= info["crossings_outside_contact"] and at <= info["crossings_at_contact"]
+            and inside_after <= inside):
+        out.update(self_intersections_new_after=after, kept=True)
+        info.update(crossings_outside_contact=int(outside), crossings_at_contact=int(at))
+        return W, inside_after, out
+    return V, inside, out
+
+
+def _crossed_body(V, G: Readings, obstacle: Obstacle, n):
+    """(n,) bool: the obstacle's vertices of its triangles a garment edge passes through and of its edges through
+    the garment."""
+    c = garment_crossings(V, G, obstacle)
+    crossed = np.zeros(n, dtype=bool)
+    crossed[obstacle.F[c["a_triangles"]].reshape(-1)] = True
+    crossed[c["b_pairs"].reshape(-1)] = True
+    return crossed
+
+
+def _new_crossing_vertices(V, G: Readings, obstacle: Obstacle, before=None):
+    """The garment vertices of V's crossings with the obstacle that are not among ``before`` (the keys this gave for
+    other positions; None: none), and the keys of all of V's crossings: a garment edge through an obstacle triangle,
+    an obstacle edge through a garment triangle."""
+    c = garment_crossings(V, G, obstacle)
+    a = np.sort(c["a_pairs"], axis=1)
+    a_keys = [("a", int(i), int(j), int(t)) for (i, j), t in zip(a, c["a_triangles"])]
+    b_keys = [("b", int(i), int(j), int(t)) for (i, j), t in zip(np.sort(c["b_pairs"], axis=1), c["b_triangles"])]
+    before = set() if before is None else before
+    vertices = [list(k[1:3]) for k in a_keys if k not in before]
+    vertices += [list(G.F[k[3]]) for k in b_keys if k not in before]
+    new = np.zeros(V.shape[0], dtype=bool)
+    if vertices:
+        new[np.concatenate(vertices)] = True
+    return new, set(a_keys) | set(b_keys)
+
+
 def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarment | None = None, offset=None,
-              resolve_crossings=True, workers=None):
+              resolve_crossings=True, workers=None, untangle=False):
     """Fit a garment to many poses of its body, several at once: ``fit_to_pose`` for each, prepared once.
 
     Parameters
@@ -238,6 +400,8 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
     resolve_crossings : bool
     workers : int, optional
         Poses fitted at once (default ``POSE_WORKERS``; 1: one after the other in the caller's thread).
+    untangle : bool
+        Untangle each fit (``fit_to_pose``).
 
     Yields
     ------
@@ -254,7 +418,7 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
 
     def fit(name, V):
         result = fit_to_pose(rest_body, V, garment, prepared=prepared, offset=offset,
-                             resolve_crossings=resolve_crossings, name=name)
+                             resolve_crossings=resolve_crossings, name=name, untangle=untangle)
         result.obstacle = result.surface = None
         return result
 
@@ -419,23 +583,37 @@ def pose_warnings(outside, at_contact, body_self, name):
 
 
 def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_rings=CONTACT_RINGS, name="pose",
-                 contact=None, free=None, surface=None):
+                 contact=None, free=None, surface=None, rest_pairs=None, own=True):
     """The pose fit's figures of garment positions ``V`` (a file as written, read back; an object as Blender has
     it) on the posed body, as ``clear_posed_body`` counts them: ``crossings_outside_contact``,
-    ``crossings_at_contact`` (under every split of both), ``penetrating_vertices``, ``body_self_crossings`` and
+    ``crossings_at_contact`` (under every split of both), ``penetrating_vertices``, ``body_self_crossings``; the
+    garment's own crossings, ``self_intersections`` (edge-triangle pairs under every split) and
+    ``self_intersections_new`` (those the garment at rest, ``garment.V``, does not have: ``beyond_source``); and
     ``warnings``. ``contact``, ``free``, ``surface``: the body's own contact, the body away from it and its own
     triangles searched, when made already (``TransferResult.contact``, ``obstacle`` and ``surface`` of the fit to
-    this body; ``free`` and ``surface`` are used only when they are of these very body positions)."""
+    this body; ``free`` and ``surface`` are used only when they are of these very body positions); ``rest_pairs``:
+    the rest garment's own pairs, when known (else ``kept_rest_pairs``). ``own`` False: without the garment's own
+    crossings (a caller that counts them with ``check_result``, against the garment's source)."""
     V, garment_F, body_F, (contact, body_self), free = _posed_parts(V, garment, body, offset, rest_V, contact_rings,
                                                                     contact, free)
     outside = edges_crossing(garment_crossings(V, garment_F, free))
     at, inside = at_contact_and_inside(V, garment_F, body, body_F, contact, surface)
-    return {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
-            "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
+    counts = {"crossings_outside_contact": outside, "crossings_at_contact": at, "penetrating_vertices": inside,
+              "body_self_crossings": int(body_self), "warnings": pose_warnings(outside, at, int(body_self), name)}
+    if not own:
+        return counts
+    pairs = pairs_in_full(V, garment_F)
+    rest_pairs = kept_rest_pairs(garment) if rest_pairs is None else rest_pairs
+    new = int(beyond_source(pairs, garment_F, garment.V, rest_pairs).shape[0])
+    if new:
+        counts["warnings"].append(f"the garment crosses itself in {name} at {new} edge-triangle pairs it does not at "
+                                  f"rest ({pairs.shape[0]} in all): look at the folds where the body bends")
+    counts.update(self_intersections=int(pairs.shape[0]), self_intersections_new=new)
+    return counts
 
 
 def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None,
-                   workers=None, cache=None):
+                   workers=None, cache=None, untangle=False):
     """OBJ files in, OBJ files out: the garment fitted to every pose of its body, prepared once.
 
     Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``.
@@ -457,6 +635,8 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     cache : path, optional
         Also every pose's file as written, in the order given, as one PC2 point cache (its samples frames 1, 2,
         ...; ``pc2.write_pc2``): an animation of the garment for a tool that plays point caches.
+    untangle : bool
+        Untangle each fit (``fit_to_pose``): seconds more a pose where the fit crosses itself.
 
     Returns
     -------
@@ -480,7 +660,7 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     seconds = {"prepare": time.perf_counter() - t}
     results = {}
     for i, (name, result) in enumerate(fit_poses(rest, poses.items(), garment, prepared=prepared, offset=offset,
-                                                  workers=workers)):
+                                                  workers=workers, untangle=untangle)):
         if progress is not None:
             progress((i + 1) / len(poses), name)
         results[name] = result
@@ -492,12 +672,13 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
 
     # The files as written, read back: their figures against each pose as given, and the point cache.
     written = {name: read_obj(outs[name]).V for name in results}
+    rest_pairs = kept_rest_pairs(garment)
 
     def written_counts(name):
         result = results[name]
         return posed_counts(written[name], garment, rest.with_vertices(poses[name], name=name),
                             float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
-                            contact=result.contact)
+                            contact=result.contact, rest_pairs=rest_pairs)
 
     if cache is not None:
         write_pc2(cache, np.stack(list(written.values())), start_frame=1.0, inputs=inputs,
@@ -507,10 +688,11 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         warnings += counts.pop("warnings")
         result = results[name]
         rows.append({"target": name, "target_body": paths[name], "out": str(outs[name]), **counts,
-                     "offset": result.info["offset"], "seconds": result.seconds})
+                     "offset": result.info["offset"], "seconds": result.seconds,
+                     **({"untangle": result.info["untangle"]} if "untangle" in result.info else {})})
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
-               "faces": garment.n_faces, "poses": True, "shapes": rows, "seconds": seconds,
+               "faces": garment.n_faces, "poses": True, "untangle": bool(untangle), "shapes": rows, "seconds": seconds,
                "summary": str(summary_path), "cache": None if cache is None else str(cache), "warnings": warnings}
     write_json_atomic(summary_path, summary)
     return summary

@@ -216,6 +216,15 @@ def test_fit_to_pose_and_bake(character, tmp_path):
 
     assert fitted[rigging.FIGURES].to_dict() == counted()
     assert counted()["crossings_outside_contact"] == 0
+    # Untangled (Fit to Pose's option): another new object that crosses itself less and the body no more.
+    before = set(bpy.data.objects)
+    assert bpy.ops.garment_transfer.fit_pose(untangle=True) == {'FINISHED'}
+    untangled, = set(bpy.data.objects) - before
+    plain, figures = fitted[rigging.FIGURES].to_dict(), untangled[rigging.FIGURES].to_dict()
+    assert 0 <= figures["self_intersections_new"] < plain["self_intersections_new"]
+    assert figures["crossings_outside_contact"] == 0
+    assert figures["crossings_at_contact"] <= plain["crossings_at_contact"]
+    bpy.data.objects.remove(untangled)
     # Bake three frames: rest at 1, the kick at 3, keyed in between.
     for bone in armature.pose.bones:
         bone.keyframe_insert("location", frame=3)
@@ -255,7 +264,7 @@ def test_fit_to_pose_and_bake(character, tmp_path):
                                    offset, rest_V=rest_body.V))
     figures = baked[rigging.FIGURES].to_dict()
     assert figures["frames"] == 3
-    for key in ("crossings_outside_contact", "crossings_at_contact", "penetrating_vertices"):
+    for key in ("crossings_outside_contact", "crossings_at_contact", "penetrating_vertices", "self_intersections_new"):
         assert figures[key] == sum(p[key] for p in played)
     assert figures["frames_with_crossings"] == sum(1 for p in played if p["crossings_outside_contact"])
     # The same bake into a PC2 point cache, played by a Mesh Cache modifier: each frame as the keyed one plays it.
