@@ -161,12 +161,14 @@ class VIEW3D_PT_garment_transfer_motion(GarmentPanel, bpy.types.Panel):
         layout.prop(settings, "ride_surface")
         layout.prop(settings, "result")
         layout.operator("garment_transfer.rig_garment", icon='ARMATURE_DATA')
-        layout.operator("garment_transfer.fit_pose", icon='POSE_HLT')
+        layout.prop(settings, "untangle")
+        layout.operator("garment_transfer.fit_pose", icon='POSE_HLT').untangle = settings.untangle
         layout.prop(settings, "bake_cache")
         op = layout.operator("garment_transfer.bake_pose_fit", icon='REC')
         op.frame_start = context.scene.frame_start
         op.frame_end = context.scene.frame_end
         op.cache_file = settings.bake_cache
+        op.untangle = settings.untangle
 
 
 class VIEW3D_PT_garment_transfer_evaluation(GarmentPanel, bpy.types.Panel):

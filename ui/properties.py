@@ -226,6 +226,10 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         description="Rigging also adds a Surface Deform, bound to the body at rest, that carries the cloth lying "
                     "on the skin with the posed body's surface (the rest follows the bones): closer to the skin at "
                     "the bends; in Blender about as many crossings as without it over the poses measured")
+    untangle: BoolProperty(
+        name="Untangle", default=False,
+        description="Fit to Pose and Bake Pose Fit also undo where the fit makes the cloth cross itself (under the "
+                    "arms, the lap sitting) without crossing the body more: seconds more a frame where it does")
     bake_cache: StringProperty(
         name="Point Cache", subtype='FILE_PATH', default="",
         description="Bake Pose Fit into this PC2 file, played by a Mesh Cache modifier on the baked object (one file "

@@ -28,7 +28,8 @@ class RecordingLayout:
         object.__setattr__(self, name, value)
 
 
-PANELS = ("VIEW3D_PT_garment_transfer", "VIEW3D_PT_garment_transfer_outfit", "VIEW3D_PT_garment_transfer_evaluation",
+PANELS = ("VIEW3D_PT_garment_transfer", "VIEW3D_PT_garment_transfer_outfit", "VIEW3D_PT_garment_transfer_motion",
+          "VIEW3D_PT_garment_transfer_evaluation",
           "VIEW3D_PT_garment_transfer_training", "VIEW3D_PT_garment_transfer_drape")
 
 
