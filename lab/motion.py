@@ -29,6 +29,7 @@ as Blender's Data Transfer gives them, is the baseline):
     python -m lab.motion [--fit] [--garments a b ...] [--poses p q ...] [--shared-only] [--json OUT.json]
     python -m lab.motion --speed      # the pose fit's seconds per pose after the first, beside the baseline,
                                       # then the poses in a row one and two at a time (fit_poses)
+    python -m lab.motion --untangle [--garments a b ...]   # each pose fit as it is and untangled, counted afresh
 """
 
 from __future__ import annotations
@@ -398,6 +399,48 @@ def speed(name="female_casualsuit01", poses=POSES, say=print):
     return rows
 
 
+def untangle(names=None, poses=POSES, say=print):
+    """Each garment fitted to each pose as it is and untangled (``fit_to_pose(..., untangle=True)``), both counted
+    afresh on the result against the pose (``posed_counts``): the garment's own crossings beyond its rest shape's,
+    crossings away from the body's contact and at it, vertices inside; MDC against the rest garment beside the
+    skinned garment's (the product's weights); the untangling's seconds. Prints a row per pose and the totals."""
+    root = makehuman_folder()
+    skeleton = gt.read_skeleton(root / "rig" / "skeleton.json")
+    weights = gt.read_weights(root / "rig" / "weights.json", 13380)
+    rotations = pose_set(root, skeleton, list(poses), kept_back=False)
+    say(f"{'garment':20s} {'pose':10s} {'own new':>13s} {'kept':>5s} {'away':>9s} {'at contact':>11s} "
+        f"{'inside':>7s} {'MDC fit -> untangled (skinned)':>31s} {'s':>11s}")
+    totals = np.zeros(8)
+    for name, (body_name, garment) in rest_garments(root, names or [*SUITS, *LOOSE], say).items():
+        body = gt.read_obj(root / "bodies" / f"{body_name}.obj")
+        rig = rig_of(root, body_name, skeleton, weights)
+        prepared = gt.prepare_garment(body, garment)
+        product = gt.inpainted_weights(body.V, body.F, weights, garment.V, garment.F)[0]
+        for pose in poses:
+            T = rig.transforms(rotations[pose])
+            posed = body.with_vertices(rig.pose(body.V, T), name=pose)
+            fits = [gt.fit_to_pose(body, posed.V, garment, prepared=prepared, name=pose, untangle=u)
+                    for u in (False, True)]
+            a, b = (gt.posed_counts(f.V, garment, posed, float(f.info["offset"]), rest_V=body.V) for f in fits)
+            mdc = [gt.mdc(garment.V, f.V, garment.F) for f in fits]
+            skinned = gt.mdc(garment.V, rig.pose(garment.V, T, product), garment.F)
+            kept = fits[1].info["untangle"]["kept"]
+            totals += [a["self_intersections_new"], b["self_intersections_new"], kept, 1,
+                       a["crossings_outside_contact"], b["crossings_outside_contact"], a["crossings_at_contact"],
+                       b["crossings_at_contact"]]
+            say(f"{name:20s} {pose:10s} {a['self_intersections_new']:5d} -> {b['self_intersections_new']:5d} "
+                f"{'yes' if kept else 'no':>5s} "
+                f"{a['crossings_outside_contact']:3d} -> {b['crossings_outside_contact']:3d} "
+                f"{a['crossings_at_contact']:4d} -> {b['crossings_at_contact']:4d} "
+                f"{a['penetrating_vertices']:2d} -> {b['penetrating_vertices']:2d} "
+                f"{mdc[0]:.4f} -> {mdc[1]:.4f} ({skinned:.4f}) "
+                f"{fits[0].seconds['total']:.2f} + {fits[1].seconds['untangle']:.2f}")
+    say(f"all: the garment's own crossings beyond its rest shape's {totals[0]:.0f} -> {totals[1]:.0f}; kept in "
+        f"{totals[2]:.0f} of {totals[3]:.0f} fits; crossings away from the body's contact {totals[4]:.0f} -> "
+        f"{totals[5]:.0f}, at it {totals[6]:.0f} -> {totals[7]:.0f}")
+    return totals
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m lab.motion", description=__doc__.split("\n\n")[0])
     p.add_argument("--garments", nargs="+", help="garments (default: the 8 suits and the 14 dresses and skirts)")
@@ -408,9 +451,14 @@ def main(argv=None):
     p.add_argument("--fit", action="store_true", help="also the pose fit (slower)")
     p.add_argument("--json", help="write every row to this JSON file")
     p.add_argument("--speed", action="store_true", help="only the pose fit's seconds per pose, beside the baseline")
+    p.add_argument("--untangle", action="store_true",
+                   help="only the pose fit as it is and untangled, in the shared poses (or --poses)")
     args = p.parse_args(argv)
     if args.speed:
         speed(poses=args.poses or POSES)
+        return
+    if args.untangle:
+        untangle(args.garments, args.poses or POSES)
         return
     rows = run(args.garments, args.poses, args.fit, say=lambda line: print(line, file=sys.stderr, flush=True),
                kept_back=not args.shared_only, max_influences=args.max_influences)
