@@ -156,7 +156,7 @@ COMMANDS = {
                       {"--source-body": "source.obj", "--target-body": "target.obj",
                        "--garment": "clothes/garment.obj"},
                       {"--out": "folder", "--cache": "file"},
-                      {"--offset", "--margin", "--no-fix", "--poses", "--workers", "--json"}),
+                      {"--offset", "--margin", "--no-fix", "--poses", "--workers", "--untangle", "--json"}),
     "weights": Command(lambda w, out: ["weights", "--body", w / "source.obj", "--weights", w / "weights.json",
                                        "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
                        {"--body": "source.obj", "--weights": "weights.json", "--garment": "clothes/garment.obj"},
