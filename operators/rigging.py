@@ -752,9 +752,13 @@ class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
         except Exception as exc:
             return report_failure(self, exc)
         info = outcome.info
+        untangled = info.get("untangle")
         self.report({'INFO'}, f"{result.name}: {info['crossings_outside_contact']} crossings with the body, "
-                              f"{info['crossings_at_contact']} where it crosses itself; "
-                              f"{time.perf_counter() - start:.2f} s")
+                              f"{info['crossings_at_contact']} where it crosses itself; the cloth crosses itself "
+                              f"at {info['self_intersections_new']} pairs beyond its rest shape's"
+                              + (f" (untangled from {untangled['self_intersections_new_before']})"
+                                 if untangled and untangled["kept"] else "")
+                              + f"; {time.perf_counter() - start:.2f} s")
         for warning in info["warnings"]:
             self.report({'WARNING'}, warning)
         return {'FINISHED'}
@@ -804,7 +808,9 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
         figures = result[FIGURES]
         self.report({'INFO'}, f"{result.name}: {len(frames)} frames fitted in {seconds:.1f} s "
                               f"({seconds / len(frames):.2f} s a frame); as played back, "
-                              f"{figures['frames_with_crossings']} frames cross the body away from its own contact")
+                              f"{figures['frames_with_crossings']} frames cross the body away from its own contact; "
+                              f"the cloth crosses itself at {figures['self_intersections_new']} pairs beyond its rest "
+                              f"shape's over the frames")
         if measured["warnings"]:
             self.report({'WARNING'}, f"{len(measured['warnings'])} warnings; the first: {measured['warnings'][0]}")
         return {'FINISHED'}
