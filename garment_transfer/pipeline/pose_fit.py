@@ -19,6 +19,7 @@ a reader of the written file may split a quad along either diagonal.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -45,6 +46,23 @@ from .shape_keys import shapes_outputs
 from .transfer import PreparedGarment, TransferResult, prepare_garment, transfer_garment
 
 log = logging.getLogger(__name__)
+
+
+class _Untangling(logging.Filter):
+    """Drops the crossing pass's own log records in the threads that are untangling a fit: each try's passing state
+    ("crossings left after 12 rounds") is judged by ``untangle_fit`` and may be thrown away, and what is kept is
+    counted and said on what is written (``posed_counts``)."""
+
+    def __init__(self):
+        super().__init__()
+        self.threads = set()
+
+    def filter(self, record):
+        return record.thread not in self.threads
+
+
+_untangling = _Untangling()
+logging.getLogger(clearance.__name__).addFilter(_untangling)
 
 #: Rings of body triangles around the body's own crossings left out of the crossing pass (about 2 cm on the
 #: MakeHuman body).
@@ -325,8 +343,12 @@ def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=N
                              shape=(body.V.shape[0],) * 2)
         crossed |= (ring @ crossed.astype(np.float64)) > 0
         obstacle = Obstacle(body.V, free_readings(body, crossed & contact), cell=edge_length(V, G))
-    W, sep = clearance.separate(V, G, body.V, obstacle, offset, keep_offset=False, source_V=garment.V,
-                                source_pairs=rest_pairs)
+    _untangling.threads.add(threading.get_ident())
+    try:
+        W, sep = clearance.separate(V, G, body.V, obstacle, offset, keep_offset=False, source_V=garment.V,
+                                    source_pairs=rest_pairs)
+    finally:
+        _untangling.threads.discard(threading.get_ident())
     out["restored_vertices"] = int(sep.get("restored_vertices", 0))
     if near is not None:
         fitted = _new_crossing_vertices(V, G, near)[1]
