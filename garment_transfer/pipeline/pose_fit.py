@@ -26,7 +26,6 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..files import check_outputs, write_json_atomic
@@ -116,13 +115,7 @@ def every_split(mesh: Mesh):
 def kept_split(mesh: Mesh):
     """``every_split(mesh)``, kept per mesh (by the identity of its polygon arrays, which ``Mesh.with_vertices``
     keeps: every pose of one body)."""
-    for fv, fs, F in _kept_splits:
-        if fv is mesh.face_vertices and fs is mesh.face_start:
-            return F
-    F = every_split(mesh)
-    _kept_splits.insert(0, (mesh.face_vertices, mesh.face_start, F))
-    del _kept_splits[KEPT:]
-    return F
+    return _kept(_kept_splits, (mesh.face_vertices, mesh.face_start), lambda: every_split(mesh))
 
 
 #: Meshes whose ``every_split`` is kept.
@@ -134,16 +127,22 @@ def kept_rest_pairs(garment: Mesh):
     """The garment's own self-intersecting pairs at rest (``self_check.pairs_in_full`` of ``garment.V`` on
     ``garment_readings``), kept per garment (by the identity of its positions and polygons: every pose of a bake
     counts against the same rest garment)."""
-    for V, fv, pairs in _kept_rest_pairs:
-        if V is garment.V and fv is garment.face_vertices:
-            return pairs
-    pairs = pairs_in_full(garment.V, garment_readings(garment))
-    _kept_rest_pairs.insert(0, (garment.V, garment.face_vertices, pairs))
-    del _kept_rest_pairs[KEPT:]
-    return pairs
+    return _kept(_kept_rest_pairs, (garment.V, garment.face_vertices),
+                 lambda: pairs_in_full(garment.V, garment_readings(garment)))
 
 
 _kept_rest_pairs = []
+
+
+def _kept(store, arrays, make):
+    """What ``make()`` gives, kept in ``store`` (the latest ``KEPT``) for these very ``arrays`` (by identity)."""
+    for kept, value in store:
+        if all(a is b for a, b in zip(kept, arrays)):
+            return value
+    value = make()
+    store.insert(0, (arrays, value))
+    del store[KEPT:]
+    return value
 
 
 def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
@@ -178,13 +177,16 @@ def self_contact(V, F, rings=CONTACT_RINGS, rest_V=None, gap=0.0):
         if close.size:
             contact[close[_apart_at_rest(rest_V, close, 3.0 * gap)].reshape(-1)] = True
     if contact.any() and rings:
-        i = np.asarray(F).reshape(-1)
-        j = np.roll(np.asarray(F), 1, axis=1).reshape(-1)
-        A = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(V.shape[0],) * 2)
-        A = A + A.T
-        for _ in range(rings):
-            contact |= (A @ contact.astype(np.float64)) > 0
+        contact = _grown(contact, vertex_adjacency(V.shape[0], np.asarray(F)), rings)
     return contact, count
+
+
+def _grown(mask, A, rings):
+    """(n,) bool: ``mask`` and ``rings`` rings of neighbours around it in the graph ``A`` ((n,n) sparse)."""
+    mask = np.array(mask, dtype=bool)
+    for _ in range(rings):
+        mask |= (A @ mask.astype(np.float64)) > 0
+    return mask
 
 
 def _apart_at_rest(rest_V, pairs, distance):
@@ -338,10 +340,11 @@ def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=N
     obstacle = free
     if near is not None:
         # The body's contact is an obstacle too, but where the fit crosses it (and a ring around).
-        crossed = _crossed_body(V, G, near, body.V.shape[0])
-        ring = sp.csr_matrix((np.ones(body_F.size), (body_F.reshape(-1), np.roll(body_F, 1, axis=1).reshape(-1))),
-                             shape=(body.V.shape[0],) * 2)
-        crossed |= (ring @ crossed.astype(np.float64)) > 0
+        fitted = garment_crossings(V, G, near)
+        crossed = np.zeros(body.V.shape[0], dtype=bool)
+        crossed[near.F[fitted["a_triangles"]].reshape(-1)] = True
+        crossed[fitted["b_pairs"].reshape(-1)] = True
+        crossed = _grown(crossed, vertex_adjacency(body.V.shape[0], body_F), 1)
         obstacle = Obstacle(body.V, free_readings(body, crossed & contact), cell=edge_length(V, G))
     _untangling.threads.add(threading.get_ident())
     try:
@@ -350,21 +353,23 @@ def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=N
     finally:
         _untangling.threads.discard(threading.get_ident())
     out["restored_vertices"] = int(sep.get("restored_vertices", 0))
+    at = 0
     if near is not None:
-        fitted = _new_crossing_vertices(V, G, near)[1]
+        had = _crossing_keys(fitted)
         A = vertex_adjacency(V.shape[0], G.split)
         back = np.zeros(V.shape[0], dtype=bool)
+        c = garment_crossings(W, G, near)
         for _ in range(UNTANGLE_TRIES):
-            new = _new_crossing_vertices(W, G, near, fitted)[0]
+            new = _vertices_of(c, G, V.shape[0], had)
             if not new.any():
                 break
-            for _ in range(UNTANGLE_RINGS):
-                new |= (A @ new.astype(np.float64)) > 0
+            new = _grown(new, A, UNTANGLE_RINGS)
             W[new] = V[new]
             back |= new
+            c = garment_crossings(W, G, near)
         out["given_back"] = int(back.sum())
+        at = edges_crossing(c)
     outside = edges_crossing(garment_crossings(W, G, free))
-    at = 0 if near is None else edges_crossing(garment_crossings(W, G, near))
     inside_after = int((surface.signed_distance(W)[0] < 0).sum())
     after = int(beyond_source(pairs_in_full(W, G), G, garment.V, rest_pairs).shape[0])
     log.debug("untangle: %d -> %d self-intersections beyond the rest garment's, %d -> %d crossings away from the "
@@ -378,31 +383,20 @@ def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=N
     return V, inside, out
 
 
-def _crossed_body(V, G: Readings, obstacle: Obstacle, n):
-    """(n,) bool: the obstacle's vertices of its triangles a garment edge passes through and of its edges through
-    the garment."""
-    c = garment_crossings(V, G, obstacle)
-    crossed = np.zeros(n, dtype=bool)
-    crossed[obstacle.F[c["a_triangles"]].reshape(-1)] = True
-    crossed[c["b_pairs"].reshape(-1)] = True
-    return crossed
-
-
-def _new_crossing_vertices(V, G: Readings, obstacle: Obstacle, before=None):
-    """The garment vertices of V's crossings with the obstacle that are not among ``before`` (the keys this gave for
-    other positions; None: none), and the keys of all of V's crossings: a garment edge through an obstacle triangle,
+def _crossing_keys(c):
+    """The crossings of a ``garment_crossings`` answer, each as a key: a garment edge through an obstacle triangle,
     an obstacle edge through a garment triangle."""
-    c = garment_crossings(V, G, obstacle)
-    a = np.sort(c["a_pairs"], axis=1)
-    a_keys = [("a", int(i), int(j), int(t)) for (i, j), t in zip(a, c["a_triangles"])]
-    b_keys = [("b", int(i), int(j), int(t)) for (i, j), t in zip(np.sort(c["b_pairs"], axis=1), c["b_triangles"])]
-    before = set() if before is None else before
-    vertices = [list(k[1:3]) for k in a_keys if k not in before]
-    vertices += [list(G.F[k[3]]) for k in b_keys if k not in before]
-    new = np.zeros(V.shape[0], dtype=bool)
-    if vertices:
-        new[np.concatenate(vertices)] = True
-    return new, set(a_keys) | set(b_keys)
+    return ({("a", int(i), int(j), int(t)) for (i, j), t in zip(np.sort(c["a_pairs"], axis=1), c["a_triangles"])}
+            | {("b", int(i), int(j), int(t)) for (i, j), t in zip(np.sort(c["b_pairs"], axis=1), c["b_triangles"])})
+
+
+def _vertices_of(c, G: Readings, n, had):
+    """(n,) bool: the garment vertices of the crossings of ``c`` (a ``garment_crossings`` answer) not among ``had``
+    (``_crossing_keys``): a crossing edge's ends, the corners of a triangle an obstacle edge crosses."""
+    new = np.zeros(n, dtype=bool)
+    for kind, i, j, t in _crossing_keys(c) - had:
+        new[[i, j] if kind == "a" else G.F[t]] = True
+    return new
 
 
 def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarment | None = None, offset=None,
