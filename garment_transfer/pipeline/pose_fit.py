@@ -281,7 +281,7 @@ def untangle_fit(V, garment: Mesh, body: Mesh, info, contact, free, *, surface=N
     """Undo where a pose fit made the cloth cross itself.
 
     The transfer to a pose folds cloth through itself where the body bends (the lap sitting, the inside of an elbow,
-    under the arms): measured on the MakeHuman suits in the six shared poses, 20 to 2,300 edge-triangle pairs the
+    under the arms): measured on the MakeHuman suits in the six shared poses, 4 to 2,300 edge-triangle pairs the
     garment at rest does not have. The crossing pass is run again with the rest garment as its source shape
     (``clearance.separate``: around each such pair the cloth takes its shape from before, then its rest shape, and
     is cleared of the body again), against the body away from its own contact. Where that made the cloth cross the
