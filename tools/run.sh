@@ -22,15 +22,19 @@ case "$cmd" in
     bash tools/setup.sh
     if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest -q "$@"; fi
     versions=("bpy42:Blender 4.2 LTS" "bpy45:Blender 4.5 LTS" "bpy52:Blender 5.2")
-    # The other Blenders' environments are set up (mostly downloads) while the main suite runs.
+    # The other Blenders' environments are set up one at a time, each while the run before it goes on
+    # (the first during the main suite): at most two of them are being set up or used at once. With
+    # GARMENT_TRANSFER_DISCARD_ENVS=1 (.ci/run: a fresh machine, whose disk is small) each is removed once
+    # its tests have run, so the run never holds more than .venv and two others (about 2 GB each).
+    discard="${GARMENT_TRANSFER_DISCARD_ENVS:-0}"
     logs="$(mktemp -d)"
     trap 'rm -rf "$logs"' EXIT
-    setups=()
-    for version in "${versions[@]}"; do
-      v="${version%%:*}"
-      ( rc=0; bash tools/setup.sh "--$v" >"$logs/$v.log" 2>&1 || rc=$?; echo "$rc" >"$logs/$v.rc" ) &
-      setups+=($!)
-    done
+    setup_pid=""
+    start_setup() {  # start_setup V: set up .venv-V in the background; its exit status lands in $logs/V.rc
+      ( rc=0; bash tools/setup.sh "--$1" >"$logs/$1.log" 2>&1 || rc=$?; echo "$rc" >"$logs/$1.rc" ) &
+      setup_pid=$!
+    }
+    start_setup "${versions[0]%%:*}"
     status=0
     echo "== all tests under Blender 5.0 (.venv) ==" >&2
     # On both cores: the tests are independent of each other (their own temporary folders).
@@ -39,7 +43,9 @@ case "$cmd" in
       version="${versions[$i]}"
       v="${version%%:*}"
       echo "== tests/blender under ${version#*:} (.venv-$v) ==" >&2
-      while [ ! -f "$logs/$v.rc" ] && kill -0 "${setups[$i]}" 2>/dev/null; do sleep 2; done
+      wait "$setup_pid" || true
+      next="${versions[$((i + 1))]:-}"
+      if [ -n "$next" ]; then start_setup "${next%%:*}"; fi
       cat "$logs/$v.log" >&2 2>/dev/null || true
       if [ "$(cat "$logs/$v.rc" 2>/dev/null)" = 0 ]; then
         # The lab's Blender scripts (renders, demo data) run in the project's own Blender only.
@@ -48,8 +54,8 @@ case "$cmd" in
         echo "run: the set-up of .venv-$v failed (above); its tests did not run" >&2
         status=1
       fi
+      if [ "$discard" = 1 ]; then rm -rf ".venv-$v"; fi
     done
-    wait "${setups[@]}" || true
     exit $status ;;
   *) echo "usage: bash tools/run.sh demo|test [args]" >&2; exit 2 ;;
 esac

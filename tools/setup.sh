@@ -61,15 +61,22 @@ want="$(cat "$reqs" pyproject.toml | sha256sum | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: installing Python packages into $venv ($blender; the first time takes a few minutes)" >&2
   log="$venv/pip.log"
-  # Several environments may be set up at once (tools/run.sh does): the editable install writes into
-  # this checkout, so it takes a lock. --no-compile: Python compiles what is imported, when it is.
+  # Several environments may be set up at once (by hand: tools/run.sh sets them up one at a time): the
+  # editable install writes into this checkout, so it takes a lock. --no-compile: Python compiles what
+  # is imported, when it is.
   lock=(); command -v flock >/dev/null 2>&1 && lock=(flock "$root/tools/setup.sh")
   if ! { "$venv/bin/python" -m pip install -q --upgrade pip &&
          "$venv/bin/python" -m pip install -q --no-compile -r "$reqs" &&
          # The core and the lab, installed from this checkout (editable): one garment_transfer in every process.
          ${lock[@]+"${lock[@]}"} "$venv/bin/python" -m pip install -q --no-deps --no-build-isolation -e . ; } >"$log" 2>&1; then
-    echo "setup: pip could not install $reqs into $venv (the first install downloads from PyPI: is the" \
-         "network reachable?). The end of $log:" >&2
+    if grep -q "No space left on device" "$log"; then
+      free="$(df -Pk "$root" | awk 'NR == 2 {printf "%.1f", $4 / 1048576}')"
+      echo "setup: pip could not install $reqs into $venv: the disk is full ($free GB free beside this" \
+           "checkout; each environment takes about 2 GB). Free some space and run again. The end of $log:" >&2
+    else
+      echo "setup: pip could not install $reqs into $venv (the first install downloads from PyPI: is the" \
+           "network reachable?). The end of $log:" >&2
+    fi
     tail -n 15 "$log" >&2
     exit 1
   fi
