@@ -357,7 +357,11 @@ def test_ctrl_c_stops_cleanly_with_exit_130_and_only_whole_files(tmp_path, worke
     shapes = dict(SHAPES, **{f"wide{k}": (1.0 + 0.03 * k, 1.0, 1.0) for k in range(1, 10)})
     ds = make_dataset(tmp_path / "data", shapes=shapes, subdivisions=4)
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "garment_transfer", "batch", str(ds), "--source", "round",
+    # Started as a terminal starts it, with Ctrl+C's default: a test run started in the background by a
+    # script ignores SIGINT, its children inherit that, and Python then installs no KeyboardInterrupt.
+    as_in_a_terminal = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                        "runpy.run_module('garment_transfer', run_name='__main__', alter_sys=True)")
+    cmd = [sys.executable, "-c", as_in_a_terminal, "batch", str(ds), "--source", "round",
            "--out", str(out), "--workers", workers]
     proc = subprocess.Popen(cmd, env=PYTHON_ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
