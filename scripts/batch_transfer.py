@@ -30,6 +30,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -523,6 +524,16 @@ def main(argv=None):
     return 130 if interrupted else 1 if failed else 0
 
 
+def remove_session_folder():
+    """Remove Blender's folder for this session's temporary files (``bpy.app.tempdir``, ``blender_*`` in the
+    system's or the preferences' temporary folder), as Blender does when it exits: leaving without exit handlers
+    would leave one behind at every run of the batch."""
+    bpy = sys.modules.get("bpy")
+    folder = Path(bpy.app.tempdir) if bpy is not None and getattr(bpy.app, "tempdir", "") else None
+    if folder is not None and folder.name.startswith("blender_") and folder.is_dir():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 if __name__ == "__main__":
     try:
         code = main()
@@ -530,6 +541,7 @@ if __name__ == "__main__":
         code = 130
     sys.stdout.flush()
     sys.stderr.flush()
+    remove_session_folder()
     # The bpy 4.5 module can hang in its own exit handler (a thread that closes files late waits
     # forever); everything is written by now, so leave without running exit handlers.
     os._exit(code)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -30,9 +31,13 @@ def test_batch_transfers_to_two_targets_and_goes_past_a_bad_file(makehuman, tmp_
            "--garment", str(garment), "--garment", str(tmp_path / "missing.obj"),
            "--garment", str(far), "--garment", str(garbage),
            "--out", str(out), "--scale", "0.1", "--blend", str(tmp_path / "all.blend")]
+    system_tmp = tmp_path / "system_tmp"
+    system_tmp.mkdir()
     proc = subprocess.run(cmd, capture_output=True, encoding="utf-8", errors="replace", timeout=300,
-                          cwd=tmp_path)
+                          cwd=tmp_path, env={**os.environ, "TMPDIR": str(system_tmp)})
     assert proc.returncode == 1, proc.stderr
+    # Blender's folder for the session's temporary files is removed as Blender removes it at exit.
+    assert list(system_tmp.iterdir()) == []
 
     records = json.loads((out / "summary.json").read_text())
     done = [r for r in records if "error" not in r]
