@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The project's two entry points. Both set everything up first (tools/setup.sh).
 #   bash tools/run.sh demo [args]   the main job on the built-in demo data (results/)
-#   bash tools/run.sh test [args]   the test suite under Blender 5.0 (.venv/). With no args: the whole
-#                                   suite under Blender 5.0, then the Blender-layer tests (tests/blender,
-#                                   but for the lab's own Blender scripts) under Blender 4.2 LTS, 4.5 LTS
-#                                   and 5.2 (.venv-bpy42/, .venv-bpy45/, .venv-bpy52/); it fails if any
-#                                   of them fails.
+#   bash tools/run.sh test [args]   the test suite under Blender 5.0 (.venv/): with no args the whole
+#                                   suite on both cores, else pytest with these args.
+#   bash tools/run.sh versions      the Blender-layer tests (tests/blender, but for the lab's own Blender
+#                                   scripts) under Blender 4.2 LTS, 4.5 LTS and 5.2 (.venv-bpy42/,
+#                                   .venv-bpy45/, .venv-bpy52/); it fails if any of them fails.
+# CI (.ci/run) runs test, then versions.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -21,11 +22,15 @@ case "$cmd" in
   test)
     bash tools/setup.sh
     if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest -q "$@"; fi
+    echo "== all tests under Blender 5.0 (.venv) ==" >&2
+    # On both cores: the tests are independent of each other (their own temporary folders).
+    exec .venv/bin/python -m pytest -q -n 2 ;;
+  versions)
     versions=("bpy42:Blender 4.2 LTS" "bpy45:Blender 4.5 LTS" "bpy52:Blender 5.2")
-    # The other Blenders' environments are set up one at a time, each while the run before it goes on
-    # (the first during the main suite): at most two of them are being set up or used at once. With
-    # GARMENT_TRANSFER_DISCARD_ENVS=1 (.ci/run: a fresh machine, whose disk is small) each is removed once
-    # its tests have run, so the run never holds more than .venv and two others (about 2 GB each).
+    # The Blenders' environments are set up one at a time, each while the tests of the one before it
+    # run: at most two of them are being set up or used at once. With GARMENT_TRANSFER_DISCARD_ENVS=1
+    # (.ci/run: a fresh machine, whose disk is small) each is removed once its tests have run, so the run
+    # never holds more than two of them (about 2 GB each).
     discard="${GARMENT_TRANSFER_DISCARD_ENVS:-0}"
     logs="$(mktemp -d)"
     trap 'rm -rf "$logs"' EXIT
@@ -36,9 +41,6 @@ case "$cmd" in
     }
     start_setup "${versions[0]%%:*}"
     status=0
-    echo "== all tests under Blender 5.0 (.venv) ==" >&2
-    # On both cores: the tests are independent of each other (their own temporary folders).
-    .venv/bin/python -m pytest -q -n 2 || status=$?
     for i in "${!versions[@]}"; do
       version="${versions[$i]}"
       v="${version%%:*}"
@@ -57,5 +59,5 @@ case "$cmd" in
       if [ "$discard" = 1 ]; then rm -rf ".venv-$v"; fi
     done
     exit $status ;;
-  *) echo "usage: bash tools/run.sh demo|test [args]" >&2; exit 2 ;;
+  *) echo "usage: bash tools/run.sh demo [args] | test [args] | versions" >&2; exit 2 ;;
 esac
