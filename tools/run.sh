@@ -26,6 +26,7 @@ case "$cmd" in
     # On both cores: the tests are independent of each other (their own temporary folders).
     exec .venv/bin/python -m pytest -q -n 2 ;;
   versions)
+    if [ $# -gt 0 ]; then echo "usage: bash tools/run.sh versions (it takes no arguments)" >&2; exit 2; fi
     versions=("bpy42:Blender 4.2 LTS" "bpy45:Blender 4.5 LTS" "bpy52:Blender 5.2")
     # The Blenders' environments are set up one at a time, each while the tests of the one before it
     # run: at most two of them are being set up or used at once. With GARMENT_TRANSFER_DISCARD_ENVS=1
