@@ -35,6 +35,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from pathlib import Path
 
 AXES = ["X", "Y", "Z", "NEGATIVE_X", "NEGATIVE_Y", "NEGATIVE_Z"]
@@ -534,14 +535,28 @@ def remove_session_folder():
         shutil.rmtree(folder, ignore_errors=True)
 
 
-if __name__ == "__main__":
+def leave():
+    """Run the batch and leave with its exit code: 130 on Ctrl+C, a usage error's code, 1 with the traceback on
+    an error nothing else caught. Blender's session folder is removed, then the process leaves without exit
+    handlers: the bpy 4.5 module can hang in its own (a thread that closes files late waits forever), and
+    everything is written by now."""
     try:
         code = main()
     except KeyboardInterrupt:
         code = 130
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
+        if isinstance(exc.code, str):
+            print(exc.code, file=sys.stderr)
+    except Exception:  # noqa: BLE001 - said with its traceback, then the run ends as a failure
+        traceback.print_exc()
+        print("batch_transfer: FAILED: an error the batch does not know (above)", file=sys.stderr)
+        code = 1
     sys.stdout.flush()
     sys.stderr.flush()
     remove_session_folder()
-    # The bpy 4.5 module can hang in its own exit handler (a thread that closes files late waits
-    # forever); everything is written by now, so leave without running exit handlers.
     os._exit(code)
+
+
+if __name__ == "__main__":
+    leave()

@@ -434,6 +434,31 @@ def test_batch_interrupted_on_the_second_pair(makehuman, tmp_path, extension, mo
         f"{GARMENT}_female_average_on_female_pear.obj", "summary.json"]
 
 
+@pytest.mark.parametrize("raised, code, said", [
+    (RuntimeError("a fault the batch does not know"), 1, "a fault the batch does not know"),
+    (KeyboardInterrupt(), 130, ""),
+    (SystemExit(2), 2, ""),
+    (SystemExit("bad arguments"), 2, "bad arguments"),
+    (SystemExit(None), 0, "")])
+def test_the_batch_leaves_with_its_code_after_removing_blenders_session_folder(monkeypatch, capsys, raised, code,
+                                                                                said):
+    """Whatever ends the run, the script leaves without exit handlers (where the bpy 4.5 module can hang), with
+    the run's exit code, once Blender's folder for the session is removed; an error nothing caught is said with
+    its traceback and ends the run as a failure (not in the interpreter's exit, with its handlers)."""
+    def main():
+        raise raised
+
+    done = []
+    monkeypatch.setattr(batch_transfer, "main", main)
+    monkeypatch.setattr(batch_transfer, "remove_session_folder", lambda: done.append("removed"))
+    monkeypatch.setattr(batch_transfer.os, "_exit", lambda c: done.append(c))
+    batch_transfer.leave()
+    assert done == ["removed", code]
+    err = capsys.readouterr().err
+    assert said in err
+    assert ("Traceback" in err) == isinstance(raised, RuntimeError)
+
+
 def test_batch_stopped_by_sigint(makehuman, tmp_path):
     garments = [makehuman / "garments" / g / "female_average.obj"
                 for g in (GARMENT, "female_casualsuit01")]
