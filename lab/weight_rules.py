@@ -20,6 +20,13 @@ what the other vertices get:
   (``+ lambda |w - nearest|^2``, lambda falling with the distance over 2% of the body's scale);
 - ``legs_averaged``: the inpainting, then each unmatched vertex's left and right bones averaged (a skirt's hem
   moves with both legs alike).
+- ``range_of_motion`` (and ``range_of_motion70``): the weights checked as riggers check them, by a range of
+  motion made from the skeleton alone: the ``ROM_BONES`` bones on which the inpainted and the nearest rule
+  disagree most (the weight each bone and the bones below it move, summed over the garment; roots left out),
+  each swung by +-45 (70) degrees about the two axes across it; where the two rules differ in that bone's weight
+  by more than 0.02, each vertex's depth inside the posed body under each rule; a vertex takes the nearest
+  rule's weights where the inpainted rule's depths over all the swings exceed the nearest rule's by 0.05% of the
+  body's size, the choice grown by two rings and smoothed by two, the two rules blended by it, 8 influences.
 
 Stretch (the share of triangles stretched by more than 20% and 100%) is measured on every garment and pose
 (skinning is cheap); crossings, the costly part, with ``--crossings`` on the garments given.
@@ -165,6 +172,66 @@ def rule_legs_averaged(P):
     return P.weights_of(X)
 
 
+#: The bones a range of motion swings (``rule_range_of_motion``).
+ROM_BONES = 8
+
+
+def _moved_by(weights, skeleton):
+    """(p, b): at each vertex, the weight that each bone and the bones below it move."""
+    index = {name: i for i, name in enumerate(skeleton.names)}
+    W = weights.W.tocsc()
+    moved = np.zeros((W.shape[0], skeleton.n_bones))
+    for g, name in enumerate(weights.groups):
+        if name in index:
+            moved[:, index[name]] += W[:, g].toarray().ravel()
+    for b in range(skeleton.n_bones - 1, -1, -1):   # parents come before their children
+        if skeleton.parents[b] >= 0:
+            moved[:, skeleton.parents[b]] += moved[:, b]
+    return moved
+
+
+def _rows_of(weights, rows):
+    return gt.SkinWeights(weights.groups, weights.W.tocsr()[rows], weights.name)
+
+
+def rule_range_of_motion(b, g, w, s, rig, degrees=45.0, bones=ROM_BONES, share=0.0005, rings=2):
+    from scipy.spatial.transform import Rotation
+
+    inpainted = gt.inpainted_weights(b.V, b.F, w, g.V, g.F, surface=s)[0]
+    nearest = gt.nearest_weights(b.V, b.F, w, g.V, surface=s, max_influences=gt.MAX_INFLUENCES)
+    skeleton = rig.skeleton
+    differ = np.abs(_moved_by(inpainted, skeleton) - _moved_by(nearest, skeleton))
+    total = differ.sum(axis=0)
+    total[np.asarray(skeleton.parents) < 0] = 0.0
+    heads, tails = rig.rest()
+    score = np.zeros(g.n_vertices)
+    for bone in [k for k in np.argsort(-total)[:bones] if total[k] > 0]:
+        rows = np.flatnonzero(differ[:, bone] > 0.02)
+        along = (tails[bone] - heads[bone]) / np.linalg.norm(tails[bone] - heads[bone])
+        across = np.cross(along, np.eye(3)[np.argmin(np.abs(along))])
+        across /= np.linalg.norm(across)
+        for axis in (across, np.cross(along, across)):
+            for sign in (1.0, -1.0):
+                R = np.tile(np.eye(3), (skeleton.n_bones, 1, 1))
+                R[bone] = Rotation.from_rotvec(sign * np.radians(degrees) * axis).as_matrix()
+                T = rig.transforms(R)
+                posed = gt.TriangleSurface(rig.pose(b.V, T), b.F)
+                depth = [np.maximum(0.0, -posed.signed_distance(rig.pose(g.V[rows], T, _rows_of(x, rows)))[0])
+                         for x in (inpainted, nearest)]
+                score[rows] += depth[0] - depth[1]
+    A, mean = _adjacency_mean(g.n_vertices, g.F)
+    share_nearest = (score > share * gt.body_scale(b.V)).astype(np.float64)
+    for _ in range(rings):
+        share_nearest = np.maximum(share_nearest, mean @ share_nearest)
+    share_nearest = _smooth(share_nearest[:, None], mean, rings, 0.5)[:, 0]
+    W = sp.diags(1.0 - share_nearest) @ inpainted.W + sp.diags(share_nearest) @ nearest.W
+    return gt.SkinWeights(inpainted.groups, sp.csr_matrix(W), "range of motion").limited(gt.MAX_INFLUENCES)
+
+
+#: The rules that need the body's rig (called with it).
+RIGGED = {"range_of_motion", "range_of_motion70"}
+
+
 def rules():
     """name -> rule(body, garment, body weights, surface) -> SkinWeights."""
     def nearest(b, g, w, s):
@@ -181,7 +248,8 @@ def rules():
             "match5": lambda b, g, w, s: gt.inpainted_weights(b.V, b.F, w, g.V, g.F, surface=s,
                                                               distance=0.05 * gt.body_scale(b.V))[0],
             "geodesic": trial(rule_geodesic), "seams": trial(rule_seams), "soft": trial(rule_soft),
-            "legs_averaged": trial(rule_legs_averaged)}
+            "legs_averaged": trial(rule_legs_averaged), "range_of_motion": rule_range_of_motion,
+            "range_of_motion70": lambda b, g, w, s, rig: rule_range_of_motion(b, g, w, s, rig, degrees=70.0)}
 
 
 def run(garments, names, with_crossings, say):
@@ -200,7 +268,8 @@ def run(garments, names, with_crossings, say):
         surface = gt.TriangleSurface(body.V, body.F)
         offset = gt.OFFSET_SHARE * gt.body_scale(body.V)
         gF = gt.every_split(garment)
-        weights = {n: make(body, garment, body_weights, surface) for n, make in chosen.items()}
+        weights = {n: make(body, garment, body_weights, surface, *([rig] if n in RIGGED else []))
+                   for n, make in chosen.items()}
         for pose, R in poses.items():
             T = rig.transforms(R)
             row = {"garment": name, "pose": pose, "loose": name not in SUITS}
