@@ -178,12 +178,7 @@ ROM_BONES = 8
 
 def _moved_by(weights, skeleton):
     """(p, b): at each vertex, the weight that each bone and the bones below it move."""
-    index = {name: i for i, name in enumerate(skeleton.names)}
-    W = weights.W.tocsc()
-    moved = np.zeros((W.shape[0], skeleton.n_bones))
-    for g, name in enumerate(weights.groups):
-        if name in index:
-            moved[:, index[name]] += W[:, g].toarray().ravel()
+    moved = weights.subset(skeleton.names).W.toarray()
     for b in range(skeleton.n_bones - 1, -1, -1):   # parents come before their children
         if skeleton.parents[b] >= 0:
             moved[:, skeleton.parents[b]] += moved[:, b]
@@ -233,7 +228,8 @@ RIGGED = {"range_of_motion", "range_of_motion70"}
 
 
 def rules():
-    """name -> rule(body, garment, body weights, surface) -> SkinWeights."""
+    """name -> rule(body, garment, body weights, surface) -> SkinWeights (those of ``RIGGED`` take the body's rig
+    after the surface)."""
     def nearest(b, g, w, s):
         return gt.nearest_weights(b.V, b.F, w, g.V, surface=s)
 

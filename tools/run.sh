@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The README's two commands (demo, test), and the other Blenders' tests (versions). Each sets up what it needs first (tools/setup.sh).
+# The README's two commands (demo, test), and the other Blenders' tests (versions). Each sets up what it
+# needs first (tools/setup.sh).
 #   bash tools/run.sh demo [args]   the main job on the built-in demo data (results/)
 #   bash tools/run.sh test [args]   the test suite under Blender 5.0 (.venv/): with no args the whole
 #                                   suite on both cores, else pytest with these args.
