@@ -530,7 +530,7 @@ def remove_session_folder():
     system's or the preferences' temporary folder), as Blender does when it exits: leaving without exit handlers
     would leave one behind at every run of the batch."""
     bpy = sys.modules.get("bpy")
-    folder = Path(bpy.app.tempdir) if bpy is not None and getattr(bpy.app, "tempdir", "") else None
+    folder = Path(bpy.app.tempdir) if bpy is not None else None
     if folder is not None and folder.name.startswith("blender_") and folder.is_dir():
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -545,8 +545,9 @@ def leave():
     except KeyboardInterrupt:
         code = 130
     except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 2
-        if isinstance(exc.code, str):
+        # Python's own rule: no code is 0, a number is itself, anything else is said and is 1.
+        code = 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 1
+        if not isinstance(exc.code, (int, type(None))):
             print(exc.code, file=sys.stderr)
     except Exception:  # noqa: BLE001 - said with its traceback, then the run ends as a failure
         traceback.print_exc()

@@ -438,7 +438,7 @@ def test_batch_interrupted_on_the_second_pair(makehuman, tmp_path, extension, mo
     (RuntimeError("a fault the batch does not know"), 1, "a fault the batch does not know"),
     (KeyboardInterrupt(), 130, ""),
     (SystemExit(2), 2, ""),
-    (SystemExit("bad arguments"), 2, "bad arguments"),
+    (SystemExit("bad arguments"), 1, "bad arguments"),
     (SystemExit(None), 0, "")])
 def test_the_batch_leaves_with_its_code_after_removing_blenders_session_folder(monkeypatch, capsys, raised, code,
                                                                                 said):
