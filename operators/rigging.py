@@ -346,17 +346,21 @@ def add_surface_ride(context, obj, body, share):
     return mod
 
 
-def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, outside=KEEP_OUTSIDE_SHARE):
+def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, outside=KEEP_OUTSIDE_SHARE,
+                hanging=True):
     """Give ``obj`` (a garment on ``body``, as modelled: the armature at rest) the body's bones as vertex
     groups, weighted by the core's ``inpainted_weights``, an Armature modifier and the live correction: with
     ``ride_surface``, a Surface Deform that carries the cloth lying on the skin with the skinned body's surface
-    (``riding_share``), and a Shrinkwrap (Outside) at ``outside`` times the transfer's cloth offset (0: none).
+    (``riding_share``), and Shrinkwraps (Outside) in bands up to ``outside`` times the transfer's cloth offset (0:
+    none), each holding the vertices the cloth at rest holds that far; with ``hanging``, the cloth that hangs free
+    (``riding_share`` 0) also in bands beyond it (``HANGING_BANDS``, times ``outside``).
 
     Returns
     -------
     armature : bpy.types.Object
     info : dict
-        The weight transfer's figures (``matched``, ``inpainted``, ``riding``, ``warnings``).
+        The weight transfer's figures (``matched``, ``inpainted``, ``riding``, ``hanging``: the vertices kept out
+        beyond the cloth offset, ``warnings``).
     """
     from ..garment_transfer import OFFSET_SHARE, RigError, body_scale, inpainted_weights, riding_share
 
@@ -378,9 +382,9 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == RIDE_MODIFIER]:
         obj.modifiers.remove(mod)
     add_armature_modifier(obj, armature)
-    info["riding"] = 0
+    info["riding"] = info["hanging"] = 0
+    share = riding_share(body_mesh.V, body_mesh.F, cloth.V, cloth.F) if ride_surface or outside > 0 else None
     if ride_surface:
-        share = riding_share(body_mesh.V, body_mesh.F, cloth.V, cloth.F)
         info["riding"] = int((share > 0).sum())
         if info["riding"]:
             with rest_position(armature):
@@ -392,11 +396,17 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     if outside > 0:
         # Per vertex, in bands up to ``outside`` times the cloth offset, as far as the cloth at rest is held: the
         # rig moves nothing at rest (the crossing pass leaves some vertices nearer than the offset).
-        from ..garment_transfer import KEEP_OUTSIDE_BANDS, held_bands
+        from ..garment_transfer import HANGING_BANDS, KEEP_OUTSIDE_BANDS, hanging_bands, held_bands
 
         offset = OFFSET_SHARE * body_scale(body_mesh.V)
-        add_keep_outside_bands(obj, body, held_bands([(shrinkwrap_surface(body, body_mesh.V), cloth.V)], offset,
-                                                     [outside * b for b in KEEP_OUTSIDE_BANDS]))
+        surface = shrinkwrap_surface(body, body_mesh.V)
+        bands = held_bands([(surface, cloth.V)], offset, [outside * b for b in KEEP_OUTSIDE_BANDS])
+        if hanging:
+            # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
+            free = hanging_bands(surface, cloth.V, offset, share <= 0, [outside * b for b in HANGING_BANDS])
+            info["hanging"] = int(np.any([only for _, only in free], axis=0).sum()) if free else 0
+            bands += free
+        add_keep_outside_bands(obj, body, bands)
     obj.data.update()
     return armature, info
 
@@ -720,7 +730,8 @@ class GARMENT_TRANSFER_OT_rig_garment(bpy.types.Operator):
             return report_failure(self, exc)
         self.report({'INFO'}, f"{settings.result.name}: rigged to {armature.name} ({info['matched']} vertices "
                               f"matched the body, {info['inpainted']} inpainted, at most "
-                              f"{settings.max_influences} bones each)")
+                              f"{settings.max_influences} bones each; {info['hanging']} hanging free kept as far "
+                              f"out as at rest)")
         for warning in info["warnings"]:
             self.report({'WARNING'}, warning)
         return {'FINISHED'}

@@ -15,7 +15,7 @@ from garment_transfer.geometry.obj import read_obj
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry.embedding import body_scale
 from garment_transfer.pipeline.shape_keys import (MIX_LIFT_RADIUS, SHAPE_KEY_BANDS, ShapeKeyFit, body_at,
-                                                  fit_shape_keys, keep_outside, keep_outside_banded,
+                                                  fit_shape_keys, hanging_bands, keep_outside, keep_outside_banded,
                                                   keep_outside_bands, mix_excess, mix_lift, pair_warnings,
                                                   self_crossing_pairs, transfer_to_shapes)
 from garment_transfer.pipeline.transfer import prepare_garment, transfer_garment
@@ -266,3 +266,33 @@ def test_cli_bad_shape_exits_1_and_writes_nothing(tmp_path, keyed):
     assert r.returncode == 1
     assert "sphere" in r.stderr
     assert not out.exists()
+
+
+def test_hanging_bands_keep_the_free_cloth_as_far_out_as_at_rest_and_move_nothing_at_rest():
+    # A floor (z = 0, facing up) and cloth above it at known heights, in offsets; every other vertex hangs free.
+    floor_V = np.array([[-100.0, -100.0, 0.0], [100.0, -100.0, 0.0], [100.0, 100.0, 0.0], [-100.0, 100.0, 0.0]])
+    floor_F = np.array([[0, 1, 2], [0, 2, 3]])
+    offset = 0.01
+    heights = np.array([0.2, 1.2, 1.6, 1.6, 2.5, 3.5, 3.5, 5.0])
+    hanging = np.array([True, True, True, False, True, True, False, True])
+    V = np.stack([np.linspace(-1.0, 1.0, 8), np.zeros(8), heights * offset], axis=1)
+    bands = hanging_bands(TriangleSurface(floor_V, floor_F), V, offset, hanging, (1.5, 2.0, 3.0, 4.0, 6.0))
+    # The band of 6 offsets holds no vertex: left out. Each band: the hanging vertices held at least that far.
+    assert [d for d, _ in bands] == pytest.approx([0.015, 0.02, 0.03, 0.04])
+    assert [np.flatnonzero(only).tolist() for _, only in bands] == [[2, 4, 5, 7], [4, 5, 7], [5, 7], [7]]
+    # At rest the Shrinkwrap of each band moves nothing.
+    rest = TriangleSurface(floor_V, floor_F)
+    assert np.array_equal(keep_outside_banded(V, rest, bands), V)
+    # The floor raised by two offsets (a leg swung into the skirt): each hanging vertex ends as far above it as the
+    # largest band it is held in, the others where they were.
+    raised = TriangleSurface(floor_V + [0.0, 0.0, 2 * offset], floor_F)
+    out = keep_outside_banded(V, raised, bands)
+    expected = V.copy()
+    expected[[2, 4, 5, 7], 2] = 2 * offset + np.array([1.5, 2.0, 3.0, 4.0]) * offset
+    np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12)
+    assert out[3, 2] == V[3, 2] and out[6, 2] == V[6, 2]
+    assert hanging_bands(rest, V, offset, np.zeros(8, bool)) == []
+    with pytest.raises(ValueError, match="one value per garment vertex"):
+        hanging_bands(rest, V, offset, hanging[:5])
+    with pytest.raises(ValueError, match="increasing"):
+        hanging_bands(rest, V, offset, hanging, (2.0, 1.5))

@@ -18,16 +18,16 @@ from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .pose_fit import every_split, fit_poses, fit_to_pose, in_threads, posed_counts, poses_to_files, self_contact
 from .rest_pose import outfit_across_rest_poses, pose_difference, transfer_across_rest_poses
 from .result_check import check_result, result_warnings
-from .shape_keys import (KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, SHAPE_KEY_BANDS, ShapeKeyFit, all_pairs,
-                         fit_shape_keys, fit_steps, held_bands, keep_outside_bands, mix_excess, pair_warnings,
-                         self_crossing_pairs, shapes_to_files, transfer_to_shapes)
+from .shape_keys import (HANGING_BANDS, KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, SHAPE_KEY_BANDS, ShapeKeyFit,
+                         all_pairs, fit_shape_keys, fit_steps, hanging_bands, held_bands, keep_outside_bands,
+                         mix_excess, pair_warnings, self_crossing_pairs, shapes_to_files, transfer_to_shapes)
 from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResult, pose_check, prepare_garment,
                        transfer_garment)
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
            "POSE_LIMITS", "check_result", "result_warnings",
            "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS", "keep_outside_bands",
-           "held_bands",
+           "held_bands", "HANGING_BANDS", "hanging_bands",
            "OutfitError", "OutfitResult", "transfer_outfit",
            "ShapeKeyFit", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps",
            "mix_excess", "pair_warnings", "self_crossing_pairs",

@@ -59,6 +59,13 @@ KEEP_OUTSIDE_SHARE = 0.5
 #: that must not move already holds at least that far. In Blender, one Shrinkwrap per band, each limited to its
 #: band's vertex group, in increasing order. Rig to Body's bands (times its Keep Outside share).
 KEEP_OUTSIDE_BANDS = (0.5, 0.75, 1.0)
+#: Rig to Body's further bands for the cloth that hangs free of the body (``riding_share`` 0: a skirt's hem, the
+#: skirt of a dress), shares of the offset (``hanging_bands``): each keeps the hanging vertices that the cloth at rest
+#: holds at least that far out, so that a leg swung into a skirt pushes the cloth in front of it instead of passing
+#: through it. The cloth on the skin keeps ``KEEP_OUTSIDE_BANDS`` only: kept farther out, a sleeve pressed between the
+#: arm and the torso is pushed off one into the other. Measured in lab/notes/motion-study.md ("Hanging cloth kept
+#: out").
+HANGING_BANDS = (1.5, 2.0, 3.0, 4.0)
 #: The bands of size shape keys (``keep_outside_bands``): those of ``KEEP_OUTSIDE_BANDS`` and more above the
 #: offset, so that a vertex the basis and every key at 1 hold farther out than the offset is kept that far at a
 #: mix too. ``python -m lab.shape_keys`` (50 mixes, seed 0), without the lift of a mix (``mix_lift``): 5 of 50 mixes
@@ -536,6 +543,47 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     held += [(TriangleSurface(np.asarray(V_body, dtype=np.float64), source_body.F), fit.keys[name])
              for name, V_body in shapes.items()]
     return held_bands(held, offset, bands, slack)
+
+
+def hanging_bands(surface: TriangleSurface, V, offset, hanging, bands=HANGING_BANDS, slack=KEEP_OUTSIDE_SLACK):
+    """The keep-outside bands of the cloth that hangs free, beyond those of ``held_bands``: for each band ``b`` of
+    ``bands`` (shares of ``offset``, increasing), its distance ``b * offset`` and the vertices of ``hanging`` that
+    the garment at rest ``V`` on the body ``surface`` holds at least that far (as the Shrinkwrap measures,
+    ``shrinkwrap_distance``; times ``slack``). Like ``held_bands``, the rule moves nothing at rest.
+
+    Parameters
+    ----------
+    surface : TriangleSurface
+        The body at rest (as Blender splits it, for a rig's Shrinkwraps).
+    V : (g,3) float
+        The garment at rest.
+    offset : float
+    hanging : (g,) bool
+        The vertices that hang free (``riding_share`` 0).
+    bands : sequence of float
+    slack : float
+        At most 1.
+
+    Returns
+    -------
+    list of (float, (g,) bool)
+        Bands with no vertex left out.
+    """
+    bands = [float(b) for b in bands]
+    if any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
+        raise ValueError(f"bands must be positive and increasing, got {bands}")
+    if not 0 < slack <= 1:
+        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    V = np.asarray(V, dtype=np.float64)
+    hanging = np.asarray(hanging, dtype=bool)
+    if hanging.shape != (V.shape[0],):
+        raise ValueError(f"hanging must have one value per garment vertex ({V.shape[0]}), got shape {hanging.shape}")
+    if not bands or not hanging.any():
+        return []
+    held = np.full(V.shape[0], -np.inf)
+    held[hanging] = shrinkwrap_distance(V[hanging], surface)[0]
+    out = [(b * offset, held * slack >= b * offset) for b in bands]
+    return [(d, only) for d, only in out if only.any()]
 
 
 def held_bands(held, offset, bands=SHAPE_KEY_BANDS, slack=KEEP_OUTSIDE_SLACK):

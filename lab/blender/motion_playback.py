@@ -50,9 +50,11 @@ GARMENTS = ("female_sportsuit01", "female_casualsuit01", "female_casualsuit02", 
             "formal_dress")
 #: The live rigs compared with the nearest-surface rig: name -> Rig to Body's options.
 #: The product's rig is "shrinkwrap" (Rig to Body's defaults: Keep Outside Body in bands up to the cloth offset,
-#: each band held at rest), "surface+shrinkwrap" with Ride Body Surface on; "shrinkwrap_half" keeps outside in
-#: bands up to half the cloth offset (the first round's distance).
-LIVE_RIGS = {"shrinkwrap_half": dict(ride_surface=False, outside=0.5),
+#: each band held at rest, and beyond it for the cloth hanging free), "surface+shrinkwrap" with Ride Body Surface
+#: on; "shrinkwrap_to_offset" keeps every vertex in bands up to the cloth offset only (the rig before the hanging
+#: cloth's bands); "shrinkwrap_half" keeps outside in bands up to half the cloth offset (the first round's distance).
+LIVE_RIGS = {"shrinkwrap_to_offset": dict(ride_surface=False, outside=1.0, hanging=False),
+             "shrinkwrap_half": dict(ride_surface=False, outside=0.5),
              "surface": dict(ride_surface=True, outside=0.0),
              "surface+shrinkwrap_half": dict(ride_surface=True, outside=0.5),
              "shrinkwrap": dict(ride_surface=False, outside=1.0),

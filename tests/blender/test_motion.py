@@ -311,6 +311,54 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
         bpy.ops.garment_transfer.fit_pose()
 
 
+def test_rig_to_body_keeps_the_cloth_hanging_free_as_far_out_as_at_rest_and_moves_nothing_at_rest(character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    from garment_transfer import OFFSET_SHARE, TriangleSurface, body_scale
+
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    # The trouser legs below the knees made to hang free: moved 6 cm out from the body (twelve cloth offsets; the
+    # cloth rides the skin up to 2% of the body's scale, 3.9 cm).
+    rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
+    rest_body = rest_body.with_vertices(to_world(rest_body.V))
+    V = world_vertices(result)
+    free = V[:, 2] < V[:, 2].min() + 0.3 * np.ptp(V[:, 2])
+    closest = TriangleSurface(rest_body.V, rest_body.F).closest(V[free])[0]
+    away = (V[free] - closest) / np.linalg.norm(V[free] - closest, axis=1, keepdims=True)
+    V[free] += 0.06 * away
+    M = np.array(result.matrix_world)
+    local = (V - M[:3, 3]) @ np.linalg.inv(M[:3, :3]).T
+    result.data.vertices.foreach_set("co", local.astype(np.float32).ravel())
+    result.data.update()
+    twin = result.copy()
+    twin.data = result.data.copy()
+    bpy.context.scene.collection.objects.link(twin)
+    armature_obj, info = rigging.rig_to_body(bpy.context, result, body)
+    rigging.rig_to_body(bpy.context, twin, body, hanging=False)
+    offset = OFFSET_SHARE * body_scale(rest_body.V)
+    scale = np.mean(np.array(body.matrix_world.to_scale()))
+    shrinkwraps = [m for m in result.modifiers if m.type == 'SHRINKWRAP']
+    beyond = [m for m in shrinkwraps if m.offset * scale > 1.01 * offset]
+    # Beyond the cloth offset (the twin's last band), only the hanging cloth: bands up to four offsets.
+    assert len(shrinkwraps) == len([m for m in twin.modifiers if m.type == 'SHRINKWRAP']) + len(beyond)
+    assert [m.offset * scale for m in beyond] == pytest.approx([b * offset for b in (1.5, 2.0, 3.0, 4.0)], rel=1e-5)
+    held = np.zeros(len(V), bool)
+    for m in beyond:
+        group = result.vertex_groups[m.vertex_group].index
+        members = np.array([any(g.group == group for g in v.groups) for v in result.data.vertices])
+        assert members.any() and not (members & ~free).any()
+        held |= members
+    # All but the rings next to the cloth left on the skin (its riding share is spread over three rings).
+    assert info["hanging"] == held.sum() > 0.6 * free.sum()
+    # At rest nothing moves (float32 coordinates).
+    assert np.abs(evaluated_world(result) - world_vertices(result)).max() < 1e-5
+    # Posed, only the hanging cloth differs from the rig without its bands.
+    pose(character, "fight01")
+    with_bands, without = evaluated_world(result), evaluated_world(twin)
+    assert np.array_equal(with_bands[~held], without[~held])
+    assert np.abs(with_bands[held] - without[held]).max() > 1e-4
+
+
 def kick_as_rest_pose(character):
     """The pear's rest pose made the kick, as an artist does it: the Armature modifier applied, the pose applied as
     the armature's rest pose, the modifier added again. Returns the pear at rest (world space)."""
