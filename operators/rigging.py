@@ -383,7 +383,8 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         obj.modifiers.remove(mod)
     add_armature_modifier(obj, armature)
     info["riding"] = info["hanging"] = 0
-    share = riding_share(body_mesh.V, body_mesh.F, cloth.V, cloth.F) if ride_surface or outside > 0 else None
+    needed = ride_surface or (outside > 0 and hanging)
+    share = riding_share(body_mesh.V, body_mesh.F, cloth.V, cloth.F) if needed else None
     if ride_surface:
         info["riding"] = int((share > 0).sum())
         if info["riding"]:
@@ -404,7 +405,8 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         if hanging:
             # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
             free = hanging_bands(surface, cloth.V, offset, share <= 0, [outside * b for b in HANGING_BANDS])
-            info["hanging"] = int(np.any([only for _, only in free], axis=0).sum()) if free else 0
+            # The bands are nested: the first holds every vertex the others hold.
+            info["hanging"] = int(free[0][1].sum()) if free else 0
             bands += free
         add_keep_outside_bands(obj, body, bands)
     obj.data.update()

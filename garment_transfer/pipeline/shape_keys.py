@@ -545,6 +545,17 @@ def keep_outside_bands(fit: ShapeKeyFit, source_body: Mesh, shapes, offset=None,
     return held_bands(held, offset, bands, slack)
 
 
+def _checked_bands(bands, slack, empty=False):
+    """``bands`` as floats, refused unless positive and increasing (and not empty, unless ``empty``), with ``slack``
+    in (0, 1]."""
+    bands = [float(b) for b in bands]
+    if (not bands and not empty) or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
+        raise ValueError(f"bands must be positive and increasing, got {bands}")
+    if not 0 < slack <= 1:
+        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    return bands
+
+
 def hanging_bands(surface: TriangleSurface, V, offset, hanging, bands=HANGING_BANDS, slack=KEEP_OUTSIDE_SLACK):
     """The keep-outside bands of the cloth that hangs free, beyond those of ``held_bands``: for each band ``b`` of
     ``bands`` (shares of ``offset``, increasing), its distance ``b * offset`` and the vertices of ``hanging`` that
@@ -569,11 +580,7 @@ def hanging_bands(surface: TriangleSurface, V, offset, hanging, bands=HANGING_BA
     list of (float, (g,) bool)
         Bands with no vertex left out.
     """
-    bands = [float(b) for b in bands]
-    if any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
-        raise ValueError(f"bands must be positive and increasing, got {bands}")
-    if not 0 < slack <= 1:
-        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    bands = _checked_bands(bands, slack, empty=True)
     V = np.asarray(V, dtype=np.float64)
     hanging = np.asarray(hanging, dtype=bool)
     if hanging.shape != (V.shape[0],):
@@ -594,11 +601,7 @@ def held_bands(held, offset, bands=SHAPE_KEY_BANDS, slack=KEEP_OUTSIDE_SLACK):
     -------
     list of (float, (g,) bool)
     """
-    bands = [float(b) for b in bands]
-    if not bands or any(b <= 0 for b in bands) or any(b >= c for b, c in zip(bands, bands[1:])):
-        raise ValueError(f"bands must be positive and increasing, got {bands}")
-    if not 0 < slack <= 1:
-        raise ValueError(f"slack must be in (0, 1], got {slack}")
+    bands = _checked_bands(bands, slack)
     # Measured as the Shrinkwrap measures (shrinkwrap_distance), so that keep_outside moves none of the shapes.
     held = np.min([shrinkwrap_distance(V, surface)[0] for surface, V in held], axis=0)
     # The floor: the first band, or less where the basis or a key at 1 has a vertex nearer (the crossing pass may
