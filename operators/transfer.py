@@ -95,7 +95,8 @@ def shape_key_basis(body, evaluated=True):
 
 def transfer_objects(context, source_body, target_body, garment, *, method="DIRECT", model_path="",
                      target_label="", field_share=None, offset=None, fix_penetration=True, evaluated=True,
-                     progress=None, keep_registered=False, use_shape_keys=False, body_model_path=""):
+                     progress=None, keep_registered=False, use_shape_keys=False, body_model_path="",
+                     untangle=False):
     """Transfer ``garment`` (on ``source_body``) onto ``target_body`` and make the result object.
 
     Reads the three objects (world space; see convert for which state), runs the core, and only
@@ -108,7 +109,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     ``field_share``: for a garment fit model file (None: the core's default); its learned placement is
     used when the file holds one. When both bodies have an armature with the bones that move the source
     (``rigging.rest_pose_rigs``), a target in another rest pose gets the source and the garment posed into it
-    first (the core's ``transfer_across_rest_poses``; ``outcome.info["rest_pose"]``); ``outcome.model_text`` says
+    first (the core's ``transfer_across_rest_poses``; ``outcome.info["rest_pose"]``; ``untangle``: where that folds the
+    cloth through itself, undone); ``outcome.model_text`` says
     which model was used, ``outcome.method_text`` which method made the result and what it gains
     (``method_text``).
 
@@ -162,7 +164,7 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     with pose_remedy(why_not):
         if rigs is not None:
             outcome, registration = transfer_across_rest_poses(framed(source), framed(target), framed(cloth), *rigs,
-                                                               **options)
+                                                               untangle=untangle, **options)
         else:
             outcome, registration = transfer_to_any_body(framed(source), framed(target), framed(cloth), **options)
     outcome.shape_keys = key_names
@@ -243,12 +245,23 @@ def method_text(method, model):
     return f"Garment fit model ({name}, field share {model.field_share:g}, no placement): {GAINS['garment_alone']}"
 
 
+def untangled_text(pose):
+    """How far untangling undid the self-intersections the posing made (``rest_pose["untangle"]``), or ""."""
+    steps = [u for u in ((pose.get("untangle") or {}).get(k) for k in ("fit", "target")) if u]
+    if not steps:
+        return ""
+    return ", untangled: " + ", then ".join(
+        f"{u['self_intersections_new_before']} -> {u['self_intersections_new_after']}" if u["kept"] else
+        f"{u['self_intersections_new_before']} kept" for u in steps) + " pairs its source lacks"
+
+
 def registration_text(context, outcome):
     """One line for the panel: whether the target was registered, and the fit's residual."""
     reg = outcome.info.get("registration")
     pose = outcome.info.get("rest_pose") or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
-             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
+             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)}{untangled_text(pose)})"
+             if pose.get("posed") else "")
     if not reg:
         return "Same mesh as the source body: no registration" + posed
     q = reg["quality"]
@@ -303,7 +316,8 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     offset=None if settings.auto_offset else settings.offset,
                     fix_penetration=settings.fix_penetration, evaluated=settings.use_evaluated,
                     progress=progress, keep_registered=settings.keep_registered_body,
-                    use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path)
+                    use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path,
+                    untangle=settings.untangle)
             if armature is not None:
                 try:
                     rigged = rig_to_body(context, result, settings.target_body,

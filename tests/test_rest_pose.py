@@ -64,6 +64,37 @@ def test_a_target_in_another_rest_pose_gets_the_garment_as_if_transferred_at_res
     assert np.linalg.norm(result.V - expected, axis=1).mean() < 0.03      # 3 mm, in decimetres
 
 
+def test_untangling_undoes_where_the_pose_folds_the_cloth_through_itself_and_crosses_the_body_no_more():
+    from garment_transfer import check_result, mdc
+
+    root, skeleton, bodies = rigs()
+    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    T, posed = in_pose(root, skeleton, target, target_rig, "standing01", "pear standing")
+    result, _ = transfer_across_rest_poses(source, posed, garment, source_rig, target_rig.posed_joints(T),
+                                           target_rig.posed_frames(T), untangle=True)
+    info = result.info["rest_pose"]["untangle"]
+    # Both steps measured (the suit over the pear standing, measured: 69 -> 65 pairs on the posed source, then 93 on
+    # the target, all undone): what each undid is what its figures say, and the result crosses itself nowhere its
+    # source does not, crossing the body no more than the fit.
+    fit = info["fit"]
+    assert fit["kept"] and fit["self_intersections_new_after"] < fit["self_intersections_new_before"]
+    assert info["target"]["kept"] and info["target"]["self_intersections_new_before"] > 0
+    assert info["target"]["self_intersections_new_after"] == 0
+    check = check_result(garment, result.V, posed)
+    assert check["self_intersections_new"] == 0
+    assert result.info["crossings_outside_contact"] == 0 and result.penetrating_vertices == check["inside_vertices"]
+    # Against the same transfer not untangled (measured: 95 pairs the source lacks, MDC 0.0539 against 0.0517): the
+    # cloth given back its own shape keeps the design at least as well, and is no more inside the body.
+    plain, _ = transfer_across_rest_poses(source, posed, garment, source_rig, target_rig.posed_joints(T),
+                                          target_rig.posed_frames(T))
+    assert "untangle" not in plain.info["rest_pose"]
+    before = check_result(garment, plain.V, posed)
+    assert before["self_intersections_new"] > 0
+    assert mdc(garment.V, result.V, garment.F) <= mdc(garment.V, plain.V, garment.F)
+    assert check["inside_vertices"] <= before["inside_vertices"]
+
+
 def test_a_rig_from_an_armatures_bones_poses_and_matches_as_the_skeleton_file_does():
     root, skeleton, bodies = rigs()
     (source, source_rig), (_, target_rig) = bodies["female_average"], bodies["female_pear"]
@@ -188,6 +219,21 @@ def test_the_command_line_poses_the_source_into_a_target_standing_otherwise(tmp_
     at_rest = cloth.with_vertices(transfer_garment(source, target, cloth).V)
     expected = fit_to_pose(target, posed.V, at_rest).V
     assert np.linalg.norm(written.V - expected, axis=1).mean() < 0.03      # 3 mm, in decimetres
+    # The run folds the cloth through itself where the source lacks it: said, with the remedy; --untangle undoes
+    # part of it (measured: 66 -> 38 pairs), counted on the file as written, crossing the body no more.
+    assert out["check"]["self_intersections_new"] > 0
+    assert any("--untangle undoes it" in w for w in out["warnings"])
+    p = run(*plain, *rig, "--target-joints", tmp_path / "running_joints.json", "--untangle")
+    assert p.returncode == 0, p.stderr
+    untangled = json.loads(p.stdout)
+    assert untangled["rest_pose"]["untangle"]["fit"]["kept"]
+    assert untangled["check"]["self_intersections_new"] < out["check"]["self_intersections_new"]
+    assert untangled["rest_pose"]["written"]["crossings_outside_contact"] == 0
+    assert untangled["check"]["inside_vertices"] <= out["check"]["inside_vertices"]
+    assert not any("--untangle undoes it" in w for w in untangled["warnings"])
+    # Only for one garment onto a target standing otherwise: refused before anything is read.
+    p = run(*plain, "--untangle")
+    assert p.returncode == 2 and "--untangle is for one garment onto a target in another rest pose" in p.stderr
 
 
 def test_an_outfit_onto_a_target_standing_otherwise_is_posed_layer_by_layer(tmp_path):

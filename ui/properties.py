@@ -229,7 +229,8 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     untangle: BoolProperty(
         name="Untangle", default=False,
         description="Fit to Pose and Bake Pose Fit also undo where the fit makes the cloth cross itself (under the "
-                    "arms, the lap sitting) without crossing the body more: seconds more a frame where it does")
+                    "arms, the lap sitting) without crossing the body more: seconds more a frame where it does. So "
+                    "does Transfer Garment onto a character in another rest pose, where posing the source folds it")
     bake_cache: StringProperty(
         name="Point Cache", subtype='FILE_PATH', default="",
         description="Bake Pose Fit into this PC2 file, played by a Mesh Cache modifier on the baked object (one file "

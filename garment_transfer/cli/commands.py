@@ -75,7 +75,8 @@ def cmd_transfer(args):
                    target=args.target, offset=args.offset, fix_penetration=not args.no_fix,
                    interpolate=not args.no_interpolate, resolve_crossings=not args.no_crossing_pass)
     if rig is not None:
-        result, registration = transfer_across_rest_poses(source_body, target_body, garment, *rig, **options)
+        result, registration = transfer_across_rest_poses(source_body, target_body, garment, *rig,
+                                                          untangle=args.untangle, **options)
     else:
         result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
     t = time.perf_counter()
@@ -114,6 +115,11 @@ def cmd_transfer(args):
                                            name=os.path.basename(args.target_body), own=False)
             out["warnings"] += pose["written"]["warnings"]
             lines.append(_written_pose_line(args.out, pose["written"]))
+            if "untangle" in pose:
+                lines.append(_untangle_line(pose["untangle"]))
+            elif check["self_intersections_new"]:
+                out["warnings"].append(f"{os.path.basename(args.out)}: the pose folded the cloth through itself; "
+                                       "--untangle undoes it where it can (seconds more)")
     lines += [f"warning: {w}" for w in out["warnings"]]
     emit(args, out, lines)
 
@@ -338,6 +344,14 @@ def _rest_pose_line(pose):
                             else "the same pose (a change of shape)"))
 
 
+def _untangle_line(untangle):
+    parts = [f"{what} {u['self_intersections_new_before']} -> {u['self_intersections_new_after']}"
+             + ("" if u["kept"] else " (not kept)") for what, u in (("the fit to the posed source", untangle["fit"]),
+                                                                  ("the result on the target", untangle.get("target")))
+             if u is not None]
+    return "untangled (self-intersections its source does not have): " + ", ".join(parts)
+
+
 def _written_pose_line(path, counts):
     return (f"{path} as written: {counts['crossings_outside_contact']} crossings away from where the target's body "
             f"crosses or closes on itself, {counts['crossings_at_contact']} where it does")
@@ -481,6 +495,10 @@ def build_parser():
                    help="the skeleton's joints on the target body, as it stands; or, for a skeleton named "
                         "otherwise (Mixamo's, Rigify's, Unreal's), its bones as they stand: {\"bones\": {bone: "
                         "{\"parent\": ..., \"head\": [x, y, z], \"tail\": [x, y, z]}}}")
+    r.add_argument("--untangle", action="store_true",
+                   help="one garment: where the pose folds the cloth through itself (the bends: under the arms, the "
+                        "lap), undo it without crossing the body more, on the fit to the posed source and on the "
+                        "result; seconds more where it does")
     t.add_argument("--json", action="store_true", help="print one JSON object")
     t.set_defaults(func=cmd_transfer)
 
@@ -637,6 +655,9 @@ def main(argv=None):
                 parser.error(f"--model and --target are for --method model, not --method {args.method}")
             if (args.field_share is not None or args.no_placement) and not args.model:
                 parser.error("--field-share and --no-placement are for a garment fit model given with --model")
+            if args.untangle and (len(args.garment) > 1 or args.target_joints is None):
+                parser.error("--untangle is for one garment onto a target in another rest pose (with --skeleton, "
+                             "--source-joints, --source-weights and --target-joints)")
         if args.command == "train":
             _check_train_options(parser, args)
         if args.command == "shapes" and args.workers is not None and not args.poses:

@@ -22,7 +22,8 @@ from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
-from .pose_fit import clear_posed_body, fit_to_pose
+from ..geometry.readings import split_readings
+from .pose_fit import CONTACT_GAP, CONTACT_RINGS, clear_posed_body, fit_to_pose, free_body, self_contact, untangle_fit
 
 #: Bones that carry at least this share of the body's weights say how far two rest poses differ ...
 MIN_WEIGHT_SHARE = 0.01
@@ -141,7 +142,7 @@ def _fit_counts(fit):
 
 
 def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Mesh, source_rig: Rig,
-                               target_joints, target_frames=None, **options):
+                               target_joints, target_frames=None, untangle=False, **options):
     """Transfer a garment to a target body whose rest pose differs from the source's.
 
     Parameters
@@ -165,7 +166,8 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         ``info["rest_pose"]``: ``largest_turn`` (degrees, and its bone), ``posed`` (whether the source was
         posed), ``twist`` (how each bone's turn about itself was found: ``"frames"``, ``"body"`` or, for a target of
         another mesh without frames, ``"joints"``: not known), ``warnings`` (``rest_pose_warnings``), ``pose_fit``
-        (the fit's crossing counts).
+        (the fit's crossing counts), and, untangled, ``untangle`` (``untangle_fit``'s figures of the fit,
+        ``"fit"``, and of the result on the target, ``"target"``).
     registration : Registration or None
 
     Raises
@@ -182,10 +184,13 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
                                               f"{info['largest_turn_bone']} turned {info['largest_turn']:.0f} degrees)",
                             "Use the direct method: a model is trained on the source's pose")
         options = {k: v for k, v in options.items() if k != "prepared"}
-        fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
+        fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose",
+                          untangle=untangle)
         info["pose_fit"] = _fit_counts(fit)
+        if untangle:
+            info["untangle"] = {"fit": fit.info["untangle"]}
         source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
-        garment = garment.with_vertices(fit.V)
+        rest_garment, garment = garment, garment.with_vertices(fit.V)
     seconds = time.perf_counter() - t
     if not info["posed"]:
         result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
@@ -195,9 +200,17 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         if options.get("resolve_crossings", True) and options.get("fix_penetration", True):
             # The target stands in a pose: where its body crosses or closes on itself no cloth can clear it.
             t = time.perf_counter()
+            body_rest = rest_V if registration is None else None
+            contact = self_contact(target_body.V, split_readings(target_body), CONTACT_RINGS, body_rest,
+                                   CONTACT_GAP * float(result.info["offset"]))
+            free = free_body(target_body, contact[0], garment, result.V)
             result.V, result.penetrating_vertices = clear_posed_body(
-                result.V, garment, target_body, result.info,
-                rest_V=rest_V if registration is None else None, name=target_body.name)
+                result.V, garment, target_body, result.info, rest_V=body_rest, name=target_body.name,
+                contact=contact, free=free, surface=result.surface)
+            if untangle:
+                result.V, result.penetrating_vertices, info["untangle"]["target"] = untangle_fit(
+                    result.V, rest_garment, target_body, result.info, contact[0], free, surface=result.surface,
+                    inside=result.penetrating_vertices)
             seconds += time.perf_counter() - t
     result.info["rest_pose"] = info
     result.seconds["rest_pose"] = seconds
