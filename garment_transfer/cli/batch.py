@@ -43,6 +43,9 @@ def add_batch_arguments(p):
                    help="distance kept from the body, in the files' units (>= 0)")
     g.add_argument("--no-fix", action="store_true", help="skip the penetration fix")
     g.add_argument("--no-interpolate", action="store_true", help="nearest body triangle only (the paper)")
+    g.add_argument("--untangle", action="store_true",
+                   help="targets in another rest pose (the catalogue's rig): undo where posing the source folds the "
+                        "cloth through itself; seconds more a pair where it does")
     x = p.add_argument_group("where it runs")
     x.add_argument("--workers", type=number_option(int, 1, what="a whole number"), default=None,
                    help="local worker processes (default: every core; 1: in this process)")

@@ -42,7 +42,7 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
-from ..pipeline.rest_pose import outfit_across_rest_poses, transfer_across_rest_poses
+from ..pipeline.rest_pose import fold_warnings, outfit_across_rest_poses, transfer_across_rest_poses
 from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
@@ -117,9 +117,8 @@ def cmd_transfer(args):
             lines.append(_written_pose_line(args.out, pose["written"]))
             if "untangle" in pose:
                 lines.append(_untangle_line(pose["untangle"]))
-            elif check["self_intersections_new"]:
-                out["warnings"].append(f"{os.path.basename(args.out)}: the pose folded the cloth through itself; "
-                                       "--untangle undoes it where it can (seconds more)")
+            out["warnings"] += fold_warnings(pose, check["self_intersections_new"], os.path.basename(args.out),
+                                             "--untangle")
     lines += [f"warning: {w}" for w in out["warnings"]]
     emit(args, out, lines)
 

@@ -96,6 +96,8 @@ def batch_catalogue(args):
         settings["fix_penetration"] = False
     if args.no_interpolate:
         settings["interpolate"] = False
+    if args.untangle:
+        settings["untangle"] = True
     return read_catalogue(args.catalogue, source=args.source, targets=split(args.targets),
                           garments=split(args.garments), settings=settings)
 

@@ -48,7 +48,7 @@ from ..version import __version__
 from .catalogue import Catalogue, GarmentJob, RigFiles, Settings, Target
 from .metrics import evaluate
 from .pose_fit import posed_counts
-from .rest_pose import transfer_across_rest_poses
+from .rest_pose import fold_warnings, transfer_across_rest_poses
 from .result_check import result_warnings
 from .transfer import prepare_garment, transfer_garment
 
@@ -162,6 +162,8 @@ def _settings_record(s: Settings) -> dict:
         del d["field_share"]
     if d["placement"]:
         del d["placement"]
+    if not d["untangle"]:
+        del d["untangle"]
     return d
 
 
@@ -388,7 +390,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                 rig = _INPUTS.rig(job.rig, source_body.n_vertices)
                 result, _ = transfer_across_rest_poses(source_body, target_body, garment, rig,
                                                        _INPUTS.joints(t.joints, rig.skeleton), cache=False,
-                                                       prepared=prepared, **options)
+                                                       prepared=prepared, untangle=s.untangle, **options)
             else:
                 result = transfer_garment(source_body, target_body, garment, prepared=prepared, **options)
             reference = _read_garment(t.reference) if t.reference is not None else None
@@ -420,7 +422,9 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                       crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
                       check={k: metrics[k] for k in CHECK_KEYS},
                       warnings=result_warnings(metrics, str(obj_path)) + (rest_pose or {}).get("warnings", [])
-                      + (rest_pose or {}).get("written", {}).get("warnings", []),
+                      + (rest_pose or {}).get("written", {}).get("warnings", [])
+                      + fold_warnings(rest_pose or {}, metrics["self_intersections_new"], str(obj_path),
+                                      "the setting untangle (batch --untangle)"),
                       output_sha256=hashlib.sha256(text).hexdigest())
         if rest_pose is not None:
             record["rest_pose"] = rest_pose

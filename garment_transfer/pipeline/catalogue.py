@@ -21,7 +21,7 @@ from ..learning.dataset import dataset_inputs, load_dataset
 
 METHODS = ("direct", "model", "surface")
 SETTING_KEYS = ("method", "model", "offset", "fix_penetration", "interpolate", "stiffness", "field_share",
-                "placement")
+                "placement", "untangle")
 ENTRY_KEYS = ("name", "file", "source", "targets", "labels", "references", *SETTING_KEYS)
 TOP_KEYS = ("format", "settings", "bodies", "garments", "source", "targets", "labels", "rig")
 RIG_KEYS = ("skeleton", "weights", "joints")
@@ -46,6 +46,9 @@ class Settings:
     field_share: float | None = None
     #: For a garment fit model file: whether its learned placement is used (where the file holds one).
     placement: bool = True
+    #: A target in another rest pose: undo where posing the source folds the cloth through itself
+    #: (``rest_pose.transfer_across_rest_poses``).
+    untangle: bool = False
 
 
 @dataclass(frozen=True)
@@ -217,7 +220,7 @@ def catalogue_from_dict(data: dict, base=".", origin="catalogue") -> Catalogue:
     Keys (``?`` optional)::
 
         format?    1
-        settings?  {method?, model?, offset?, fix_penetration?, interpolate?, stiffness?}
+        settings?  {method?, model?, offset?, fix_penetration?, interpolate?, stiffness?, untangle?}
                    defaults for every garment (method "direct"; model: a .npz file, for "model")
         bodies     {name: "path/to/body.obj", ...}  every body, source and targets, one topology
         source?    default source body name

@@ -136,6 +136,17 @@ def rest_pose_warnings(info, name) -> list:
     return out
 
 
+def fold_warnings(info, self_intersections_new, name, remedy) -> list:
+    """The warning that the file crosses itself where its source does not after a transfer posed into the target's
+    rest pose that was not untangled (``info``: ``info["rest_pose"]``; ``self_intersections_new``: counted on the
+    file as written), naming ``remedy`` (how the caller's user asks for untangling); else none."""
+    if not info.get("posed") or "untangle" in info or not self_intersections_new:
+        return []
+    return [f"{name}: posing the source into the target's rest pose folded the cloth through itself "
+            f"({self_intersections_new} pairs its source does not have); {remedy} undoes it where it can (seconds "
+            "more)"]
+
+
 def _fit_counts(fit):
     """The figures of the garment's fit to the posed source that ``info["rest_pose"]["pose_fit"]`` keeps."""
     return {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact", "body_self_crossings")}
