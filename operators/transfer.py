@@ -338,10 +338,12 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         settings.last_model = outcome.method_text
         self.report({'INFO'}, transfer_message(context, result, settings.target_body, outcome,
                                                metrics, elapsed))
-        from ..garment_transfer import result_warnings
+        from ..garment_transfer import fold_warnings, result_warnings
 
-        for warning in (result_warnings(metrics, result.name) + outcome.pose_warnings
-                        + (outcome.info.get("rest_pose") or {}).get("warnings", [])
+        pose = outcome.info.get("rest_pose") or {}
+        for warning in (result_warnings(metrics, result.name) + outcome.pose_warnings + pose.get("warnings", [])
+                        + fold_warnings(pose, metrics["self_intersections_new"], result.name,
+                                        "Untangle (the Motion panel)")
                         + (rigged or {}).get("warnings", [])):
             self.report({'WARNING'}, warning)
         return {'FINISHED'}

@@ -139,7 +139,7 @@ def _outfit(w, out):
 
 
 TRANSFER_SETTINGS = {"--method", "--target", "--field-share", "--no-placement", "--offset", "--no-fix",
-                     "--no-crossing-pass", "--no-interpolate", "--no-cache", "--json"}
+                     "--no-crossing-pass", "--no-interpolate", "--no-cache", "--untangle", "--json"}
 
 COMMANDS = {
     "transfer": Command(_transfer, {"--source-body": "source.obj", "--target-body": "target.obj",
@@ -184,7 +184,8 @@ COMMANDS = {
                                      "--out", out["--out"], *(["--log", out["--log"]] if "--log" in out else [])],
                      {"catalogue": "cat.toml", "--model": "model.npz"}, {"--out": "folder", "--log": "file"},
                      {"--source", "--targets", "--garments", "--method", "--field-share", "--offset", "--no-fix",
-                      "--no-interpolate", "--workers", "--dask", "--scheduler", "--no-progress", "--json"}),
+                      "--no-interpolate", "--untangle", "--workers", "--dask", "--scheduler", "--no-progress",
+                      "--json"}),
 }
 
 #: What an input of a command reads beyond its own path: the catalogue names files of the dataset; a
