@@ -149,6 +149,23 @@ def test_a_bad_entry_is_refused_naming_the_file_and_the_entry(dataset, change, w
     assert problem in str(info.value)
 
 
+def test_the_command_lines_settings_reach_every_garment_that_does_not_set_its_own(dataset):
+    from garment_transfer.cli.commands import build_parser
+    from garment_transfer.cli.paths import batch_catalogue
+
+    d = catalogue_dict(dataset)
+    d["garments"][1].update(untangle=False, interpolate=True)
+    path = dataset / "cat.json"
+    path.write_text(json.dumps(d))
+    args = build_parser().parse_args(["batch", str(path), "--out", str(dataset / "out"), "--untangle",
+                                      "--no-interpolate"])
+    jobs = batch_catalogue(args).jobs
+    assert [(j.settings.untangle, j.settings.interpolate) for j in jobs] == [(True, False), (False, True),
+                                                                             (True, False)]
+    plain = batch_catalogue(build_parser().parse_args(["batch", str(path), "--out", str(dataset / "out")])).jobs
+    assert [(j.settings.untangle, j.settings.interpolate) for j in plain] == [(False, True)] * 3
+
+
 def test_unreadable_catalogues_are_refused(dataset):
     bad = dataset / "bad.toml"
     bad.write_text("garments = [\n")
