@@ -35,7 +35,7 @@ from ..learning.model_files import DEFAULT_FIELD_SHARE, read_model_file
 from ..learning.placement import LIBRARY_SHARE
 from ..learning.training import train_from_dataset
 from ..rigging.posing import Rig
-from ..rigging.naming import read_target_skeleton
+from ..rigging.naming import read_target_frames, read_target_skeleton
 from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..pipeline.any_body import transfer_to_any_body
@@ -127,7 +127,8 @@ REST_POSE_OPTIONS = ("skeleton", "source_joints", "source_weights", "target_join
 
 
 def _rest_pose_rig(args, source_body):
-    """(source Rig, target joints or Landmarks) from the rest-pose options, or None when none is given."""
+    """(source Rig, target joints or Landmarks, target frames or None) from the rest-pose options, or None when none
+    is given."""
     given = [o for o in REST_POSE_OPTIONS if getattr(args, o, None)]
     if not given:
         return None
@@ -141,7 +142,8 @@ def _rest_pose_rig(args, source_body):
     skeleton = read_skeleton(args.skeleton)
     rig = Rig(skeleton, read_joints(args.source_joints, skeleton, "--source-joints"),
               read_weights(args.source_weights, source_body.n_vertices))
-    return rig, read_target_skeleton(args.target_joints, skeleton, "--target-joints")
+    return (rig, read_target_skeleton(args.target_joints, skeleton, "--target-joints"),
+            read_target_frames(args.target_joints, skeleton))
 
 
 def written_check(path, garment, target_body, result=None):

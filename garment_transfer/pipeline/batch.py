@@ -41,7 +41,7 @@ from ..files import check_outputs
 from ..geometry.obj import obj_text, read_obj
 from ..learning.model_files import read_model_file
 from ..rigging.posing import Rig
-from ..rigging.naming import read_target_skeleton
+from ..rigging.naming import read_target_frames, read_target_skeleton
 from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..version import __version__
@@ -263,6 +263,11 @@ class _Inputs:
         return self._get(path, ("joints", self._stat(skeleton.name)),
                          lambda: read_target_skeleton(path, skeleton, "rig.joints"))
 
+    def frames(self, path, skeleton):
+        """A target's bone frames, where its joints file is a bones file of the skeleton's own bones with their
+        rolls (``naming.read_target_frames``), else None."""
+        return self._get(path, ("frames", self._stat(skeleton.name)), lambda: read_target_frames(path, skeleton))
+
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
 
@@ -389,7 +394,8 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                 # source at rest serves the others).
                 rig = _INPUTS.rig(job.rig, source_body.n_vertices)
                 result, _ = transfer_across_rest_poses(source_body, target_body, garment, rig,
-                                                       _INPUTS.joints(t.joints, rig.skeleton), cache=False,
+                                                       _INPUTS.joints(t.joints, rig.skeleton),
+                                                       _INPUTS.frames(t.joints, rig.skeleton), cache=False,
                                                        prepared=prepared, untangle=s.untangle, **options)
             else:
                 result = transfer_garment(source_body, target_body, garment, prepared=prepared, **options)

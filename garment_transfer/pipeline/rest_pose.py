@@ -131,8 +131,8 @@ def rest_pose_warnings(info, name) -> list:
                    + " on average from the garment transferred at rest and fitted to the pose, against 1.1-1.8 mm "
                    "with the twists known). Give "
                    + ("a target of the source's own mesh, whose shape tells the twists" if landmarks else
-                      "the target's armature (Blender), or a target of the source's own mesh, whose shape tells "
-                      "the twists"))
+                      "the target's armature (Blender) or its bones with each bone's roll (a bones file with each "
+                      "bone's z_axis), or a target of the source's own mesh, whose shape tells the twists"))
     return out
 
 

@@ -12,7 +12,7 @@ skeletons named otherwise (Mixamo's, Rigify's, Unreal's) and poses one skeleton 
 
 from .bvh import Motion, axes_between, parse_bvh, read_bvh
 from .naming import (NAMINGS, Landmarks, bone_key, bones_from_dict, landmarks_of, naming_of, pose_to_landmarks,
-                     read_target_skeleton)
+                     read_target_frames, read_target_skeleton)
 from .posing import Rig, bvh_rotations, matching_rotations, rig_from_bones, twist_from_body
 from .skeleton import Skeleton, bone_frames, plane_normals, read_joints, read_skeleton, skeleton_from_dict
 from .skinning import (SkinWeights, deforming, group_transforms, pose_transforms, read_weights, skin, skin_weights,
@@ -28,4 +28,5 @@ __all__ = ["Skeleton", "read_skeleton", "read_joints", "skeleton_from_dict", "bo
            "surface_weights",
            "nearest_weights", "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian",
            "smoothness_matrix", "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES", "Landmarks", "landmarks_of",
-           "naming_of", "pose_to_landmarks", "read_target_skeleton", "bones_from_dict", "bone_key", "NAMINGS"]
+           "naming_of", "pose_to_landmarks", "read_target_skeleton", "read_target_frames", "bones_from_dict",
+           "bone_key", "NAMINGS"]

@@ -390,6 +390,60 @@ def bones_from_dict(data, name="bones"):
     return out
 
 
+def frames_from_dict(data, skeleton, name="bones"):
+    """The target's bone frames from a bones file of ``skeleton``'s own bones that gives each its roll, as
+    ``"z_axis": [x, y, z]`` beside its head and tail (the bone's Z axis in the body's space: Blender's bone matrix's
+    third column): each frame's columns are X = Y x Z, Y (head to tail) and Z (the axis made square to Y), as
+    ``skeleton.bone_frames`` has them. With them the source is turned about each bone exactly as the target is
+    (``transfer_across_rest_poses``'s ``target_frames``), which joints alone do not say.
+
+    Returns
+    -------
+    frames : (b,3,3) float64 or None
+        None when the file has no bone with a ``z_axis``, or is not of ``skeleton``'s own bones (a skeleton named
+        otherwise: its frames are not the source's bones').
+
+    Raises
+    ------
+    RigError
+        Naming the file and the bone: some bones have a ``z_axis`` and others not, or one is not three finite numbers
+        or lies along its bone.
+    """
+    bones = data.get("bones") if isinstance(data, dict) else None
+    if not isinstance(bones, dict):
+        return None
+    given = {bone_key(b): spec for b, spec in bones.items() if isinstance(spec, dict)}
+    if not all(bone_key(b) in given for b in skeleton.names) or not any(
+            "z_axis" in given[bone_key(b)] for b in skeleton.names):
+        return None
+    frames = np.tile(np.eye(3), (skeleton.n_bones, 1, 1))
+    for i, b in enumerate(skeleton.names):
+        spec = given[bone_key(b)]
+        if "z_axis" not in spec:
+            raise RigError(name, f"bone {b!r} has no z_axis where others have one: give every bone's z_axis (its "
+                                 "roll) or none")
+        z = point_of(spec["z_axis"])
+        head, tail = point_of(spec.get("head")), point_of(spec.get("tail"))
+        if z is None or head is None or tail is None:
+            raise RigError(name, f"bone {b!r}: its z_axis, head and tail must be three finite numbers each")
+        y = tail - head
+        if np.linalg.norm(y) == 0.0:
+            continue
+        y = y / np.linalg.norm(y)
+        z = z - (z @ y) * y
+        if np.linalg.norm(z) <= 1e-6 * max(np.linalg.norm(spec["z_axis"]), 1e-300):
+            raise RigError(name, f"bone {b!r}: its z_axis lies along the bone, so it does not say its roll")
+        z = z / np.linalg.norm(z)
+        frames[i] = np.stack([np.cross(y, z), y, z], axis=1)
+    return frames
+
+
+def read_target_frames(path, skeleton):
+    """``frames_from_dict`` of a target's joints file (``read_target_skeleton``'s): the target's bone frames where it
+    is a bones file of ``skeleton``'s own bones with each bone's ``z_axis``, else None."""
+    return frames_from_dict(read_json(path), skeleton, str(path))
+
+
 def read_target_skeleton(path, skeleton, what="the target's joints"):
     """A target's skeleton as it stands: the joints of ``skeleton`` (a joints file, ``read_joints``, or a bones file
     of ``skeleton``'s own bones, ``bones_from_dict``), or, from a bones file of a skeleton named otherwise (Mixamo's,
