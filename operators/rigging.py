@@ -771,6 +771,8 @@ class GARMENT_TRANSFER_OT_fit_pose(bpy.types.Operator):
                               f"at {info['self_intersections_new']} pairs beyond its rest shape's"
                               + (f" (untangled from {untangled['self_intersections_new_before']})"
                                  if untangled and untangled["kept"] else "")
+                              + ("" if self.untangle or not info["self_intersections_new"] else
+                                 " (Untangle undoes it where it can)")
                               + f"; {time.perf_counter() - start:.2f} s")
         for warning in info["warnings"]:
             self.report({'WARNING'}, warning)
@@ -823,7 +825,9 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
                               f"({seconds / len(frames):.2f} s a frame); as played back, "
                               f"{figures['frames_with_crossings']} frames cross the body away from its own contact; "
                               f"the cloth crosses itself at {figures['self_intersections_new']} pairs beyond its rest "
-                              f"shape's over the frames")
+                              f"shape's over the frames"
+                              + ("" if self.untangle or not figures["self_intersections_new"] else
+                                 " (Untangle undoes it where it can)"))
         if measured["warnings"]:
             self.report({'WARNING'}, f"{len(measured['warnings'])} warnings; the first: {measured['warnings'][0]}")
         return {'FINISHED'}

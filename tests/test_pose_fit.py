@@ -309,6 +309,8 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
     assert row["self_intersections_new"] == beyond_source(pairs_in_full(written.V, G), G, rest.V,
                                                           pairs_in_full(rest.V, G)).shape[0]
     assert any("crosses itself" in w for w in data["warnings"]) and data["untangle"] is False
+    assert "1 of 1 poses fold the cloth through itself where it is not at rest (first: standing01): untangling " \
+           "(--untangle) undoes it" in data["warnings"][-1]
     assert json.loads((out / "poses.json").read_text())["shapes"] == [row]
     # One pose at a time writes the same file; --workers without --poses is a usage error.
     alone = tmp_path / "alone"

@@ -706,6 +706,10 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         rows.append({"target": name, "target_body": paths[name], "out": str(outs[name]), **counts,
                      "offset": result.info["offset"], "seconds": result.seconds,
                      **({"untangle": result.info["untangle"]} if "untangle" in result.info else {})})
+    folded = [row["target"] for row in rows if row["self_intersections_new"]]
+    if folded and not untangle:
+        warnings.append(f"{len(folded)} of {len(rows)} poses fold the cloth through itself where it is not at rest "
+                        f"(first: {folded[0]}): untangling (--untangle) undoes it where it can, seconds more a pose")
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
                "faces": garment.n_faces, "poses": True, "untangle": bool(untangle), "shapes": rows, "seconds": seconds,
