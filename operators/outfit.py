@@ -216,6 +216,9 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
 
         for warning in (outcome.rest_pose or {}).get("warnings", []):
             self.report({'WARNING'}, warning)
+        if settings.untangle and (outcome.rest_pose or {}).get("posed"):
+            self.report({'WARNING'}, "Untangle is for one garment (Transfer Garment): an outfit's layers posed into "
+                                     "the target's rest pose are not untangled")
         for obj, check in zip(results, outcome.checks):
             for warning in result_warnings(check, obj.name) + check.get("pose_warnings", []):
                 self.report({'WARNING'}, warning)
