@@ -65,7 +65,8 @@ LAYERS = {
                  "evaluate", "mdc", "drape_error", "vertex_error", "per_vertex_change", "training_garments",
                  "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
                  "fit_poses", "in_threads", "posed_counts", "poses_to_files", "every_split",
-                 "transfer_across_rest_poses", "outfit_across_rest_poses", "pose_difference", "fold_warnings"),
+                 "transfer_across_rest_poses", "outfit_across_rest_poses", "pose_difference", "fold_warnings",
+                 "untangle_text"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 

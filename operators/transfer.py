@@ -245,22 +245,16 @@ def method_text(method, model):
     return f"Garment fit model ({name}, field share {model.field_share:g}, no placement): {GAINS['garment_alone']}"
 
 
-def untangled_text(pose):
-    """How far untangling undid the self-intersections the posing made (``rest_pose["untangle"]``), or ""."""
-    steps = [u for u in ((pose.get("untangle") or {}).get(k) for k in ("fit", "target")) if u]
-    if not steps:
-        return ""
-    return ", untangled: " + ", then ".join(
-        f"{u['self_intersections_new_before']} -> {u['self_intersections_new_after']}" if u["kept"] else
-        f"{u['self_intersections_new_before']} kept" for u in steps) + " pairs its source lacks"
-
-
 def registration_text(context, outcome):
     """One line for the panel: whether the target was registered, and the fit's residual."""
+    from ..garment_transfer import untangle_text
+
     reg = outcome.info.get("registration")
     pose = outcome.info.get("rest_pose") or {}
+    untangled = untangle_text(pose.get("untangle"))
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
-             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)}{untangled_text(pose)})"
+             f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)}"
+             f"{', untangled: ' + untangled + ' pairs its source does not have' if untangled else ''})"
              if pose.get("posed") else "")
     if not reg:
         return "Same mesh as the source body: no registration" + posed

@@ -81,6 +81,13 @@ def test_untangling_undoes_where_the_pose_folds_the_cloth_through_itself_and_cro
     assert fit["kept"] and fit["self_intersections_new_after"] < fit["self_intersections_new_before"]
     assert info["target"]["kept"] and info["target"]["self_intersections_new_before"] > 0
     assert info["target"]["self_intersections_new_after"] == 0
+    # Said in words by both steps (the command line's line, Blender's Evaluation line); a step not kept is said so.
+    from garment_transfer import untangle_text
+
+    assert untangle_text(info) == (f"the fit to the posed source {fit['self_intersections_new_before']} -> "
+                                   f"{fit['self_intersections_new_after']}, the result on the target "
+                                   f"{info['target']['self_intersections_new_before']} -> 0")
+    assert untangle_text({"fit": dict(fit, kept=False)}).endswith(" (not kept)") and untangle_text(None) == ""
     check = check_result(garment, result.V, posed)
     assert check["self_intersections_new"] == 0
     assert result.info["crossings_outside_contact"] == 0 and result.penetrating_vertices == check["inside_vertices"]

@@ -42,7 +42,7 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
-from ..pipeline.rest_pose import fold_warnings, outfit_across_rest_poses, transfer_across_rest_poses
+from ..pipeline.rest_pose import fold_warnings, outfit_across_rest_poses, transfer_across_rest_poses, untangle_text
 from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
@@ -116,7 +116,8 @@ def cmd_transfer(args):
             out["warnings"] += pose["written"]["warnings"]
             lines.append(_written_pose_line(args.out, pose["written"]))
             if "untangle" in pose:
-                lines.append(_untangle_line(pose["untangle"]))
+                lines.append("untangled (self-intersections its source does not have): "
+                             + untangle_text(pose["untangle"]))
             out["warnings"] += fold_warnings(pose, check["self_intersections_new"], os.path.basename(args.out),
                                              "--untangle")
     lines += [f"warning: {w}" for w in out["warnings"]]
@@ -343,14 +344,6 @@ def _rest_pose_line(pose):
             "source's; " + (f"the source and its garments were posed into it first (each bone's turn about itself "
                             f"from {TWIST_FROM[pose['twist']]})" if pose["posed"]
                             else "the same pose (a change of shape)"))
-
-
-def _untangle_line(untangle):
-    parts = [f"{what} {u['self_intersections_new_before']} -> {u['self_intersections_new_after']}"
-             + ("" if u["kept"] else " (not kept)") for what, u in (("the fit to the posed source", untangle["fit"]),
-                                                                  ("the result on the target", untangle.get("target")))
-             if u is not None]
-    return "untangled (self-intersections its source does not have): " + ", ".join(parts)
 
 
 def _written_pose_line(path, counts):

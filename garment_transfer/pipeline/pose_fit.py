@@ -253,8 +253,7 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result = transfer_garment(rest_body, posed, garment, prepared=prepared, offset=offset,
                               resolve_crossings=False, check_pose=False)
     t = time.perf_counter()
-    result.contact = self_contact(posed.V, split_readings(posed), contact_rings, rest_body.V,
-                                  CONTACT_GAP * float(result.info["offset"]))
+    result.contact = body_contact(posed, result.info["offset"], rest_body.V, contact_rings)
     result.obstacle = free_body(posed, result.contact[0], garment, result.V)
     result.V, result.penetrating_vertices = clear_posed_body(result.V, garment, posed, result.info, rest_V=rest_body.V,
                                                              resolve_crossings=resolve_crossings,
@@ -457,6 +456,13 @@ def fit_poses(rest_body: Mesh, poses, garment: Mesh, *, prepared: PreparedGarmen
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def body_contact(body: Mesh, offset, rest_V=None, rings=CONTACT_RINGS):
+    """A posed body's own contact as the pose fit reads it (``self_contact`` of its every split, ``rings`` rings
+    around, with ``rest_V``, the body at rest of its mesh, parts pressed closer than ``CONTACT_GAP`` cloth
+    offsets): ``(contact (n,) bool, crossings)``."""
+    return self_contact(body.V, split_readings(body), rings, rest_V, CONTACT_GAP * float(offset))
+
+
 def free_body(body: Mesh, contact, garment: Mesh, V):
     """The posed body's triangles of every split away from its own ``contact`` ((n,) bool), binned once for the
     counts and passes of one pose (an ``Obstacle`` of ``free_readings``; its cells sized for the garment's edges
@@ -499,7 +505,7 @@ def clear_posed_body(V, garment: Mesh, body: Mesh, info, *, rest_V=None, resolve
     contact_rings : int
     name : str
     contact : tuple, optional
-        ``self_contact(body.V, body.F, contact_rings, rest_V, CONTACT_GAP * offset)``, when made already.
+        ``body_contact(body, offset, rest_V, contact_rings)``, when made already.
     free : Obstacle, optional
         ``free_body(body, contact[0], garment, V)``, when made already.
     surface : TriangleSurface, optional
@@ -554,7 +560,7 @@ def _posed_parts(V, garment: Mesh, body: Mesh, offset, rest_V, contact_rings, co
     it (``free_body``); ``contact`` and ``free`` are made unless given (``free`` only when of these very body
     positions)."""
     if contact is None:
-        contact = self_contact(body.V, split_readings(body), contact_rings, rest_V, CONTACT_GAP * offset)
+        contact = body_contact(body, offset, rest_V, contact_rings)
     V = np.asarray(V, dtype=np.float64)
     if not made_of(free, body.V):
         free = free_body(body, contact[0], garment, V)

@@ -22,8 +22,7 @@ from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
-from ..geometry.readings import split_readings
-from .pose_fit import CONTACT_GAP, CONTACT_RINGS, clear_posed_body, fit_to_pose, free_body, self_contact, untangle_fit
+from .pose_fit import body_contact, clear_posed_body, fit_to_pose, free_body, untangle_fit
 
 #: Bones that carry at least this share of the body's weights say how far two rest poses differ ...
 MIN_WEIGHT_SHARE = 0.01
@@ -147,6 +146,15 @@ def fold_warnings(info, self_intersections_new, name, remedy) -> list:
             "more)"]
 
 
+def untangle_text(untangle) -> str:
+    """What untangling did (``info["rest_pose"]["untangle"]``), in words: each step's self-intersections its source
+    does not have, before and after, and whether it was kept; "" when nothing was untangled."""
+    steps = [(what, u) for what, u in (("the fit to the posed source", (untangle or {}).get("fit")),
+                                       ("the result on the target", (untangle or {}).get("target"))) if u]
+    return ", ".join(f"{what} {u['self_intersections_new_before']} -> {u['self_intersections_new_after']}"
+                     + ("" if u["kept"] else " (not kept)") for what, u in steps)
+
+
 def _fit_counts(fit):
     """The figures of the garment's fit to the posed source that ``info["rest_pose"]["pose_fit"]`` keeps."""
     return {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact", "body_self_crossings")}
@@ -212,8 +220,7 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
             # The target stands in a pose: where its body crosses or closes on itself no cloth can clear it.
             t = time.perf_counter()
             body_rest = rest_V if registration is None else None
-            contact = self_contact(target_body.V, split_readings(target_body), CONTACT_RINGS, body_rest,
-                                   CONTACT_GAP * float(result.info["offset"]))
+            contact = body_contact(target_body, result.info["offset"], body_rest)
             free = free_body(target_body, contact[0], garment, result.V)
             result.V, result.penetrating_vertices = clear_posed_body(
                 result.V, garment, target_body, result.info, rest_V=body_rest, name=target_body.name,
