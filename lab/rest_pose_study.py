@@ -20,7 +20,13 @@ pose taken as the target's rest pose (``female_pear`` posed by it, its posed joi
    command line's file against the reference, as in 2 (with ``--remeshed``, also onto the re-meshed body: the case
    of a character from another tool, another mesh and another skeleton).
 
-    python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--named] [--json OUT.json]
+4. **Rolls and untangling** (options of 2): ``--rolls`` gives the command line the target's bones with each bone's
+   roll (``own_bones``) in place of its joints (the twists then come from the frames, also onto the re-meshed body);
+   ``--untangle`` runs it with ``--untangle`` (the table's column of pairs the file crosses itself at beyond its
+   source says what it undid); ``--garment`` picks another MakeHuman garment.
+
+    python -m lab.rest_pose_study [--poses standing01 run01 ...] [--remeshed] [--named] [--rolls] [--untangle]
+                                  [--garment NAME] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -102,12 +108,12 @@ def posing(root, skeleton, weights, poses, say=print):
     return rows
 
 
-def _bodies(root, skeleton, weights):
+def _bodies(root, skeleton, weights, garment_name=GARMENT):
     """The source body, the target body at rest, its rig, and the garment transferred to it at rest."""
     source = gt.read_obj(root / "bodies" / f"{SOURCE}.obj")
     target = gt.read_obj(root / "bodies" / f"{TARGET}.obj")
     rig = gt.Rig(skeleton, gt.read_joints(root / "rig" / "joints" / f"{TARGET}.json", skeleton), weights)
-    garment = gt.read_obj(root / "garments" / GARMENT / f"{SOURCE}.obj")
+    garment = gt.read_obj(root / "garments" / garment_name / f"{SOURCE}.obj")
     return source, target, rig, garment.with_vertices(gt.transfer_garment(source, target, garment).V)
 
 
@@ -120,25 +126,38 @@ def _targets(target, posed, remeshed):
     return out
 
 
-def _command(root, target, joints_path, tmp, what):
+def _command(root, target, joints_path, tmp, what, garment_name=GARMENT, extra=()):
     """The command line's transfer of the garment onto ``target`` (a Mesh, written to ``tmp``) standing as the
     target joints (or bones) file says, as a user runs it: (its JSON, the file it wrote read back)."""
     gt.write_obj(tmp / "posed.obj", target)
     cmd = [sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
            str(root / "bodies" / f"{SOURCE}.obj"), "--target-body", str(tmp / "posed.obj"), "--garment",
-           str(root / "garments" / GARMENT / f"{SOURCE}.obj"), "--out", str(tmp / "out.obj"), "--skeleton",
+           str(root / "garments" / garment_name / f"{SOURCE}.obj"), "--out", str(tmp / "out.obj"), "--skeleton",
            str(root / "rig" / "skeleton.json"), "--source-joints", str(root / "rig" / "joints" / f"{SOURCE}.json"),
            "--source-weights", str(root / "rig" / "weights.json"), "--target-joints", str(joints_path), "--json",
-           "--no-cache"]
+           "--no-cache", *extra]
     p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     if p.returncode != 0:
         raise RuntimeError(f"{what}: {p.stderr[-2000:]}")
     return json.loads(p.stdout), gt.read_obj(tmp / "out.obj").V
 
 
-def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
-    """Rows of table 2: per pose (and target mesh), the command line's file against the reference."""
-    _, target, rig, at_rest = _bodies(root, skeleton, weights)
+def own_bones(skeleton, rig, T):
+    """A bones file's content of the rig's own bones in the pose ``T``, each with its roll (``"z_axis"``: its frame's Z
+    axis, as Blender's bone matrix has it; ``gt.read_target_frames`` reads it)."""
+    joints, frames = rig.posed_joints(T), rig.posed_frames(T)
+    return {"bones": {b: {"parent": None if p < 0 else skeleton.names[p], "head": [float(x) for x in joints[h]],
+                          "tail": [float(x) for x in joints[t]], "z_axis": [float(x) for x in frames[i][:, 2]]}
+                      for i, (b, p, h, t) in enumerate(zip(skeleton.names, skeleton.parents, skeleton.heads,
+                                                           skeleton.tails))}}
+
+
+def command_line(root, skeleton, weights, poses, remeshed=False, say=print, rolls=False, untangle=False,
+                 garment_name=GARMENT):
+    """Rows of table 2: per pose (and target mesh), the command line's file against the reference; ``rolls``: the
+    target's joints file is its bones with their rolls (``own_bones``); ``untangle``: the command runs with
+    ``--untangle``."""
+    _, target, rig, at_rest = _bodies(root, skeleton, weights, garment_name)
     rows = []
     with tempfile.TemporaryDirectory(prefix="rest_pose_study_") as tmp:
         tmp = Path(tmp)
@@ -146,15 +165,18 @@ def command_line(root, skeleton, weights, poses, remeshed=False, say=print):
             T = rig.transforms(pose_rotations(root, skeleton, rig, pose))
             posed = rig.pose(target.V, T)
             reference = gt.fit_to_pose(target, posed, at_rest).V
-            (tmp / "joints.json").write_text(json.dumps({k: [float(x) for x in v]
+            (tmp / "joints.json").write_text(json.dumps(own_bones(skeleton, rig, T) if rolls else
+                                                        {k: [float(x) for x in v]
                                                          for k, v in rig.posed_joints(T).items()}))
             for label, mesh in _targets(target, posed, remeshed):
-                out, written = _command(root, mesh, tmp / "joints.json", tmp, f"{pose} ({label})")
+                out, written = _command(root, mesh, tmp / "joints.json", tmp, f"{pose} ({label})", garment_name,
+                                        ["--untangle"] if untangle else [])
                 counts = out["rest_pose"]["written"]
                 row = {"pose": pose, "target": label, "to_reference": _spread(written, reference),
                        "twist": out["rest_pose"]["twist"], "crossings_outside_contact":
                        counts["crossings_outside_contact"], "crossings_at_contact": counts["crossings_at_contact"],
-                       "warnings": len(out["warnings"]), "seconds": out["seconds"]["total"]}
+                       "warnings": len(out["warnings"]), "seconds": out["seconds"]["total"],
+                       "self_intersections_new": out["check"]["self_intersections_new"]}
                 rows.append(row)
                 say(f"command {pose:10s} {label:13s} {row['to_reference']['mean']:5.2f} mm from the reference, "
                     f"twists from {row['twist']}, {row['crossings_outside_contact']} crossings away from contact "
@@ -272,6 +294,10 @@ def main(argv=None):
                    help="shared poses by name (default: all six), or tpose (the upper arms straight out sideways)")
     p.add_argument("--remeshed", action="store_true", help="also onto the posed body re-meshed to 50K (registered)")
     p.add_argument("--named", action="store_true", help="also the target's skeleton named Mixamo's way (landmarks)")
+    p.add_argument("--rolls", action="store_true",
+                   help="the command line's target joints file as its bones with each bone's roll (z_axis)")
+    p.add_argument("--untangle", action="store_true", help="the command line run with --untangle")
+    p.add_argument("--garment", default=GARMENT, help=f"the MakeHuman garment (default {GARMENT})")
     p.add_argument("--json", type=Path, help="write every row to this file")
     args = p.parse_args(argv)
     root = makehuman_folder()
@@ -284,7 +310,8 @@ def main(argv=None):
         print(line, file=sys.stderr, flush=True)
 
     rows = {"posing": posing(root, skeleton, weights, args.poses, say),
-            "command_line": command_line(root, skeleton, weights, args.poses, args.remeshed, say)}
+            "command_line": command_line(root, skeleton, weights, args.poses, args.remeshed, say, args.rolls,
+                                         args.untangle, args.garment)}
     print("\nposing: the source against the source posed by the true frames, mm (mean / 95% / max)")
     print(f"{'target':15s} {'pose':10s} | {'joints alone':>20s} | {'with the twists':>20s}")
     for r in rows["posing"]:
@@ -292,10 +319,12 @@ def main(argv=None):
         print(f"{r['target']:15s} {r['pose']:10s} | {j['mean']:6.2f} {j['p95']:6.2f} {j['max']:6.1f} | "
               f"{t['mean']:6.2f} {t['p95']:6.2f} {t['max']:6.1f}")
     print("\nthe command line: the file against the reference (transfer at rest, then fit to the pose)")
-    print(f"{'pose':10s} {'target':13s} | {'mean mm':>7s} | twists from | away from contact | at it | s")
+    print(f"{'pose':10s} {'target':13s} | {'mean mm':>7s} | twists from | away from contact | at it | "
+          "crossing itself beyond the source | s")
     for r in rows["command_line"]:
         print(f"{r['pose']:10s} {r['target']:13s} | {r['to_reference']['mean']:7.2f} | {r['twist']:11s} | "
-              f"{r['crossings_outside_contact']:17d} | {r['crossings_at_contact']:5d} | {r['seconds']:.2f}")
+              f"{r['crossings_outside_contact']:17d} | {r['crossings_at_contact']:5d} | "
+              f"{r['self_intersections_new']:33d} | {r['seconds']:.2f}")
     if args.named:
         rows["named"] = named(root, skeleton, weights, args.poses, args.remeshed, say)
         print("\nthe target's skeleton named Mixamo's way: the source posed onto its landmarks against the pose, and "
