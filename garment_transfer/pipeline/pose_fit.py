@@ -264,15 +264,23 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     if untangle and resolve_crossings:
-        t = time.perf_counter()
-        result.V, result.penetrating_vertices, result.info["untangle"] = untangle_fit(
-            result.V, garment, posed, result.info, result.contact[0], result.obstacle, surface=result.surface,
-            inside=result.penetrating_vertices)
-        result.info["warnings"] = pose_warnings(result.info["crossings_outside_contact"],
-                                                result.info["crossings_at_contact"], result.info["body_self_crossings"],
-                                                name)
-        result.seconds["untangle"] = time.perf_counter() - t
-        result.seconds["total"] += result.seconds["untangle"]
+        untangle_result(result, garment, posed)
+    return result
+
+
+def untangle_result(result: TransferResult, garment: Mesh, posed: Mesh) -> TransferResult:
+    """``untangle_fit`` on a fit to a pose (``fit_to_pose``'s result, which is updated: positions, vertices inside,
+    counts, warnings, ``info["untangle"]``, ``seconds["untangle"]``); ``garment`` at rest, ``posed`` the posed body
+    (named after the pose)."""
+    t = time.perf_counter()
+    result.V, result.penetrating_vertices, result.info["untangle"] = untangle_fit(
+        result.V, garment, posed, result.info, result.contact[0], result.obstacle, surface=result.surface,
+        inside=result.penetrating_vertices)
+    result.info["warnings"] = pose_warnings(result.info["crossings_outside_contact"],
+                                            result.info["crossings_at_contact"], result.info["body_self_crossings"],
+                                            posed.name)
+    result.seconds["untangle"] = time.perf_counter() - t
+    result.seconds["total"] += result.seconds["untangle"]
     return result
 
 

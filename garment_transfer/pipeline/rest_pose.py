@@ -22,7 +22,7 @@ from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
-from .pose_fit import body_contact, clear_posed_body, fit_to_pose, free_body, untangle_fit
+from .pose_fit import body_contact, clear_posed_body, fit_to_pose, free_body, untangle_fit, untangle_result
 
 #: Bones that carry at least this share of the body's weights say how far two rest poses differ ...
 MIN_WEIGHT_SHARE = 0.01
@@ -149,10 +149,17 @@ def fold_warnings(info, self_intersections_new, name, remedy) -> list:
 def untangle_text(untangle) -> str:
     """What untangling did (``info["rest_pose"]["untangle"]``), in words: each step's self-intersections its source
     does not have, before and after, and whether it was kept; "" when nothing was untangled."""
-    steps = [(what, u) for what, u in (("the fit to the posed source", (untangle or {}).get("fit")),
-                                       ("the result on the target", (untangle or {}).get("target"))) if u]
-    return ", ".join(f"{what} {u['self_intersections_new_before']} -> {u['self_intersections_new_after']}"
+    untangle = untangle or {}
+    steps = [(what, u) for what, u in (("the fit to the posed source", untangle.get("fit")),
+                                       ("the result on the target", untangle.get("target"))) if u]
+    text = ", ".join(f"{what} {u['self_intersections_new_before']} -> {u['self_intersections_new_after']}"
                      + ("" if u["kept"] else " (not kept)") for what, u in steps)
+    if (untangle.get("fit") or {}).get("carried") is False:
+        a, b = untangle["compared"]["fit"], untangle["compared"]["untangled_fit"]
+        text += ("; the result from the fit as it was kept (pairs, crossings with the body away from its contact "
+                 "and at it, vertices inside: " + ", ".join(f"{a[k]}" for k in a) + " against the untangled fit's "
+                 + ", ".join(f"{b[k]}" for k in a) + ")")
+    return text
 
 
 def _fit_counts(fit):
@@ -186,7 +193,12 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         posed), ``twist`` (how each bone's turn about itself was found: ``"frames"``, ``"body"`` or, for a target of
         another mesh without frames, ``"joints"``: not known), ``warnings`` (``rest_pose_warnings``), ``pose_fit``
         (the fit's crossing counts), and, untangled, ``untangle`` (``untangle_fit``'s figures of the fit,
-        ``"fit"``, and of the result on the target, ``"target"``).
+        ``"fit"``, and of the result on the target, ``"target"``). Where the fit's untangling was kept, the fit as
+        it was is carried to the target too, and the untangled fit's result is kept only where it is no worse
+        in any count (pairs the source lacks, crossings with the body away from its contact and at it, vertices
+        inside), so that untangling leaves no count worse than the transfer without it:
+        ``untangle["fit"]["carried"]`` says which was kept, ``untangle["compared"]`` the counts of each
+        (``"untangled_fit"``, ``"fit"``).
     registration : Registration or None
 
     Raises
@@ -196,44 +208,75 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     """
     t = time.perf_counter()
     info, posed_V = posed_source(source_body, source_rig, target_joints, target_frames, target_body)
-    rest_V = source_body.V
-    if info["posed"]:
-        if options.get("method") == "model":
-            raise PoseError(target_body.name, f"stands in another pose than {source_body.name} (its "
-                                              f"{info['largest_turn_bone']} turned {info['largest_turn']:.0f} degrees)",
-                            "Use the direct method: a model is trained on the source's pose")
-        options = {k: v for k, v in options.items() if k != "prepared"}
-        fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose",
-                          untangle=untangle)
-        info["pose_fit"] = _fit_counts(fit)
-        if untangle:
-            info["untangle"] = {"fit": fit.info["untangle"]}
-        source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
-        rest_garment, garment = garment, garment.with_vertices(fit.V)
-    seconds = time.perf_counter() - t
     if not info["posed"]:
         result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
-    else:
-        result, registration = transfer_to_any_body(source_body, target_body, garment,
+        result.info["rest_pose"] = info
+        result.seconds["rest_pose"] = time.perf_counter() - t - result.seconds["total"]
+        result.seconds["total"] += result.seconds["rest_pose"]
+        return result, registration
+    if options.get("method") == "model":
+        raise PoseError(target_body.name, f"stands in another pose than {source_body.name} (its "
+                                          f"{info['largest_turn_bone']} turned {info['largest_turn']:.0f} degrees)",
+                        "Use the direct method: a model is trained on the source's pose")
+    options = {k: v for k, v in options.items() if k != "prepared"}
+    clear = options.get("resolve_crossings", True) and options.get("fix_penetration", True)
+    posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
+    fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
+    # Each fit carried to the target: (positions, counts); the fit as it was too where untangling it was kept, as the
+    # untangled fit can leave the target's pass more to fold.
+    fits = [(fit.V.copy(), _fit_counts(fit))]
+    if untangle:
+        untangle_result(fit, garment, posed)
+        info["untangle"] = {"fit": fit.info["untangle"]}
+        fits.insert(0, (fit.V, _fit_counts(fit)))
+        if not (clear and fit.info["untangle"]["kept"]):
+            fits = fits[:1]
+    registration = options.pop("registration", None)
+    outcomes = []
+    for V, counts in fits:
+        result, registration = transfer_to_any_body(posed, target_body, garment.with_vertices(V),
+                                                    registration=registration,
                                                     **dict(options, resolve_crossings=False))
-        if options.get("resolve_crossings", True) and options.get("fix_penetration", True):
+        step = None
+        if clear:
             # The target stands in a pose: where its body crosses or closes on itself no cloth can clear it.
-            t = time.perf_counter()
-            body_rest = rest_V if registration is None else None
+            body_rest = source_body.V if registration is None else None
             contact = body_contact(target_body, result.info["offset"], body_rest)
             free = free_body(target_body, contact[0], garment, result.V)
             result.V, result.penetrating_vertices = clear_posed_body(
                 result.V, garment, target_body, result.info, rest_V=body_rest, name=target_body.name,
                 contact=contact, free=free, surface=result.surface)
             if untangle:
-                result.V, result.penetrating_vertices, info["untangle"]["target"] = untangle_fit(
-                    result.V, rest_garment, target_body, result.info, contact[0], free, surface=result.surface,
+                result.V, result.penetrating_vertices, step = untangle_fit(
+                    result.V, garment, target_body, result.info, contact[0], free, surface=result.surface,
                     inside=result.penetrating_vertices)
-            seconds += time.perf_counter() - t
+        outcomes.append((result, counts, step))
+    result, info["pose_fit"], step = outcomes[0]
+    if untangle and clear:
+        info["untangle"]["target"] = step
+        if len(outcomes) == 2:
+            # The result from the fit as it was is, count by count, no worse than the transfer not untangled (its
+            # untangling on the target is kept only so): the untangled fit's is kept only where it is no worse than
+            # that one in any count.
+            compared = {k: _outcome_counts(o) for k, o in zip(("untangled_fit", "fit"), outcomes)}
+            info["untangle"]["compared"] = compared
+            info["untangle"]["fit"]["carried"] = all(compared["untangled_fit"][k] <= compared["fit"][k]
+                                                     for k in compared["fit"])
+            if not info["untangle"]["fit"]["carried"]:
+                result, info["pose_fit"], info["untangle"]["target"] = outcomes[1]
     result.info["rest_pose"] = info
-    result.seconds["rest_pose"] = seconds
-    result.seconds["total"] += seconds
+    result.seconds["rest_pose"] = time.perf_counter() - t - result.seconds["total"]
+    result.seconds["total"] += result.seconds["rest_pose"]
     return result, registration
+
+
+def _outcome_counts(outcome) -> dict:
+    """A result on the target (a result, its fit's counts, its untangling): the pairs it crosses itself at that its
+    source lacks, its crossings with the body away from the body's contact and at it, its vertices inside."""
+    result, _, untangled = outcome
+    return {"self_intersections_new": untangled["self_intersections_new_after"],
+            "crossings_outside_contact": result.info["crossings_outside_contact"],
+            "crossings_at_contact": result.info["crossings_at_contact"], "inside_vertices": result.penetrating_vertices}
 
 
 def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, source_rig: Rig, target_joints,
