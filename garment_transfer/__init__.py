@@ -66,7 +66,7 @@ LAYERS = {
                  "check_model", "check_after_training", "read_catalogue", "run_batch", "fit_to_pose",
                  "fit_poses", "in_threads", "posed_counts", "poses_to_files", "every_split",
                  "transfer_across_rest_poses", "outfit_across_rest_poses", "pose_difference", "fold_warnings",
-                 "untangle_text"),
+                 "untangle_text", "target_at_rest"),
 }
 _LAYER_OF = {name: layer for layer, names in LAYERS.items() for name in names}
 

@@ -123,7 +123,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     metrics : dict
         ``evaluate`` of the result as Blender has it (``result_metrics``) against the target body.
     """
-    from ..garment_transfer import SHAPE_BOUNDS, MeshError, transfer_across_rest_poses, transfer_to_any_body
+    from ..garment_transfer import (SHAPE_BOUNDS, MeshError, target_at_rest, transfer_across_rest_poses,
+                                    transfer_to_any_body)
 
     roles = (("source body", source_body), ("target body", target_body), ("garment", garment))
     for role, obj in roles:
@@ -177,8 +178,10 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
                                        view_layer=context.view_layer)
     pose = outcome.info.get("rest_pose") or {}
     # Posed into the target's rest pose: its crossings are counted apart where the target's body crosses or closes
-    # on itself (the source at rest, on a target of its mesh, tells which parts the pose pressed together).
-    posed = (outcome.info["offset"], source.V if registration is None else None) if pose.get("posed") else None
+    # on itself (the source at rest tells which parts the pose pressed together, through the registration on a
+    # target of another mesh; in the frame the core ran in: a rotation, which keeps every distance).
+    posed = ((outcome.info["offset"], target_at_rest(framed(source), framed(target), registration))
+             if pose.get("posed") else None)
     metrics = result_metrics(context, result, cloth, target, posed=posed)
     outcome.pose_warnings = metrics.pop("pose_warnings", [])
     outcome.registered_body = None

@@ -537,6 +537,10 @@ def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwis
               read_weights(root / "rig" / "weights.json", pear.n_vertices))
     T = rig.transforms(bvh_rotations(read_bvh(root / "poses" / "fight01.bvh"), skeleton))
     write_obj(tmp_path / "kicking.obj", pear.with_vertices(rig.pose(pear.V, T)))
+    # The same kick as another mesh with more vertices than the source's (registered).
+    from lab.registration import remesh
+
+    write_obj(tmp_path / "kicking_remeshed.obj", mesh_from_triangles(*remesh(rig.pose(pear.V, T), pear.F, 32000)))
     # Its armature's bones as they stand, each with its roll (its Z axis): the kick's frames, not only its joints.
     joints, frames = rig.posed_joints(T), rig.posed_frames(T)
     (tmp_path / "kicking.json").write_text(json.dumps({"bones": {
@@ -547,21 +551,26 @@ def test_a_catalogue_with_a_rig_poses_the_source_into_a_target_standing_otherwis
     bones = named_bones(skeleton, rig.posed_joints(T), "Mixamo", prefix="mixamorig:")
     (tmp_path / "kicking_mixamo.json").write_text(json.dumps(bones_data(bones)))
     joints = root / "rig" / "joints"
-    cat = {"source": "female_average", "targets": ["female_pear", "kicking", "kicking_mixamo"],
+    cat = {"source": "female_average", "targets": ["female_pear", "kicking", "kicking_mixamo", "kicking_remeshed"],
            "bodies": {"female_average": str(root / "bodies" / "female_average.obj"),
                       "female_pear": str(root / "bodies" / "female_pear.obj"), "kicking": "kicking.obj",
-                      "kicking_mixamo": "kicking.obj"},
+                      "kicking_mixamo": "kicking.obj", "kicking_remeshed": "kicking_remeshed.obj"},
            "rig": {"skeleton": str(root / "rig" / "skeleton.json"), "weights": str(root / "rig" / "weights.json"),
                    "joints": {"female_average": str(joints / "female_average.json"),
                               "female_pear": str(joints / "female_pear.json"), "kicking": "kicking.json",
-                              "kicking_mixamo": "kicking_mixamo.json"}},
+                              "kicking_mixamo": "kicking_mixamo.json", "kicking_remeshed": "kicking.json"}},
            "garments": [{"name": "suit", "file": str(root / "garments" / "female_sportsuit01" /
                                                       "female_average.obj")}]}
     (tmp_path / "cat.json").write_text(json.dumps(cat))
     catalogue = read_catalogue(tmp_path / "cat.json")
     assert str(tmp_path / "kicking.json") in catalogue.inputs()[0]
     summary = run_batch(catalogue, tmp_path / "out", workers=1)
-    assert summary.ok and summary.counts["done"] == 3
+    assert summary.ok and summary.counts["done"] == 4
+    # Another mesh: registered, counted as written where the source at rest (through the registration) says which
+    # parts the kick pressed together.
+    remeshed = json.loads((tmp_path / "out" / "suit" / "kicking_remeshed.json").read_text())
+    assert remeshed["rest_pose"]["posed"] and remeshed["rest_pose"]["twist"] == "frames"
+    assert remeshed["rest_pose"]["written"]["crossings_outside_contact"] == 0
     kicking = json.loads((tmp_path / "out" / "suit" / "kicking.json").read_text())
     # Matched by its landmarks, said in the record with what they leave out; clean away from the body's contact.
     mixamo = json.loads((tmp_path / "out" / "suit" / "kicking_mixamo.json").read_text())

@@ -42,7 +42,8 @@ from ..pipeline.any_body import transfer_to_any_body
 from ..pipeline.metrics import evaluate
 from ..pipeline.model_check import check_after_training, check_lines, training_garments
 from ..pipeline.outfit import transfer_outfit
-from ..pipeline.rest_pose import fold_warnings, outfit_across_rest_poses, transfer_across_rest_poses, untangle_text
+from ..pipeline.rest_pose import (fold_warnings, outfit_across_rest_poses, target_at_rest, transfer_across_rest_poses,
+                                  untangle_text)
 from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
@@ -109,9 +110,10 @@ def cmd_transfer(args):
         if pose["posed"]:
             # The file as written, against the target as given: where its body crosses or closes on itself (a
             # pose's bent knee, an arm on the hip) no cloth can be outside both surfaces.
-            # The source at rest tells, on a target of its mesh, which parts the pose pressed together.
+            # The source at rest tells which parts the pose pressed together (through the registration on a
+            # target of another mesh).
             pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
-                                           rest_V=source_body.V if registration is None else None,
+                                           rest_V=target_at_rest(source_body, target_body, registration),
                                            name=os.path.basename(args.target_body), own=False)
             out["warnings"] += pose["written"]["warnings"]
             lines.append(_written_pose_line(args.out, pose["written"]))

@@ -16,8 +16,8 @@ from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
 from .model_check import check_after_training, check_lines, check_model, training_garments
 from .outfit import OutfitError, OutfitResult, transfer_outfit
 from .pose_fit import every_split, fit_poses, fit_to_pose, in_threads, posed_counts, poses_to_files, self_contact
-from .rest_pose import (fold_warnings, outfit_across_rest_poses, pose_difference, transfer_across_rest_poses,
-                        untangle_text)
+from .rest_pose import (fold_warnings, outfit_across_rest_poses, pose_difference, target_at_rest,
+                        transfer_across_rest_poses, untangle_text)
 from .result_check import check_result, result_warnings
 from .shape_keys import (HANGING_BANDS, KEEP_OUTSIDE_BANDS, KEEP_OUTSIDE_SHARE, SHAPE_KEY_BANDS, ShapeKeyFit,
                          all_pairs, fit_shape_keys, fit_steps, hanging_bands, held_bands, keep_outside_bands,
@@ -38,4 +38,4 @@ __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment
            "poses_to_files", "every_split",
            "self_contact",
            "transfer_across_rest_poses", "outfit_across_rest_poses", "pose_difference", "fold_warnings",
-           "untangle_text", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]
+           "untangle_text", "target_at_rest", "Catalogue", "read_catalogue", "run_batch", "BatchSummary"]

@@ -48,7 +48,7 @@ from ..version import __version__
 from .catalogue import Catalogue, GarmentJob, RigFiles, Settings, Target
 from .metrics import evaluate
 from .pose_fit import posed_counts
-from .rest_pose import fold_warnings, transfer_across_rest_poses
+from .rest_pose import fold_warnings, target_at_rest, transfer_across_rest_poses
 from .result_check import result_warnings
 from .transfer import prepare_garment, transfer_garment
 
@@ -393,12 +393,13 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                 # Posed into the target's rest pose first where it stands otherwise (the garment prepared on the
                 # source at rest serves the others).
                 rig = _INPUTS.rig(job.rig, source_body.n_vertices)
-                result, _ = transfer_across_rest_poses(source_body, target_body, garment, rig,
+                result, registration = transfer_across_rest_poses(source_body, target_body, garment, rig,
                                                        _INPUTS.joints(t.joints, rig.skeleton),
                                                        _INPUTS.frames(t.joints, rig.skeleton), cache=False,
                                                        prepared=prepared, untangle=s.untangle, **options)
             else:
-                result = transfer_garment(source_body, target_body, garment, prepared=prepared, **options)
+                result, registration = transfer_garment(source_body, target_body, garment, prepared=prepared,
+                                                        **options), None
             reference = _read_garment(t.reference) if t.reference is not None else None
             obj_path, json_path = result_paths(out, job.name, t.name)
             text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} ({s.method})",
@@ -414,7 +415,8 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             if rest_pose is not None and rest_pose["posed"]:
                 # Where the posed target crosses or closes on itself no cloth can be outside both surfaces.
                 rest_pose["written"] = posed_counts(written, garment, target_body, result.info["offset"],
-                                                    rest_V=source_body.V, name=str(obj_path), own=False)
+                                                    rest_V=target_at_rest(source_body, target_body, registration),
+                                                    name=str(obj_path), own=False)
         except Exception as exc:  # noqa: BLE001 - recorded; the other targets go on
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue

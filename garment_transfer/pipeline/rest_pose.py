@@ -17,7 +17,9 @@ import time
 import numpy as np
 
 from ..errors import PoseError
+from ..fitting.registration import Registration
 from ..geometry.mesh import Mesh, same_mesh
+from ..geometry.proximity import TriangleSurface
 from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
 from .any_body import transfer_to_any_body
@@ -162,6 +164,23 @@ def untangle_text(untangle) -> str:
     return text
 
 
+def target_at_rest(source_body: Mesh, target_body: Mesh, registration: Registration | None):
+    """Where the source at rest has each of the target's vertices, in the target's units: what tells which of the
+    target's body parts its pose pressed together (``pose_fit.self_contact``'s gap rule: closer than the gap in the
+    pose, apart at rest).
+
+    A target of the source's mesh: the source's own vertices at rest. A target of another mesh (``registration``:
+    the source posed into the target's rest pose, fitted onto it): each target vertex's closest point on the fitted
+    copy, taken at the same place of the source's triangles at rest and into the target's frame. None without a
+    registration for another mesh.
+    """
+    if registration is None:
+        return source_body.V if source_body.n_vertices == target_body.n_vertices else None
+    _, _, tri, bary = TriangleSurface(registration.V, source_body.F).closest(target_body.V)
+    rest = np.einsum("pk,pkj->pj", bary, source_body.V[source_body.F[tri]])
+    return registration.alignment.inverse().apply(rest)
+
+
 def _fit_counts(fit):
     """The figures of the garment's fit to the posed source that ``info["rest_pose"]["pose_fit"]`` keeps."""
     return {k: fit.info[k] for k in ("crossings_outside_contact", "crossings_at_contact", "body_self_crossings")}
@@ -232,7 +251,7 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         if not (clear and fit.info["untangle"]["kept"]):
             fits = fits[:1]
     registration = options.pop("registration", None)
-    outcomes = []
+    outcomes, contact = [], None
     for V, counts in fits:
         result, registration = transfer_to_any_body(posed, target_body, garment.with_vertices(V),
                                                     registration=registration,
@@ -240,8 +259,9 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
         step = None
         if clear:
             # The target stands in a pose: where its body crosses or closes on itself no cloth can clear it.
-            body_rest = source_body.V if registration is None else None
-            contact = body_contact(target_body, result.info["offset"], body_rest)
+            if contact is None:
+                body_rest = target_at_rest(source_body, target_body, registration)
+                contact = body_contact(target_body, result.info["offset"], body_rest)
             free = free_body(target_body, contact[0], garment, result.V)
             result.V, result.penetrating_vertices = clear_posed_body(
                 result.V, garment, target_body, result.info, rest_V=body_rest, name=target_body.name,
