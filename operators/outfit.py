@@ -13,7 +13,7 @@ import bpy
 from bpy.props import EnumProperty
 
 from . import convert
-from .reporting import poll_objects, report_failure, window_progress
+from .reporting import length_text, poll_objects, report_failure, window_progress
 from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
 from .transfer import chosen_model, model_text, result_name
 
@@ -53,7 +53,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
 
     Reads every object (world space), runs the core's ``transfer_outfit`` (``outfit_across_rest_poses`` when both
     bodies have an armature with the bones that move the source: a target in another rest pose gets the source
-    and every layer posed into it first) and only then makes one new object ``<garment>_on_<target>`` per layer;
+    and every layer posed into it first; a target of another mesh is registered once, for every layer) and only
+    then makes one new object ``<garment>_on_<target>`` per layer;
     if making any of them fails, the ones made are removed: the scene is as it was.
 
     Parameters
@@ -71,8 +72,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
-    from ..garment_transfer import (OFFSET_SHARE, TopologyMismatchError, body_scale, mdc, outfit_across_rest_poses,
-                                    same_mesh, transfer_outfit)
+    from ..garment_transfer import (OFFSET_SHARE, body_scale, mdc, outfit_across_rest_poses, target_at_rest,
+                                    transfer_outfit)
 
     convert.require_mesh_object(source_body, "source body")
     convert.require_mesh_object(target_body, "target body")
@@ -80,10 +81,6 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     depsgraph = context.evaluated_depsgraph_get()
     source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
-    if not same_mesh(source, target):
-        raise TopologyMismatchError(target_body.name, "an outfit is transferred onto the source body's own mesh "
-                                                      "in another shape (same vertices and faces); transfer "
-                                                      "each garment alone to fit another body mesh")
     cloths = [convert.core_mesh_from_object(g, depsgraph, evaluated, "garment") for g in garments]
     model, frame = chosen_model(method, model_path, source, field_share)
 
@@ -117,8 +114,11 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
         convert.remove_results(results)
         raise
     posed = bool((outcome.rest_pose or {}).get("posed"))
+    # The source at rest tells which parts of a posed target its pose pressed together (through the registration on
+    # a target of another mesh; in the frame the core ran in: a rotation, which keeps every distance).
+    rest = target_at_rest(source_framed, framed(target), outcome.registration) if posed else None
     outcome.checks = layer_checks(context, results, cloths, target,
-                                  [i["offset"] for i in outcome.info] if posed else None, source.V)
+                                  [i["offset"] for i in outcome.info] if posed else None, rest)
     return results, outcome, design
 
 
@@ -147,7 +147,7 @@ def layer_checks(context, results, cloths, target, posed_offsets=None, rest_V=No
     return checks
 
 
-def outfit_message(results, outcome, design, elapsed):
+def outfit_message(context, results, outcome, design, elapsed):
     layers = ", ".join(f"{r.name} (MDC {m:.4f})" for r, m in zip(results, design))
     crossing = sum(c["garment_edge_body_pairs"] + c["body_edge_garment_pairs"] + c["layer_crossings"]
                    for c in outcome.checks)
@@ -156,8 +156,14 @@ def outfit_message(results, outcome, design, elapsed):
     pose = outcome.rest_pose or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
              f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
+    registered = ""
+    if outcome.registration is not None:
+        q = outcome.registration.quality
+        registered = (f"; the target registered{' (cached)' if outcome.registration.cached else ''}, 95% of the "
+                      f"distance within {length_text(context, q['to_target_p95'])} to / "
+                      f"{length_text(context, q['from_target_p95'])} from it")
     return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
-            f"triangulation){posed}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
+            f"triangulation){posed}{registered}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
 
 class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
@@ -211,7 +217,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         context.view_layer.objects.active = results[-1]
         settings.last_outfit = " / ".join(r.name for r in results)
         settings.last_outfit_model = outcome.model_text
-        self.report({'INFO'}, outfit_message(results, outcome, design, elapsed))
+        self.report({'INFO'}, outfit_message(context, results, outcome, design, elapsed))
         from ..garment_transfer import result_warnings
 
         for warning in (outcome.rest_pose or {}).get("warnings", []):

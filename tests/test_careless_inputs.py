@@ -282,7 +282,7 @@ def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch)
     from garment_transfer.errors import TopologyMismatchError
     from garment_transfer.geometry.mesh import turned_around
     from garment_transfer.geometry.proximity import as_same_mesh
-    from garment_transfer.pipeline import any_body
+    from garment_transfer.pipeline import any_body, outfit
     from garment_transfer.pipeline.outfit import transfer_outfit
 
     source, target, garment = (read_obj(scene[k], name=k) for k in ("source", "target", "garment"))
@@ -290,10 +290,8 @@ def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch)
     mirrored = turned_around(target.with_vertices(target.V * [-1.0, 1.0, 1.0]), name="mirrored")
     assert as_same_mesh(source, mirrored) is None
     assert as_same_mesh(source, turned_around(target)) is not None
-    for call in (lambda: transfer_garment(source, mirrored, garment),
-                 lambda: transfer_outfit(source, mirrored, [garment])):
-        with pytest.raises(TopologyMismatchError, match="mirrored: has the faces of source turned around"):
-            call()
+    with pytest.raises(TopologyMismatchError, match="mirrored: has the faces of source turned around"):
+        transfer_garment(source, mirrored, garment)
 
     class Registered(Exception):
         pass
@@ -301,11 +299,15 @@ def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch)
     def register(*args, **kwargs):
         raise Registered
 
-    # One garment: the mirror image is another body to register onto; the turned target is not.
+    # One garment or an outfit: the mirror image is another body to register onto; the turned target is not.
     monkeypatch.setattr(any_body, "register", register)
-    with pytest.raises(Registered):
-        any_body.transfer_to_any_body(source, mirrored, garment)
+    monkeypatch.setattr(outfit, "register", register)
+    for call in (lambda: any_body.transfer_to_any_body(source, mirrored, garment),
+                 lambda: transfer_outfit(source, mirrored, [garment])):
+        with pytest.raises(Registered):
+            call()
     any_body.transfer_to_any_body(source, turned_around(target), garment)
+    transfer_outfit(source, turned_around(target), [garment])
 
 
 # 3. OBJ reading: any whitespace, a BOM; every byte but the coordinates survives; cut-off files.

@@ -175,6 +175,44 @@ def test_cli_outfit_from_demo_garments(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["dress.obj", "top.obj"]
 
 
+def test_cli_outfit_onto_a_body_of_another_mesh_in_other_units_is_registered_once(tmp_path):
+    from garment_transfer.geometry.obj import write_obj
+    from lab.registration import remesh
+
+    src = DEMO / "bodies" / "banana.obj"
+    top, dress = DEMO / "garments" / "tshirt" / "banana.obj", DEMO / "garments" / "shift_dress" / "banana.obj"
+    pear = read_obj(DEMO / "bodies" / "pear.obj")
+    # The pear re-meshed and written in centimetres: another mesh, other units.
+    U, G = remesh(pear.V, pear.F, 20000)
+    write_obj(tmp_path / "pear_cm.obj", mesh_from_triangles(U * 100.0, G))
+    outs = [tmp_path / "top.obj", tmp_path / "dress.obj"]
+    p = run("transfer", "--source-body", src, "--target-body", tmp_path / "pear_cm.obj", "--garment", top,
+            "--garment", dress, "--out", outs[0], "--out", outs[1], "--json", "--no-cache")
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert data["registered"] and 95 < 1.0 / data["registration"]["alignment"]["scale"] < 105
+    # Each layer's offset in the target's units: the source's, scaled by the registration.
+    same = run("transfer", "--source-body", src, "--target-body", DEMO / "bodies" / "pear.obj", "--garment", top,
+               "--garment", dress, "--out", tmp_path / "a.obj", "--out", tmp_path / "b.obj", "--json")
+    plain = json.loads(same.stdout)
+    assert not plain["registered"] and "registration" not in plain
+    for layer, base in zip(data["layers"], plain["layers"]):
+        ratio = layer["info"]["offset"] / base["info"]["offset"]
+        assert ratio == pytest.approx(1.0 / data["registration"]["alignment"]["scale"], rel=1e-9)
+    # As written, against the body given: no layer through it or through the layer under it, under every split.
+    body = read_obj(tmp_path / "pear_cm.obj")
+    layers = [read_obj(o) for o in outs]
+    for g in layers:
+        c = crossings(g.V, readings_of(g), body.V, body.F)
+        assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
+    c = crossings(layers[1].V, readings_of(layers[1]), layers[0].V, readings_of(layers[0]))
+    assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
+    assert [layer["check"]["self_intersections_new"] for layer in data["layers"]] == [0, 0]
+    # Near the outfit onto the pear's own mesh (the registration's error; measured: 4.1 and 8.7 mm on average).
+    for layer, own in zip(layers, [tmp_path / "a.obj", tmp_path / "b.obj"]):
+        assert np.linalg.norm(layer.V / 100.0 - read_obj(own).V, axis=1).mean() < 0.012
+
+
 def test_cli_outfit_out_count_must_match(tmp_path):
     src, tgt = DEMO / "bodies" / "banana.obj", DEMO / "bodies" / "pear.obj"
     top, dress = DEMO / "garments" / "tshirt" / "banana.obj", DEMO / "garments" / "shift_dress" / "banana.obj"

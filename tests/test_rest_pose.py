@@ -379,3 +379,21 @@ def test_an_outfit_onto_a_target_standing_otherwise_is_posed_layer_by_layer(tmp_
         expected = fit_to_pose(target, posed.V, garment.with_vertices(V)).V
         written = read_obj(tmp_path / "out" / f"{name}.obj").V
         assert np.linalg.norm(written - expected, axis=1).mean() < most
+    # The running pear as another mesh (re-meshed, more vertices than the source's): registered once for both
+    # layers, each as written clear of the body away from where it crosses or closes on itself (which parts the
+    # pose pressed together read through the registration), and of the layer under it.
+    from lab.registration import remesh
+
+    write_obj(tmp_path / "remeshed.obj", mesh_from_triangles(*remesh(posed.V, posed.F, 32000)))
+    (tmp_path / "out2").mkdir()
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "transfer", "--source-body",
+                        root / "bodies" / "female_average.obj", "--target-body", tmp_path / "remeshed.obj",
+                        "--garment", tmp_path / "tshirt.obj", "--garment", tmp_path / "dress.obj", "--out",
+                        tmp_path / "out2", *rig_options(root), "--target-joints", tmp_path / "joints.json", "--json",
+                        "--no-cache"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["registered"] and out["rest_pose"]["posed"]
+    for layer in out["layers"]:
+        assert layer["rest_pose_written"]["crossings_outside_contact"] == 0
+        assert layer["check"]["layer_crossings"] == 0

@@ -280,7 +280,7 @@ def cmd_transfer_outfit(args):
     paths = outfit_out_paths(args.garment, args.out)
     if args.shape_basis or args.body_model:
         raise GarmentTransferError(f"{'--shape-basis' if args.shape_basis else '--body-model'} is for one garment: "
-                                   f"an outfit needs a target body of the source's mesh")
+                                   "an outfit onto another mesh is registered without a shape basis")
     if args.no_fix or args.no_crossing_pass:
         raise GarmentTransferError("an outfit of several layers is always separated: "
                                    "--no-fix and --no-crossing-pass apply to one garment only")
@@ -292,7 +292,7 @@ def cmd_transfer_outfit(args):
     rig = _rest_pose_rig(args, source_body)
     load = time.perf_counter() - t
     options = dict(offsets=args.offset, method=args.method, **(model.transfer_arguments() if model else {}),
-                   target=args.target, interpolate=not args.no_interpolate)
+                   target=args.target, interpolate=not args.no_interpolate, cache=not args.no_cache)
     if rig is not None:
         result = outfit_across_rest_poses(source_body, target_body, garments, *rig, **options)
     else:
@@ -313,12 +313,15 @@ def cmd_transfer_outfit(args):
     seconds = dict(result.seconds, load=load, write=write, check=time.perf_counter() - t)
     warnings = [w for c, p in zip(checks, paths) for w in result_warnings(c, p)]
     out = {"out": paths, "method": args.method, "target": args.target, "seconds": seconds, **_model_summary(model),
-           "warnings": warnings,
+           "warnings": warnings, "registered": result.registration is not None,
            "layers": [{"garment": f, "out": p, "vertices": g.n_vertices, "triangles": g.n_triangles,
                        "penetrating_vertices": c["inside_vertices"], "check": c, "info": pass_log(i)}
                       for f, p, g, i, c in zip(args.garment, paths, garments, result.info, checks)]}
     lines = [f"wrote {p}: layer {k + 1} of {len(paths)}, {check_line(c)}"
              for k, (p, c) in enumerate(zip(paths, checks))]
+    if result.registration is not None:
+        out["registration"] = result.registration.summary()
+        lines.append(_registration_line(args.source_body, args.target_body, result.registration))
     pose = result.rest_pose
     if pose is not None:
         out["rest_pose"] = pose
@@ -328,9 +331,9 @@ def cmd_transfer_outfit(args):
             # Each layer as written, against the target as given, counted apart where its body crosses itself.
             offsets = [i["offset"] for i in result.info]
             for layer, g, p, (V, _), offset in zip(out["layers"], garments, paths, below, offsets):
-                layer["rest_pose_written"] = posed_counts(V, g, target_body, offset,
-                                                          rest_V=source_body.V, name=os.path.basename(args.target_body),
-                                                          own=False)
+                layer["rest_pose_written"] = posed_counts(
+                    V, g, target_body, offset, rest_V=target_at_rest(source_body, target_body, result.registration),
+                    name=os.path.basename(args.target_body), own=False)
                 out["warnings"] += layer["rest_pose_written"]["warnings"]
                 lines.append(_written_pose_line(p, layer["rest_pose_written"]))
     emit(args, out, lines + [f"{result.seconds['total']:.3f} s (outfit transfer)"]

@@ -36,8 +36,10 @@ from ..geometry.embedding import body_scale
 from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
-from ..geometry.mesh import Mesh, edge_lengths_mean
+from ..fitting.registration import Registration, register
+from ..geometry.mesh import Mesh, edge_lengths_mean, same_mesh
 from ..geometry.proximity import TriangleSurface, as_same_mesh
+from .any_body import transfer_to_any_body
 from .transfer import OFFSET_SHARE, transfer_garment
 
 #: A layer is in an impossible order when more than this share of its vertices near a lower layer
@@ -88,6 +90,9 @@ class OutfitResult:
     rest_pose : dict or None
         A target in another rest pose (``rest_pose.outfit_across_rest_poses``): how far, and whether the source and
         the layers were posed into it first.
+    registration : Registration or None
+        A target of another mesh: the source fitted onto it (each layer transferred through it); None for the
+        source's own mesh.
     """
 
     V: list
@@ -95,6 +100,7 @@ class OutfitResult:
     seconds: dict
     info: list
     rest_pose: dict | None = None
+    registration: Registration | None = None
 
 
 def oriented_outward(V, F, body: TriangleSurface):
@@ -394,19 +400,29 @@ def _raise_inseparable(bad, where):
 
 
 def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=None, progress=None,
+                    registration: Registration | None = None, cache=True, limits=None,
                     **transfer_options) -> OutfitResult:
     """Transfer several garments worn one over another, from the body out.
 
     Parameters
     ----------
     source_body, target_body : Mesh
+        The target may be another mesh than the source's: the source is then registered onto it once
+        (``registration.register``) and every layer transferred through that fit (``any_body.transfer_to_any_body``:
+        solved on the fitted body, then cleared of the target itself); the layers are separated on the target the
+        user gave.
     garments : sequence of Mesh
         The layers on the source body, innermost first.
     offsets : float or sequence of float, optional
-        Each layer's clearance from the body and the layers under it (default: the transfer's
-        default share of the source body's scale, for every layer; the same on source and target).
+        Each layer's clearance from the body and the layers under it, in the source's units (default: the
+        transfer's default share of the source body's scale, for every layer; the same on source and target, on
+        a target of another mesh in its units by the registration's scale).
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels.
+    registration : Registration, optional
+        A registration of these two bodies made earlier (a target of another mesh).
+    cache, limits
+        For the registration of a target of another mesh (``registration.register``).
     **transfer_options
         Passed to ``transfer.transfer_garment`` for every layer (method, model, target, ...).
 
@@ -444,16 +460,31 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     if bad:
         _raise_inseparable(bad, f"on the source body {source_body.name}")
     seconds["separate_source"] = time.perf_counter() - t
+    # A target of another mesh: the source fitted onto it once, for every layer (the outfit checked first).
+    target_offsets = offsets
+    if same_mesh(source_body, target_body):
+        registration = None
+    else:
+        if registration is None:
+            step = None if progress is None else (lambda f, *stage: progress(0.1 * f, "register"))
+            registration = register(source_body, target_body, cache=cache, limits=limits, progress=step)
+        target_offsets = [o / registration.alignment.scale for o in offsets]
+        seconds["register"] = float(registration.seconds.get("total", 0.0)) if not registration.cached else 0.0
     t = time.perf_counter()
     results = []
     for k, g in enumerate(garments):
         if progress is not None and progress(0.1 + 0.6 * k / len(garments), f"transfer {g.name}"):
             raise Cancelled(f"transfer of the outfit cancelled at {g.name}")
-        results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
+        if registration is None:
+            results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
+        else:
+            results.append(transfer_to_any_body(source_body, target_body, g, registration=registration,
+                                                offset=target_offsets[k], **transfer_options)[0])
     seconds["transfer"] = time.perf_counter() - t
     t = time.perf_counter()
     target_readings = readings_of(target_body)
-    tgt_Vs, tgt_info = separate_layers(target_body.V, target_readings, garments, [r.V for r in results], offsets)
+    tgt_Vs, tgt_info = separate_layers(target_body.V, target_readings, garments, [r.V for r in results],
+                                       target_offsets)
     seconds["separate_target"] = time.perf_counter() - t
     t = time.perf_counter()
     bad = outfit_crossings(target_body.V, target_readings, garments, tgt_Vs)
@@ -462,4 +493,4 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         _raise_inseparable(bad, f"on the target body {target_body.name}")
     seconds["total"] = time.perf_counter() - t0
     info = [dict(r.info, source=s, target_separation=ti) for r, s, ti in zip(results, src_info, tgt_info)]
-    return OutfitResult(tgt_Vs, src_Vs, seconds, info)
+    return OutfitResult(tgt_Vs, src_Vs, seconds, info, registration=registration)

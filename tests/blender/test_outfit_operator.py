@@ -178,14 +178,42 @@ def test_bad_outfits_name_the_object_and_change_nothing(outfit):
     with pytest.raises(RuntimeError, match="Add the outfit's garments"):
         bpy.ops.garment_transfer.transfer_outfit()
     assert scene_state() == before
-    other = mesh_object(outfit.meshes[INNER], "other_body")     # a body of another mesh
+
+
+def test_an_outfit_onto_a_body_of_another_mesh_is_registered_once_and_clear_of_the_body_given(outfit, extension):
+    from lab.registration import remesh
+
+    from garment_transfer.geometry.mesh import mesh_from_triangles
+
+    o, settings = outfit.objects, outfit.settings
+    pear = outfit.meshes["pear"]
+    other = mesh_object(mesh_from_triangles(*remesh(pear.V, pear.F, 20000), name="pear_remeshed"), "pear_remeshed")
     bpy.context.view_layer.update()
     set_layers(settings, [o[INNER], o[OUTER]])
     settings.target_body = other
-    before = scene_state()
-    with pytest.raises(RuntimeError, match="other_body: an outfit is transferred onto the source body's own mesh"):
-        bpy.ops.garment_transfer.transfer_outfit()
-    assert scene_state() == before
+    before = set(bpy.data.objects)
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    inner, outer = (bpy.data.objects[f"{g}_on_pear_remeshed"] for g in (INNER, OUTER))
+    assert set(bpy.data.objects) - before == {inner, outer}
+    # The core's outfit onto that mesh (registered once), as Blender has the objects.
+    source, target, g_in, g_out = core_meshes(extension, (o["banana"], other, o[INNER], o[OUTER]))
+    expected = transfer_outfit(source, target, [g_in, g_out])
+    assert expected.registration is not None and target.n_vertices != source.n_vertices
+    got = [world_vertices(inner), world_vertices(outer)]
+    for V, E in zip(got, expected.V):
+        np.testing.assert_allclose(V, E, atol=1e-6)
+    # Against the body given (not the fitted copy), under every triangulation; the layers apart.
+    B = readings_of(target)
+    for V, g in zip(got, (g_in, g_out)):
+        c = crossings(V, readings_of(g), target.V, B)
+        assert c["a_edge_pairs"] == 0 and c["b_edge_pairs"] == 0, g.name
+    c = crossings(got[0], readings_of(g_in), got[1], readings_of(g_out))
+    assert c["a_edge_pairs"] == 0 and c["b_edge_pairs"] == 0
+    # Near the outfit onto the pear's own mesh (measured: 4.1 and 8.7 mm on average, each garment alone 4.1 and 8.1:
+    # the registration's error).
+    own = transfer_outfit(source, core_meshes(extension, (o["pear"],))[0], [g_in, g_out])
+    for V, E in zip(got, own.V):
+        assert np.linalg.norm(V - E, axis=1).mean() < 0.01
 
 
 def test_model_method_needs_a_model_file(outfit):
