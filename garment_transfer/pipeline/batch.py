@@ -23,6 +23,7 @@ scheduler's cluster (``scheduler="tcp://host:8786"``). Dask is imported only her
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -31,6 +32,7 @@ import logging
 import math
 import os
 import socket
+import threading
 import time
 import uuid
 from dataclasses import asdict, dataclass, field
@@ -38,6 +40,8 @@ from pathlib import Path
 
 from ..errors import GarmentTransferError
 from ..files import check_outputs
+from ..fitting.registration import register
+from ..geometry.proximity import as_same_mesh
 from ..geometry.obj import obj_text, read_obj
 from ..learning.model_files import read_model_file
 from ..rigging.posing import Rig
@@ -46,11 +50,12 @@ from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..version import __version__
 from .catalogue import Catalogue, GarmentJob, RigFiles, Settings, Target
+from .any_body import transfer_to_any_body
 from .metrics import evaluate
 from .pose_fit import posed_counts
 from .rest_pose import fold_warnings, target_at_rest, transfer_across_rest_poses
 from .result_check import result_warnings
-from .transfer import prepare_garment, transfer_garment
+from .transfer import prepare_garment
 
 log = logging.getLogger(__name__)
 
@@ -268,6 +273,20 @@ class _Inputs:
         rolls (``naming.read_target_frames``), else None."""
         return self._get(path, ("frames", self._stat(skeleton.name)), lambda: read_target_frames(path, skeleton))
 
+    def registration(self, source_path, source_body, target_path, target_body):
+        """The source body fitted onto a target of another mesh (``registration.register``, made once per process
+        for every garment of that source and target), with the warnings the fit logged; (None, []) for a target of
+        the source's mesh (or that mesh with every face turned)."""
+        if as_same_mesh(source_body, target_body) is not None:
+            return None, []
+
+        def make():
+            with fitting_warnings() as said:
+                fit = register(source_body, target_body, cache=False)
+            return fit, list(said)
+
+        return self._get(target_path, ("registration", self._stat(source_path)), make)
+
     def model(self, path, field_share=None, use_placement=True):
         """The model file (``model_files.ModelFile``, any kind)."""
 
@@ -284,6 +303,26 @@ class _Inputs:
 
 
 _INPUTS = _Inputs()
+
+
+@contextlib.contextmanager
+def fitting_warnings():
+    """The warnings the registration (``garment_transfer.fitting``) logs in this thread meanwhile, collected in the
+    list yielded: a record keeps them (a worker's log is not the user's)."""
+    said, ident = [], threading.get_ident()
+
+    class Collect(logging.Handler):
+        def emit(self, record):
+            if record.thread == ident:
+                said.append(record.getMessage())
+
+    handler = Collect(logging.WARNING)
+    logger = logging.getLogger("garment_transfer.fitting")
+    logger.addHandler(handler)
+    try:
+        yield said
+    finally:
+        logger.removeHandler(handler)
 
 
 def clear_input_cache():
@@ -393,13 +432,16 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                 # Posed into the target's rest pose first where it stands otherwise (the garment prepared on the
                 # source at rest serves the others).
                 rig = _INPUTS.rig(job.rig, source_body.n_vertices)
-                result, registration = transfer_across_rest_poses(source_body, target_body, garment, rig,
-                                                       _INPUTS.joints(t.joints, rig.skeleton),
-                                                       _INPUTS.frames(t.joints, rig.skeleton), cache=False,
-                                                       prepared=prepared, untangle=s.untangle, **options)
+                with fitting_warnings() as fit_said:
+                    result, registration = transfer_across_rest_poses(
+                        source_body, target_body, garment, rig, _INPUTS.joints(t.joints, rig.skeleton),
+                        _INPUTS.frames(t.joints, rig.skeleton), cache=False, prepared=prepared,
+                        untangle=s.untangle, **options)
             else:
-                result, registration = transfer_garment(source_body, target_body, garment, prepared=prepared,
-                                                        **options), None
+                # A target of another mesh: the source fitted onto it once per worker, for every garment.
+                registration, fit_said = _INPUTS.registration(job.source_file, source_body, t.body, target_body)
+                result, _ = transfer_to_any_body(source_body, target_body, garment, prepared=prepared,
+                                                 registration=registration, cache=False, **options)
             reference = _read_garment(t.reference) if t.reference is not None else None
             obj_path, json_path = result_paths(out, job.name, t.name)
             text = obj_text(garment, result.V, header=f"Garment Transfer: {job.name} on {t.name} ({s.method})",
@@ -429,13 +471,17 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                       inputs=digests, stage_seconds=result.seconds,
                       crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
                       check={k: metrics[k] for k in CHECK_KEYS},
-                      warnings=result_warnings(metrics, str(obj_path)) + (rest_pose or {}).get("warnings", [])
+                      registered=registration is not None,
+                      warnings=list(fit_said) + result_warnings(metrics, str(obj_path))
+                      + (rest_pose or {}).get("warnings", [])
                       + (rest_pose or {}).get("written", {}).get("warnings", [])
                       + fold_warnings(rest_pose or {}, metrics["self_intersections_new"], str(obj_path),
                                       "the setting untangle (batch --untangle)"),
                       output_sha256=hashlib.sha256(text).hexdigest())
         if rest_pose is not None:
             record["rest_pose"] = rest_pose
+        if registration is not None:
+            record["registration"] = registration.summary()
         write_atomic(json_path, (json.dumps(record, indent=1) + "\n").encode("utf-8"))
     return _finish(records, t_start)
 
