@@ -211,6 +211,17 @@ def test_cli_outfit_onto_a_body_of_another_mesh_in_other_units_is_registered_onc
     # Near the outfit onto the pear's own mesh (the registration's error; measured: 4.1 and 8.7 mm on average).
     for layer, own in zip(layers, [tmp_path / "a.obj", tmp_path / "b.obj"]):
         assert np.linalg.norm(layer.V / 100.0 - read_obj(own).V, axis=1).mean() < 0.012
+    # Offsets given are the target's, as one garment's --offset: kept as given on the target (centimetres here),
+    # the source's those times the registration's scale.
+    source, garments = read_obj(src), [read_obj(top, name="top"), read_obj(dress, name="dress")]
+    first = transfer_outfit(source, body, garments, cache=False)
+    given = transfer_outfit(source, body, garments, offsets=[0.5, 0.8], registration=first.registration)
+    assert [i["offset"] for i in given.info] == [0.5, 0.8]
+    default = transfer_outfit(source, read_obj(DEMO / "bodies" / "pear.obj"), garments).info[0]["offset"]
+    assert first.info[0]["offset"] == pytest.approx(default / first.registration.alignment.scale, rel=1e-12)
+    for V, g in zip(given.V, garments):
+        c = crossings(V, readings_of(g), body.V, body.F)
+        assert c["a_edge_pairs"] + c["b_edge_pairs"] == 0
 
 
 def test_cli_outfit_out_count_must_match(tmp_path):

@@ -414,9 +414,10 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     garments : sequence of Mesh
         The layers on the source body, innermost first.
     offsets : float or sequence of float, optional
-        Each layer's clearance from the body and the layers under it, in the source's units (default: the
-        transfer's default share of the source body's scale, for every layer; the same on source and target, on
-        a target of another mesh in its units by the registration's scale).
+        Each layer's clearance from the body and the layers under it, in the target's units, as ``transfer``'s
+        offset (default: the transfer's default share of the source body's scale, for every layer). The same on
+        source and target; onto a target of another mesh, the source's are these times the registration's scale
+        (the source's units and size).
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels.
     registration : Registration, optional
@@ -444,6 +445,7 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     names = [g.name for g in garments]
     if len(set(names)) != len(names):
         raise OutfitError(names[0], "the layers must be different garments (a name is repeated)")
+    given = offsets is not None
     if offsets is None:
         offsets = OFFSET_SHARE * body_scale(source_body.V)
     offsets = [float(offsets)] * len(garments) if np.isscalar(offsets) else [float(o) for o in offsets]
@@ -451,6 +453,21 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         raise ValueError(f"offsets: {len(offsets)} given for {len(garments)} layers")
     seconds = {}
     t0 = time.perf_counter()
+    # A target of another mesh: the source fitted onto it once, for every layer. The offsets given are the
+    # target's (as one garment's); the default is the source's.
+    target_offsets = offsets
+    if same_mesh(source_body, target_body):
+        registration = None
+    else:
+        if registration is None:
+            step = None if progress is None else (lambda f, *stage: progress(0.1 * f, "register"))
+            registration = register(source_body, target_body, cache=cache, limits=limits, progress=step)
+        scale = registration.alignment.scale
+        if given:
+            offsets = [o * scale for o in offsets]
+        else:
+            target_offsets = [o / scale for o in offsets]
+        seconds["register"] = float(registration.seconds.get("total", 0.0)) if not registration.cached else 0.0
     source_surface = TriangleSurface(source_body.V, source_body.F)
     check_order(garments, [g.V for g in garments], source_surface)
     t = time.perf_counter()
@@ -460,16 +477,6 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     if bad:
         _raise_inseparable(bad, f"on the source body {source_body.name}")
     seconds["separate_source"] = time.perf_counter() - t
-    # A target of another mesh: the source fitted onto it once, for every layer (the outfit checked first).
-    target_offsets = offsets
-    if same_mesh(source_body, target_body):
-        registration = None
-    else:
-        if registration is None:
-            step = None if progress is None else (lambda f, *stage: progress(0.1 * f, "register"))
-            registration = register(source_body, target_body, cache=cache, limits=limits, progress=step)
-        target_offsets = [o / registration.alignment.scale for o in offsets]
-        seconds["register"] = float(registration.seconds.get("total", 0.0)) if not registration.cached else 0.0
     t = time.perf_counter()
     results = []
     for k, g in enumerate(garments):
