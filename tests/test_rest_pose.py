@@ -196,6 +196,29 @@ def test_a_target_of_another_mesh_in_another_rest_pose_is_clear_away_from_where_
     assert counts["penetrating_vertices"] == check_result(garment, result.V, other)["inside_vertices"]
 
 
+def test_an_offset_given_onto_a_target_of_another_mesh_in_other_units_is_the_targets_on_the_fit_too():
+    from lab.registration import remesh
+
+    root, skeleton, bodies = rigs()
+    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    T, posed = in_pose(root, skeleton, target, target_rig, "run01")
+    # The running pear as another mesh, in centimetres (the source in decimetres), its joints so too.
+    U, G = remesh(posed.V, posed.F, 30000)
+    other = mesh_from_triangles(U * 10.0, G, name="pear in centimetres")
+    joints = {k: 10.0 * np.asarray(v) for k, v in target_rig.posed_joints(T).items()}
+    frames = target_rig.posed_frames(T)
+    default, registration = transfer_across_rest_poses(source, other, garment, source_rig, joints, frames, cache=False)
+    assert registration.alignment.scale == pytest.approx(0.1, rel=0.05)
+    # The default offset given as a number (the target's units, as one garment's --offset): the fit to the posed
+    # source keeps it in the source's units, so the result is the default's (measured: 0.37 mm apart on average;
+    # taken as the source's units, the fit stood ten offsets out and the result 44 mm away).
+    given, _ = transfer_across_rest_poses(source, other, garment, source_rig, joints, frames, cache=False,
+                                          offset=default.info["offset"], registration=registration)
+    assert given.info["offset"] == default.info["offset"]
+    assert np.linalg.norm(given.V - default.V, axis=1).mean() < 0.2       # 2 mm, in centimetres
+
+
 def test_a_rig_from_an_armatures_bones_poses_and_matches_as_the_skeleton_file_does():
     root, skeleton, bodies = rigs()
     (source, source_rig), (_, target_rig) = bodies["female_average"], bodies["female_pear"]

@@ -13,6 +13,24 @@ from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahea
                        transfer_garment)
 
 
+#: The options of ``transfer_to_any_body`` that its registration takes (``registration_for``).
+REGISTER_OPTIONS = ("cache", "limits", "progress", "shape_basis", "shape_bounds", "body_model")
+
+
+def registration_for(source_body: Mesh, target_body: Mesh, registration: Registration | None = None, *, cache=True,
+                     limits=None, progress=None, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False):
+    """The registration a transfer onto ``target_body`` goes through: None for the source's own mesh (or that mesh
+    with every face turned, ``proximity.as_same_mesh``), else ``registration`` where given, else a new one
+    (``register``, with these options; ``progress(fraction, stage)`` over the first 60% of a transfer's)."""
+    if as_same_mesh(source_body, target_body) is not None:
+        return None
+    if registration is not None:
+        return registration
+    step = None if progress is None else (lambda f, *stage: progress(0.6 * f, *(stage or ("register",))))
+    return register(source_body, target_body, cache=cache, limits=limits, progress=step, shape_basis=shape_basis,
+                    shape_bounds=shape_bounds, body_model=body_model)
+
+
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
                          limits=None, registration: Registration | None = None, progress=None,
                          shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, **options):
@@ -65,9 +83,8 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
             return None
         return lambda f, *stage: progress(lo + (hi - lo) * f, *(stage or ("register",)))
 
-    reg = registration or register(source_body, target_body, cache=cache, limits=limits,
-                                   progress=sub(0.0, 0.6), shape_basis=shape_basis,
-                                   shape_bounds=shape_bounds, body_model=body_model)
+    reg = registration_for(source_body, target_body, registration, cache=cache, limits=limits, progress=progress,
+                           shape_basis=shape_basis, shape_bounds=shape_bounds, body_model=body_model)
     options = dict(options)
     offset = options.pop("offset", None)
     fix = options.pop("fix_penetration", True)

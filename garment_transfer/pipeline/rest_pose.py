@@ -22,7 +22,7 @@ from ..geometry.mesh import Mesh, same_mesh
 from ..geometry.proximity import TriangleSurface
 from ..rigging.naming import Landmarks, naming_of, pose_to_landmarks
 from ..rigging.posing import Rig, matching_rotations, twist_from_body
-from .any_body import transfer_to_any_body
+from .any_body import REGISTER_OPTIONS, registration_for, transfer_to_any_body
 from .outfit import OutfitResult, transfer_outfit
 from .pose_fit import body_contact, clear_posed_body, fit_to_pose, free_body, untangle_fit, untangle_result
 
@@ -240,7 +240,8 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     options = {k: v for k, v in options.items() if k != "prepared"}
     clear = options.get("resolve_crossings", True) and options.get("fix_penetration", True)
     posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
-    fit = fit_to_pose(source_body, posed_V, garment, offset=options.get("offset"), name="target's rest pose")
+    fit = fit_to_pose(source_body, posed_V, garment, name="target's rest pose",
+                      offset=_source_offset(options, posed, target_body))
     # Each fit carried to the target: (positions, counts); the fit as it was too where untangling it was kept, as the
     # untangled fit can leave the target's pass more to fold.
     fits = [(fit.V.copy(), _fit_counts(fit))]
@@ -290,6 +291,22 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     return result, registration
 
 
+def _source_offset(options, posed: Mesh, target_body: Mesh):
+    """The offset given (``options["offset"]``, the target's units, as ``transfer_to_any_body`` takes it) on the
+    source posed into the target's rest pose, for the fit there: onto a target of another mesh, the posed source is
+    registered onto it first (kept in ``options["registration"]`` for the transfer) and the offset scaled into the
+    source's units and size; None (the default) as it is."""
+    offset = options.get("offset")
+    if offset is None:
+        return None
+    registration = registration_for(posed, target_body, options.get("registration"),
+                                    **{k: options[k] for k in REGISTER_OPTIONS if k in options})
+    if registration is None:
+        return offset
+    options["registration"] = registration
+    return float(offset) * registration.alignment.scale
+
+
 def _outcome_counts(outcome) -> dict:
     """A result on the target (a result, its fit's counts, its untangling): the pairs it crosses itself at that its
     source lacks, its crossings with the body away from the body's contact and at it, its vertices inside."""
@@ -333,10 +350,19 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
         result = transfer_outfit(source_body, target_body, garments, offsets=offsets, **options)
     else:
         each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
+        posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
+        if offsets is not None:
+            # Offsets given are the target's: onto another mesh, the posed source is registered onto it first and
+            # the fits keep them in its units and size (``transfer_outfit`` scales them so too).
+            registration = registration_for(posed, target_body, options.get("registration"),
+                                             **{k: options[k] for k in ("cache", "limits") if k in options})
+            if registration is not None:
+                options["registration"] = registration
+                each = [float(o) * registration.alignment.scale for o in each]
         fits = [fit_to_pose(source_body, posed_V, g, offset=o, name="target's rest pose")
                 for g, o in zip(garments, each)]
         info["pose_fit"] = [_fit_counts(fit) for fit in fits]
-        source_body = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
+        source_body = posed
         # Each layer's own crossing pass would run against the whole posed body, where it crosses itself too: the
         # separation on the target clears the body and the layers under each.
         result = transfer_outfit(source_body, target_body, [g.with_vertices(fit.V) for g, fit in zip(garments, fits)],
