@@ -529,7 +529,7 @@ def test_every_module_a_transfer_runs_is_in_the_code_version():
 def test_a_catalogue_onto_a_body_of_another_mesh_registers_it_once_for_every_garment(tmp_path, monkeypatch):
     from lab.registration import remesh
 
-    from garment_transfer.fitting.registration import register
+    from garment_transfer.pipeline.any_body import registration_for
     from garment_transfer.geometry.intersections import crossings
     from garment_transfer.geometry.readings import readings_of
 
@@ -547,9 +547,9 @@ def test_a_catalogue_onto_a_body_of_another_mesh_registers_it_once_for_every_gar
     def counted(*args, **kwargs):
         fits.append(args[1].name)
         logging.getLogger("garment_transfer.fitting.registration").warning("a warning of the fit")
-        return register(*args, **kwargs)
+        return registration_for(*args, **kwargs)
 
-    monkeypatch.setattr(batch, "register", counted)
+    monkeypatch.setattr(batch, "registration_for", counted)
     batch.clear_input_cache()
     summary = run_batch(read_catalogue(tmp_path / "cat.json"), tmp_path / "out", workers=1)
     assert summary.ok and summary.counts["done"] == 4

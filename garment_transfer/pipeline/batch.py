@@ -40,7 +40,6 @@ from pathlib import Path
 
 from ..errors import GarmentTransferError
 from ..files import check_outputs
-from ..fitting.registration import register
 from ..geometry.proximity import as_same_mesh
 from ..geometry.obj import obj_text, read_obj
 from ..learning.model_files import read_model_file
@@ -50,7 +49,7 @@ from ..rigging.skeleton import read_joints, read_skeleton
 from ..rigging.skinning import read_weights
 from ..version import __version__
 from .catalogue import Catalogue, GarmentJob, RigFiles, Settings, Target
-from .any_body import transfer_to_any_body
+from .any_body import registration_for, transfer_to_any_body
 from .metrics import evaluate
 from .pose_fit import posed_counts
 from .rest_pose import fold_warnings, target_at_rest, transfer_across_rest_poses
@@ -282,7 +281,7 @@ class _Inputs:
 
         def make():
             with fitting_warnings() as said:
-                fit = register(source_body, target_body, cache=False)
+                fit = registration_for(source_body, target_body, cache=False)
             return fit, list(said)
 
         return self._get(target_path, ("registration", self._stat(source_path)), make)

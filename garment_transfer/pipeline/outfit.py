@@ -36,10 +36,10 @@ from ..geometry.embedding import body_scale
 from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
-from ..fitting.registration import Registration, register
+from ..fitting.registration import Registration
 from ..geometry.mesh import Mesh, edge_lengths_mean, same_mesh
 from ..geometry.proximity import TriangleSurface, as_same_mesh
-from .any_body import transfer_to_any_body
+from .any_body import registration_for, transfer_to_any_body
 from .transfer import OFFSET_SHARE, transfer_garment
 
 #: A layer is in an impossible order when more than this share of its vertices near a lower layer
@@ -459,9 +459,10 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     if same_mesh(source_body, target_body):
         registration = None
     else:
-        if registration is None:
-            step = None if progress is None else (lambda f, *stage: progress(0.1 * f, "register"))
-            registration = register(source_body, target_body, cache=cache, limits=limits, progress=step)
+        # The registration over the first 10% of the outfit's progress (``registration_for`` gives it 60%).
+        step = None if progress is None else (lambda f, *stage: progress(f / 6.0, *stage))
+        registration = registration_for(source_body, target_body, registration, cache=cache, limits=limits,
+                                        progress=step)
         scale = registration.alignment.scale
         if given:
             offsets = [o * scale for o in offsets]
