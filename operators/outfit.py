@@ -72,8 +72,7 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     mdc : list of float
         Each layer's design change (MDC) against the garment as given.
     """
-    from ..garment_transfer import (OFFSET_SHARE, body_scale, mdc, outfit_across_rest_poses, target_at_rest,
-                                    transfer_outfit)
+    from ..garment_transfer import mdc, outfit_across_rest_poses, target_at_rest, transfer_outfit
 
     convert.require_mesh_object(source_body, "source body")
     convert.require_mesh_object(target_body, "target body")
@@ -88,9 +87,6 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
         return mesh.with_vertices(mesh.V @ frame.T)
 
     source_framed = framed(source)
-    if offsets is not None:
-        automatic = OFFSET_SHARE * body_scale(source_framed.V)
-        offsets = [automatic if o is None else o for o in offsets]
     options = dict(offsets=offsets, method=method.lower(), **(model.transfer_arguments() if model else {}),
                    target=target_label or None, progress=progress)
     # Two bodies rigged alike: a target in another rest pose gets the source and every layer posed into it first.

@@ -77,6 +77,12 @@ def test_repeated_layer_and_offsets_checked():
         transfer_outfit(source, target, [inner, inner])
     with pytest.raises(ValueError, match="offsets"):
         transfer_outfit(source, target, [inner, outer], offsets=[0.01])
+    # A layer's offset left out (None) is the default; the others as given.
+    from garment_transfer.geometry.embedding import body_scale
+    from garment_transfer.pipeline.transfer import OFFSET_SHARE
+
+    r = transfer_outfit(source, target, [inner, outer], offsets=[None, 0.02])
+    assert [i["offset"] for i in r.info] == [OFFSET_SHARE * body_scale(source.V), 0.02]
 
 
 def crossing_pairs(V_a, F_a, V_b, F_b):

@@ -413,11 +413,11 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         user gave.
     garments : sequence of Mesh
         The layers on the source body, innermost first.
-    offsets : float or sequence of float, optional
+    offsets : float or sequence of (float or None), optional
         Each layer's clearance from the body and the layers under it, in the target's units, as ``transfer``'s
-        offset (default: the transfer's default share of the source body's scale, for every layer). The same on
-        source and target; onto a target of another mesh, the source's are these times the registration's scale
-        (the source's units and size).
+        offset; None: the transfer's default share of the source body's scale (for every layer, or for that
+        layer). The same on source and target; onto a target of another mesh, each on the other body by the
+        registration's scale (its units and size).
     progress : callable, optional
         ``progress(fraction, stage)``; returning True cancels.
     registration : Registration, optional
@@ -445,17 +445,13 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     names = [g.name for g in garments]
     if len(set(names)) != len(names):
         raise OutfitError(names[0], "the layers must be different garments (a name is repeated)")
-    given = offsets is not None
-    if offsets is None:
-        offsets = OFFSET_SHARE * body_scale(source_body.V)
-    offsets = [float(offsets)] * len(garments) if np.isscalar(offsets) else [float(o) for o in offsets]
-    if len(offsets) != len(garments):
-        raise ValueError(f"offsets: {len(offsets)} given for {len(garments)} layers")
+    each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
+    if len(each) != len(garments):
+        raise ValueError(f"offsets: {len(each)} given for {len(garments)} layers")
     seconds = {}
     t0 = time.perf_counter()
-    # A target of another mesh: the source fitted onto it once, for every layer. The offsets given are the
-    # target's (as one garment's); the default is the source's.
-    target_offsets = offsets
+    # A target of another mesh: the source fitted onto it once, for every layer.
+    scale = 1.0
     if same_mesh(source_body, target_body):
         registration = None
     else:
@@ -464,11 +460,12 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         registration = registration_for(source_body, target_body, registration, cache=cache, limits=limits,
                                         progress=step)
         scale = registration.alignment.scale
-        if given:
-            offsets = [o * scale for o in offsets]
-        else:
-            target_offsets = [o / scale for o in offsets]
         seconds["register"] = float(registration.seconds.get("total", 0.0)) if not registration.cached else 0.0
+    # An offset given is the target's (as one garment's), the default the source's share; each on the other body
+    # by the registration's scale (its units and size).
+    default = OFFSET_SHARE * body_scale(source_body.V)
+    offsets = [default if o is None else float(o) * scale for o in each]
+    target_offsets = [default / scale if o is None else float(o) for o in each]
     source_surface = TriangleSurface(source_body.V, source_body.F)
     check_order(garments, [g.V for g in garments], source_surface)
     t = time.perf_counter()

@@ -332,7 +332,7 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
         The layers on the source body, innermost first.
     source_rig, target_joints, target_frames
         As ``transfer_across_rest_poses``.
-    offsets : float or sequence of float, optional
+    offsets : float or sequence of (float or None), optional
         As ``transfer_outfit``.
     **options
         Passed to ``transfer_outfit``.
@@ -351,14 +351,14 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
     else:
         each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
         posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
-        if offsets is not None:
+        if any(o is not None for o in each):
             # Offsets given are the target's: onto another mesh, the posed source is registered onto it first and
             # the fits keep them in its units and size (``transfer_outfit`` scales them so too).
             registration = registration_for(posed, target_body, options.get("registration"),
                                              **{k: options[k] for k in ("cache", "limits") if k in options})
             if registration is not None:
                 options["registration"] = registration
-                each = [float(o) * registration.alignment.scale for o in each]
+                each = [None if o is None else float(o) * registration.alignment.scale for o in each]
         fits = [fit_to_pose(source_body, posed_V, g, offset=o, name="target's rest pose")
                 for g, o in zip(garments, each)]
         info["pose_fit"] = [_fit_counts(fit) for fit in fits]
