@@ -553,7 +553,15 @@ def test_a_catalogue_onto_a_body_of_another_mesh_registers_it_once_for_every_gar
     batch.clear_input_cache()
     summary = run_batch(read_catalogue(tmp_path / "cat.json"), tmp_path / "out", workers=1)
     assert summary.ok and summary.counts["done"] == 4
-    # Registered once for both garments; the pear's own mesh not at all.
+    # Registered once for both garments; the pear's own mesh not at all. The summary says which pairs were, also
+    # when a run finds them done.
+    assert fits == ["pear_remeshed"]
+    import csv
+
+    for run in (summary, run_batch(read_catalogue(tmp_path / "cat.json"), tmp_path / "out", workers=1)):
+        rows = list(csv.DictReader((tmp_path / "out" / "summary.csv").open()))
+        assert {(r["target"], r["registered"]) for r in rows} == {("female_pear", "False"), ("pear_remeshed", "True")}
+        assert [r["registered"] for r in run.records] == [False, True, False, True]
     assert fits == ["pear_remeshed"]
     body = read_obj(tmp_path / "pear_remeshed.obj")
     for g in garments:

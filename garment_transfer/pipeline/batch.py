@@ -60,7 +60,7 @@ log = logging.getLogger(__name__)
 
 CSV_COLUMNS = ("garment", "target", "label", "outcome", "seconds", "prepare_seconds", "mdc",
                "penetration_ratio", "max_penetration_depth", "penetrating_vertices", "drape_reference",
-               "drape_error", "drape_error_relative", "vertex_error_mean", "vertex_error_max",
+               "drape_error", "drape_error_relative", "vertex_error_mean", "vertex_error_max", "registered",
                "output", "worker", "error")
 METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetration_depth",
                "penetrating_vertices", "drape_reference", "drape_error", "drape_error_source",
@@ -396,7 +396,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
         obj_path, json_path = result_paths(out, job.name, t.name)
         old = read_record(json_path)
         if old is not None and old.get("key") == rec["key"] and _intact(obj_path, old):
-            rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", *METRIC_KEYS)
+            rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", "registered", *METRIC_KEYS)
                         if k in old})
             rec.update(outcome="done" if run_id and old.get("run_id") == run_id else "skipped",
                        output=str(obj_path))
@@ -462,7 +462,7 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
             rec.update(outcome="failed", error=_error_text(exc), seconds=time.perf_counter() - t1)
             continue
         rec.update({k: _plain(metrics.get(k)) for k in METRIC_KEYS})
-        rec.update(outcome="done", output=str(obj_path), worker=_where(),
+        rec.update(outcome="done", output=str(obj_path), worker=_where(), registered=registration is not None,
                    seconds=time.perf_counter() - t1, prepare_seconds=prepare_seconds)
         used = {} if model is None else {k: v for k, v in model.summary().items()
                                          if k in ("model_kind", "field_share", "placement", "nearest_garments")}
@@ -470,7 +470,6 @@ def run_garment(job: GarmentJob, out, run_id: str = "", stop=None) -> list:
                       inputs=digests, stage_seconds=result.seconds,
                       crossings_left=int(metrics["garment_edges_through_body"] + metrics["body_edges_through_garment"]),
                       check={k: metrics[k] for k in CHECK_KEYS},
-                      registered=registration is not None,
                       warnings=list(fit_said) + result_warnings(metrics, str(obj_path))
                       + (rest_pose or {}).get("warnings", [])
                       + (rest_pose or {}).get("written", {}).get("warnings", [])
@@ -869,8 +868,8 @@ def _recover(rec, out, run_id):
     obj_path, json_path = result_paths(out, rec["garment"], rec["target"])
     old = read_record(json_path)
     if old is not None and old.get("run_id") == run_id and _intact(obj_path, old):
-        rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", "key", *METRIC_KEYS)
-                    if k in old})
+        rec.update({k: old.get(k) for k in ("seconds", "prepare_seconds", "worker", "key", "registered",
+                                            *METRIC_KEYS) if k in old})
         rec.update(outcome="done", output=str(obj_path))
 
 
