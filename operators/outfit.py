@@ -13,9 +13,9 @@ import bpy
 from bpy.props import EnumProperty
 
 from . import convert
-from .reporting import length_text, poll_objects, report_failure, window_progress
+from .reporting import poll_objects, report_failure, window_progress
 from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
-from .transfer import chosen_model, model_text, result_name
+from .transfer import chosen_model, fit_text, model_text, result_name
 
 
 def outfit_garments(settings):
@@ -152,12 +152,7 @@ def outfit_message(context, results, outcome, design, elapsed):
     pose = outcome.rest_pose or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
              f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
-    registered = ""
-    if outcome.registration is not None:
-        q = outcome.registration.quality
-        registered = (f"; the target registered{' (cached)' if outcome.registration.cached else ''}, 95% of the "
-                      f"distance within {length_text(context, q['to_target_p95'])} to / "
-                      f"{length_text(context, q['from_target_p95'])} from it")
+    registered = "" if outcome.registration is None else "; " + fit_text(context, outcome.registration.summary())
     return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
             f"triangulation){posed}{registered}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
@@ -213,6 +208,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         context.view_layer.objects.active = results[-1]
         settings.last_outfit = " / ".join(r.name for r in results)
         settings.last_outfit_model = outcome.model_text
+        settings.last_outfit_registration = ("" if outcome.registration is None else
+                                             fit_text(context, outcome.registration.summary()))
         self.report({'INFO'}, outfit_message(context, results, outcome, design, elapsed))
         from ..garment_transfer import result_warnings
 

@@ -248,6 +248,14 @@ def method_text(method, model):
     return f"Garment fit model ({name}, field share {model.field_share:g}, no placement): {GAINS['garment_alone']}"
 
 
+def fit_text(context, summary):
+    """How closely the source was fitted onto the target (``Registration.summary()``), for the panels."""
+    q = summary["quality"]
+    return (f"Registered{' (cached)' if summary.get('cached') else ''}: 95% of the distance within "
+            f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
+            f"from the target")
+
+
 def registration_text(context, outcome):
     """One line for the panel: whether the target was registered, and the fit's residual."""
     from ..garment_transfer import untangle_text
@@ -262,9 +270,7 @@ def registration_text(context, outcome):
     if not reg:
         return "Same mesh as the source body: no registration" + posed
     q = reg["quality"]
-    text = (f"Registered{' (cached)' if reg.get('cached') else ''}: 95% of the distance within "
-            f"{length_text(context, q['to_target_p95'])} to / {length_text(context, q['from_target_p95'])} "
-            f"from the target")
+    text = fit_text(context, reg)
     names = getattr(outcome, "shape_keys", [])
     what = "body model" if getattr(outcome, "body_model", False) else "shape keys"
     if names and "shape_weights" in reg:

@@ -144,6 +144,8 @@ class VIEW3D_PT_garment_transfer_outfit(GarmentPanel, bpy.types.Panel):
             layout.label(text=f"Last: {settings.last_outfit}", icon='CHECKMARK')
             if settings.last_outfit_model:
                 layout.label(text=settings.last_outfit_model, icon='NETWORK_DRIVE')
+            if settings.last_outfit_registration:
+                layout.label(text=settings.last_outfit_registration, icon='MOD_MESHDEFORM')
 
 
 class VIEW3D_PT_garment_transfer_motion(GarmentPanel, bpy.types.Panel):

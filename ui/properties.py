@@ -134,6 +134,7 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
     last_model: StringProperty(
         name="Last Method", description="Which method made the last result, and what it gains")
     last_outfit_model: StringProperty(name="Last Outfit Model")
+    last_outfit_registration: StringProperty(name="Last Outfit Registration")
     target_label: StringProperty(
         name="Target", description="Which of the model's target bodies the target body is")
     auto_offset: BoolProperty(

@@ -81,6 +81,7 @@ def test_outfit_gives_the_core_result_with_no_crossings(outfit, extension):
     assert {obj.name for obj in made} == {f"{INNER}_on_pear", f"{OUTER}_on_pear"}
     inner, outer = bpy.data.objects[f"{INNER}_on_pear"], bpy.data.objects[f"{OUTER}_on_pear"]
     assert settings.result == outer and {obj for obj in bpy.context.selected_objects} == {inner, outer}
+    assert settings.last_outfit_registration == ""       # the source's own mesh: not registered
 
     source, target, g_in, g_out = core_meshes(extension, (o["banana"], o["pear"], o[INNER], o[OUTER]))
     expected = transfer_outfit(source, target, [g_in, g_out])
@@ -195,6 +196,11 @@ def test_an_outfit_onto_a_body_of_another_mesh_is_registered_once_and_clear_of_t
     assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
     inner, outer = (bpy.data.objects[f"{g}_on_pear_remeshed"] for g in (INNER, OUTER))
     assert set(bpy.data.objects) - before == {inner, outer}
+    # The Outfit panel says how closely the source was fitted.
+    assert settings.last_outfit_registration.startswith("Registered")
+    calls = []
+    bpy.types.VIEW3D_PT_garment_transfer_outfit.draw(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    assert settings.last_outfit_registration in [k.get("text") for kind, _, k in calls if kind == "label"]
     # The core's outfit onto that mesh (registered once), as Blender has the objects.
     source, target, g_in, g_out = core_meshes(extension, (o["banana"], other, o[INNER], o[OUTER]))
     expected = transfer_outfit(source, target, [g_in, g_out])
