@@ -143,7 +143,7 @@ def layer_checks(context, results, cloths, target, posed_offsets=None, rest_V=No
     return checks
 
 
-def outfit_message(context, results, outcome, design, elapsed):
+def outfit_message(results, outcome, design, elapsed, fitted=""):
     layers = ", ".join(f"{r.name} (MDC {m:.4f})" for r, m in zip(results, design))
     crossing = sum(c["garment_edge_body_pairs"] + c["body_edge_garment_pairs"] + c["layer_crossings"]
                    for c in outcome.checks)
@@ -152,7 +152,7 @@ def outfit_message(context, results, outcome, design, elapsed):
     pose = outcome.rest_pose or {}
     posed = (f"; posed into the target's rest pose first ({pose['largest_turn_bone']} turned "
              f"{pose['largest_turn']:.0f} degrees{skeletons_text(pose)})") if pose.get("posed") else ""
-    registered = "" if outcome.registration is None else "; " + fit_text(context, outcome.registration.summary())
+    registered = f"; {fitted}" if fitted else ""
     return (f"Outfit of {len(results)} layers, from the body out: {layers}; {said} (as evaluated, any "
             f"triangulation){posed}{registered}; {outcome.seconds['total']:.2f} s transfer, {elapsed:.2f} s in all")
 
@@ -210,7 +210,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         settings.last_outfit_model = outcome.model_text
         settings.last_outfit_registration = ("" if outcome.registration is None else
                                              fit_text(context, outcome.registration.summary()))
-        self.report({'INFO'}, outfit_message(context, results, outcome, design, elapsed))
+        self.report({'INFO'}, outfit_message(results, outcome, design, elapsed, settings.last_outfit_registration))
         from ..garment_transfer import result_warnings
 
         for warning in (outcome.rest_pose or {}).get("warnings", []):

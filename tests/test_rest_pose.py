@@ -28,6 +28,19 @@ def in_pose(root, skeleton, body, rig, pose, name=None):
     return T, body.with_vertices(rig.pose(body.V, T), name=name)
 
 
+def suit_onto_pear_remeshed(pose, triangles, scale=1.0):
+    """The sports suit on the average body, its rig, the pear's rig, the pose's transforms of it, and the pear in that
+    pose re-meshed to about ``triangles`` triangles (another mesh: registered), its coordinates times ``scale``."""
+    from lab.registration import remesh
+
+    root, skeleton, bodies = rigs()
+    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    T, posed = in_pose(root, skeleton, target, target_rig, pose)
+    U, G = remesh(posed.V, posed.F, triangles)
+    return source, source_rig, target_rig, garment, T, mesh_from_triangles(U * scale, G, name="pear re-meshed")
+
+
 def rig_options(root):
     """The command line's options of the source's skeleton, joints and weights (the shared rig)."""
     return ["--skeleton", root / "rig" / "skeleton.json", "--source-joints",
@@ -170,21 +183,14 @@ def test_a_target_of_another_mesh_is_taken_to_the_source_at_rest_through_its_reg
 
 
 def test_a_target_of_another_mesh_in_another_rest_pose_is_clear_away_from_where_its_parts_press_together():
-    from lab.registration import remesh
-
     from garment_transfer import check_result
     from garment_transfer.pipeline.pose_fit import posed_counts
     from garment_transfer.pipeline.rest_pose import target_at_rest
 
-    root, skeleton, bodies = rigs()
-    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
-    T, posed = in_pose(root, skeleton, target, target_rig, "standing03")
     # The pear in standing03 re-meshed (another mesh, registered): its arms pressed to its sides are found through
     # the registration, as on the pear's own mesh (measured: 15 garment-body crossings there, away from the body's
     # contact as it was found without the source at rest, which no pass clears).
-    U, G = remesh(posed.V, posed.F, 50000)
-    other = mesh_from_triangles(U, G, name="pear re-meshed")
+    source, source_rig, target_rig, garment, T, other = suit_onto_pear_remeshed("standing03", 50000)
     result, registration = transfer_across_rest_poses(source, other, garment, source_rig, target_rig.posed_joints(T),
                                                       target_rig.posed_frames(T), cache=False)
     assert registration is not None and result.info["rest_pose"]["posed"]
@@ -197,15 +203,8 @@ def test_a_target_of_another_mesh_in_another_rest_pose_is_clear_away_from_where_
 
 
 def test_an_offset_given_onto_a_target_of_another_mesh_in_other_units_is_the_targets_on_the_fit_too():
-    from lab.registration import remesh
-
-    root, skeleton, bodies = rigs()
-    (source, source_rig), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
-    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
-    T, posed = in_pose(root, skeleton, target, target_rig, "run01")
     # The running pear as another mesh, in centimetres (the source in decimetres), its joints so too.
-    U, G = remesh(posed.V, posed.F, 30000)
-    other = mesh_from_triangles(U * 10.0, G, name="pear in centimetres")
+    source, source_rig, target_rig, garment, T, other = suit_onto_pear_remeshed("run01", 30000, 10.0)
     joints = {k: 10.0 * np.asarray(v) for k, v in target_rig.posed_joints(T).items()}
     frames = target_rig.posed_frames(T)
     default, registration = transfer_across_rest_poses(source, other, garment, source_rig, joints, frames, cache=False)

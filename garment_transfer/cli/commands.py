@@ -330,10 +330,10 @@ def cmd_transfer_outfit(args):
         if pose["posed"]:
             # Each layer as written, against the target as given, counted apart where its body crosses itself.
             offsets = [i["offset"] for i in result.info]
+            rest = target_at_rest(source_body, target_body, result.registration)
             for layer, g, p, (V, _), offset in zip(out["layers"], garments, paths, below, offsets):
-                layer["rest_pose_written"] = posed_counts(
-                    V, g, target_body, offset, rest_V=target_at_rest(source_body, target_body, result.registration),
-                    name=os.path.basename(args.target_body), own=False)
+                layer["rest_pose_written"] = posed_counts(V, g, target_body, offset, rest_V=rest,
+                                                          name=os.path.basename(args.target_body), own=False)
                 out["warnings"] += layer["rest_pose_written"]["warnings"]
                 lines.append(_written_pose_line(p, layer["rest_pose_written"]))
     emit(args, out, lines + [f"{result.seconds['total']:.3f} s (outfit transfer)"]

@@ -37,10 +37,10 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
 from ..fitting.registration import Registration
-from ..geometry.mesh import Mesh, edge_lengths_mean, same_mesh
+from ..geometry.mesh import Mesh, edge_lengths_mean
 from ..geometry.proximity import TriangleSurface, as_same_mesh
 from .any_body import registration_for, transfer_to_any_body
-from .transfer import OFFSET_SHARE, transfer_garment
+from .transfer import OFFSET_SHARE
 
 #: A layer is in an impossible order when more than this share of its vertices near a lower layer
 #: (within ``ORDER_BAND`` of its mean edge length) are inside that layer on the source.
@@ -425,7 +425,7 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     cache, limits
         For the registration of a target of another mesh (``registration.register``).
     **transfer_options
-        Passed to ``transfer.transfer_garment`` for every layer (method, model, target, ...).
+        Passed to ``any_body.transfer_to_any_body`` for every layer (method, model, target, ...).
 
     Returns
     -------
@@ -450,15 +450,13 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
         raise ValueError(f"offsets: {len(each)} given for {len(garments)} layers")
     seconds = {}
     t0 = time.perf_counter()
-    # A target of another mesh: the source fitted onto it once, for every layer.
+    # A target of another mesh: the source fitted onto it once, for every layer, over the first 10% of the outfit's
+    # progress (``registration_for`` gives it 60%).
+    step = None if progress is None else (lambda f, *stage: progress(f / 6.0, *stage))
+    registration = registration_for(source_body, target_body, registration, cache=cache, limits=limits,
+                                    progress=step)
     scale = 1.0
-    if same_mesh(source_body, target_body):
-        registration = None
-    else:
-        # The registration over the first 10% of the outfit's progress (``registration_for`` gives it 60%).
-        step = None if progress is None else (lambda f, *stage: progress(f / 6.0, *stage))
-        registration = registration_for(source_body, target_body, registration, cache=cache, limits=limits,
-                                        progress=step)
+    if registration is not None:
         scale = registration.alignment.scale
         seconds["register"] = float(registration.seconds.get("total", 0.0)) if not registration.cached else 0.0
     # An offset given is the target's (as one garment's), the default the source's share; each on the other body
@@ -480,11 +478,8 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     for k, g in enumerate(garments):
         if progress is not None and progress(0.1 + 0.6 * k / len(garments), f"transfer {g.name}"):
             raise Cancelled(f"transfer of the outfit cancelled at {g.name}")
-        if registration is None:
-            results.append(transfer_garment(source_body, target_body, g, offset=offsets[k], **transfer_options))
-        else:
-            results.append(transfer_to_any_body(source_body, target_body, g, registration=registration,
-                                                offset=target_offsets[k], **transfer_options)[0])
+        results.append(transfer_to_any_body(source_body, target_body, g, registration=registration,
+                                            offset=target_offsets[k], **transfer_options)[0])
     seconds["transfer"] = time.perf_counter() - t
     t = time.perf_counter()
     target_readings = readings_of(target_body)

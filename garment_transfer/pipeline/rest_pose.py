@@ -241,7 +241,7 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     clear = options.get("resolve_crossings", True) and options.get("fix_penetration", True)
     posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
     fit = fit_to_pose(source_body, posed_V, garment, name="target's rest pose",
-                      offset=_source_offset(options, posed, target_body))
+                      offset=_on_posed_source([options.get("offset")], options, posed, target_body)[0])
     # Each fit carried to the target: (positions, counts); the fit as it was too where untangling it was kept, as the
     # untangled fit can leave the target's pass more to fold.
     fits = [(fit.V.copy(), _fit_counts(fit))]
@@ -291,20 +291,19 @@ def transfer_across_rest_poses(source_body: Mesh, target_body: Mesh, garment: Me
     return result, registration
 
 
-def _source_offset(options, posed: Mesh, target_body: Mesh):
-    """The offset given (``options["offset"]``, the target's units, as ``transfer_to_any_body`` takes it) on the
-    source posed into the target's rest pose, for the fit there: onto a target of another mesh, the posed source is
-    registered onto it first (kept in ``options["registration"]`` for the transfer) and the offset scaled into the
-    source's units and size; None (the default) as it is."""
-    offset = options.get("offset")
-    if offset is None:
-        return None
+def _on_posed_source(offsets, options, posed: Mesh, target_body: Mesh, keys=REGISTER_OPTIONS) -> list:
+    """Offsets given (the target's units, as ``transfer_to_any_body`` takes them; None: the default) for fits on the
+    source posed into the target's rest pose: onto a target of another mesh, the posed source is registered onto it
+    first (with ``options``' ``keys``; kept in ``options["registration"]`` for the transfer) and each scaled into the
+    source's units and size."""
+    if all(o is None for o in offsets):
+        return list(offsets)
     registration = registration_for(posed, target_body, options.get("registration"),
-                                    **{k: options[k] for k in REGISTER_OPTIONS if k in options})
+                                    **{k: options[k] for k in keys if k in options})
     if registration is None:
-        return offset
+        return list(offsets)
     options["registration"] = registration
-    return float(offset) * registration.alignment.scale
+    return [None if o is None else float(o) * registration.alignment.scale for o in offsets]
 
 
 def _outcome_counts(outcome) -> dict:
@@ -351,14 +350,9 @@ def outfit_across_rest_poses(source_body: Mesh, target_body: Mesh, garments, sou
     else:
         each = [offsets] * len(garments) if offsets is None or np.isscalar(offsets) else list(offsets)
         posed = source_body.with_vertices(posed_V, name=f"{source_body.name} in the target's rest pose")
-        if any(o is not None for o in each):
-            # Offsets given are the target's: onto another mesh, the posed source is registered onto it first and
-            # the fits keep them in its units and size (``transfer_outfit`` scales them so too).
-            registration = registration_for(posed, target_body, options.get("registration"),
-                                             **{k: options[k] for k in ("cache", "limits") if k in options})
-            if registration is not None:
-                options["registration"] = registration
-                each = [None if o is None else float(o) * registration.alignment.scale for o in each]
+        # Offsets given are the target's: the fits keep them in the posed source's units and size (``transfer_outfit``
+        # scales them so too, through the same registration).
+        each = _on_posed_source(each, options, posed, target_body, keys=("cache", "limits"))
         fits = [fit_to_pose(source_body, posed_V, g, offset=o, name="target's rest pose")
                 for g, o in zip(garments, each)]
         info["pose_fit"] = [_fit_counts(fit) for fit in fits]
