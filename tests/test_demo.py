@@ -3,15 +3,14 @@
 import json
 
 import pytest
+from demo_results import quick_demo_results
 
-from lab.demo import run_demo
 from lab.outfits import OUTFITS
 
 
 @pytest.fixture(scope="module")
-def quick_demo(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo") / "results"
-    return out, run_demo(out, quick=True, epochs=20, render=False)
+def quick_demo(tmp_path_factory, worker_id):
+    return quick_demo_results(tmp_path_factory, worker_id)
 
 
 def test_quick_demo_writes_meshes_report_and_results(quick_demo):

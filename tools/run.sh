@@ -24,8 +24,10 @@ case "$cmd" in
     bash tools/setup.sh
     if [ $# -gt 0 ]; then exec .venv/bin/python -m pytest -q "$@"; fi
     echo "== all tests under Blender 5.0 (.venv) ==" >&2
-    # On both cores: the tests are independent of each other (their own temporary folders).
-    exec .venv/bin/python -m pytest -q -n 2 ;;
+    # On both cores: the tests are independent of each other (their own temporary folders). A file's tests
+    # run in one worker (--dist loadscope), so that a module's fixtures (bodies, transfers, a quick demo) are
+    # made once, not once in each worker that draws one of its tests.
+    exec .venv/bin/python -m pytest -q -n 2 --dist loadscope ;;
   versions)
     if [ $# -gt 0 ]; then echo "usage: bash tools/run.sh versions (it takes no arguments)" >&2; exit 2; fi
     versions=("bpy42:Blender 4.2 LTS" "bpy45:Blender 4.5 LTS" "bpy52:Blender 5.2")
@@ -53,7 +55,7 @@ case "$cmd" in
       cat "$logs/$v.log" >&2 2>/dev/null || true
       if [ "$(cat "$logs/$v.rc" 2>/dev/null)" = 0 ]; then
         # The lab's Blender scripts (renders, demo data) run in the project's own Blender only.
-        ".venv-$v/bin/python" -m pytest -q -n 2 -m "not lab" tests/blender || status=$?
+        ".venv-$v/bin/python" -m pytest -q -n 2 --dist loadscope -m "not lab" tests/blender || status=$?
       else
         echo "run: the set-up of .venv-$v failed (above); its tests did not run" >&2
         status=1

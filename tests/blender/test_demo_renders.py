@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lab.demo import run_demo
-
 # The lab runs its Blender scripts in the project's own Blender (5.0) only: tools/run.sh runs these there.
 pytestmark = pytest.mark.lab
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests"))
+from demo_results import copy_of, quick_demo_results  # noqa: E402
 
 
 def png_pixels(path):
@@ -63,9 +63,8 @@ def png_pixels(path):
     return out.reshape(height, width, channels).astype(np.uint8)
 
 
-def test_render_script_writes_pictures_and_a_blend(tmp_path):
-    out = tmp_path / "results"
-    run_demo(out, quick=True, epochs=3, render=False)
+def test_render_script_writes_pictures_and_a_blend(tmp_path, tmp_path_factory, worker_id):
+    out = copy_of(quick_demo_results(tmp_path_factory, worker_id)[0], tmp_path / "results")
     p = subprocess.run([sys.executable, "-m", "lab.blender.render_demo", "--results", str(out),
                         "--samples", "2", "--resolution-percent", "10", "--first-target-only"],
                        capture_output=True, text=True, timeout=600)
