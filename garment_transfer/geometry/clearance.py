@@ -930,10 +930,16 @@ def _keep_self_intersections(V_old, V_new, step, A, check: SelfCheck, pairs, gua
     undone : int
         Vertices whose move was reduced.
     pairs : (j,2) int64 or _PairsAround
-        The self-intersecting pairs of V (known around the vertices known before and ``step``).
+        The self-intersecting pairs of V (known around the vertices known before and ``step``; unguarded, a
+        ``_PairsAround`` knows none).
     """
     G = check.G
     around = isinstance(pairs, _PairsAround)
+    if around and not guard:
+        # Nothing is taken back and no count of the garment's own pairs is kept: none is needed now. A move may
+        # make pairs with cloth anywhere near it, so nothing is known after it; a later round that guards finds
+        # the pairs around what it moves then (the same pairs, the same decisions).
+        return V_new, 0, _PairsAround(NO_PAIRS, np.zeros(V_new.shape[0], bool))
     if around:
         unknown = step & ~pairs.known
         found = check.local(V_old, unknown) if unknown.any() else NO_PAIRS
