@@ -362,24 +362,32 @@ def _near_pairs_cases():
     return cases
 
 
-def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band():
+def test_near_boxes_keep_every_triangle_and_point_closer_than_the_band(near_pairs_with_brute_force):
     from garment_transfer.geometry.proximity import near_boxes
 
-    for P, V, F, within in _near_pairs_cases():
+    for P, V, F, within, ref, close_faces in near_pairs_with_brute_force:
         faces, points = near_boxes(P, V, F, within)
-        D = np.vstack([reference_distances(P[i:i + 64], V, F) for i in range(0, P.shape[0], 64)])
-        close = D < within
+        close = ref < within
         assert close.any() and not close.all()
-        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close.any(axis=0)), faces), [])
-        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close.any(axis=1)), points), [])
+        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close_faces), faces), [])
+        np.testing.assert_array_equal(np.setdiff1d(np.flatnonzero(close), points), [])
         # It rules out most of the rest: far points are not kept.
         assert points.size < P.shape[0]
 
 
 @pytest.fixture(scope="module")
 def near_pairs_with_brute_force():
-    """``_near_pairs_cases`` with each one's brute-force distances (the slow part, made once)."""
-    return [(P, V, F, within, brute_force(P, V, F)) for P, V, F, within in _near_pairs_cases()]
+    """``_near_pairs_cases`` with each one's brute-force distances (the slow part, made once): every point's
+    distance to the surface, and which triangles some point is closer to than the band."""
+    out = []
+    for P, V, F, within in _near_pairs_cases():
+        ref, close_faces = np.empty(P.shape[0]), np.zeros(F.shape[0], bool)
+        for i in range(0, P.shape[0], 64):
+            D = reference_distances(P[i:i + 64], V, F)
+            ref[i:i + 64] = D.min(axis=1)
+            close_faces |= (D < within).any(axis=0)
+        out.append((P, V, F, within, ref, close_faces))
+    return out
 
 
 @pytest.mark.parametrize("full_share", [0.0, 2.0], ids=["the surface's tree", "a tree of the near triangles"])
@@ -387,7 +395,7 @@ def test_bounded_closest_points_equal_the_unbounded_ones_and_brute_force(monkeyp
                                                                          near_pairs_with_brute_force):
     # Either way a bounded search goes (most points near: the surface's own tree; else one of the near triangles).
     monkeypatch.setattr(proximity, "FULL_SEARCH_SHARE", full_share)
-    for P, V, F, within, ref in near_pairs_with_brute_force:
+    for P, V, F, within, ref, _ in near_pairs_with_brute_force:
         s = TriangleSurface(V, F)
         bounded = s.closest(P, within=within)
         full = s.closest(P)
