@@ -450,39 +450,21 @@ def test_the_garments_own_pairs_checked_only_where_it_moves_give_the_same_pass(g
         separate(V, F, BV, BF, offset=0.01, source_V=V, count_own=False)
 
 
-def test_a_round_that_guards_after_one_that_did_not_holds_back_the_same_moves():
-    # Checked only where the cloth moves (the pose fit), a round that does not guard (its crossings of the body
-    # come first) keeps no pairs: a later round that guards finds them around what it moves. It must hold back
-    # exactly what it holds back knowing every pair, and keep the same pairs around what it moved.
-    from garment_transfer.geometry.clearance import _keep_self_intersections, _PairsAround
-    from garment_transfer.geometry.penetration import vertex_adjacency
+@pytest.mark.parametrize("protect", [0, 1])
+@pytest.mark.parametrize("gap", [(0.98, 1.003), (0.975, 0.999)])
+def test_rounds_that_do_not_guard_keep_the_pass_the_same_when_only_moves_are_checked(monkeypatch, protect, gap):
+    # Checked only where the cloth moves (the pose fit), a round that does not guard (after the first
+    # PROTECT_ROUNDS, the crossings of the body come first) keeps no pairs of the cloth's own; a later round that
+    # guards finds them around what it moves. However many rounds guard, the pass is the one that knows every pair.
+    from garment_transfer.geometry import clearance
 
-    V0, F = two_sheets(z_low=1.10, z_high=1.13)
-    G = as_readings(F)
-    A = vertex_adjacency(V0.shape[0], G.split)
-    everything = np.ones(V0.shape[0], bool)
-    # First an unguarded move: a row of the lower sheet pushed up through the upper one.
-    step1 = np.zeros(V0.shape[0], bool)
-    step1[np.arange(7 * 3, 7 * 4)] = True
-    V1 = V0.copy()
-    V1[step1, 2] += 0.05
-    check = SelfCheck(V0, G)
-    out, undone, state = _keep_self_intersections(V0, V1, step1, A, check, _PairsAround(check.all(V0), everything),
-                                                  guard=False)
-    assert undone == 0 and np.array_equal(out, V1) and self_intersections(V1, F)[0] > 0
-    assert state.pairs.shape[0] == 0 and not state.known.any()
-    # Then a guarded move: another row of the lower sheet pushed up through the upper one, held back.
-    step2 = np.zeros(V0.shape[0], bool)
-    step2[np.arange(7 * 1, 7 * 2)] = True
-    V2 = V1.copy()
-    V2[step2, 2] += 0.05
-    lazy = _keep_self_intersections(V1, V2, step2, A, SelfCheck(V0, G), state)
-    check = SelfCheck(V0, G)
-    known = _keep_self_intersections(V1, V2, step2, A, check, _PairsAround(check.all(V1), everything))
-    assert lazy[1] == known[1] > 0
-    np.testing.assert_array_equal(lazy[0], known[0])
-    still = ~step1 & ~step2
-    assert np.all(lazy[0][step2, 2] < V2[step2, 2]) and np.array_equal(lazy[0][still], V0[still])
-    around = SelfCheck(V0, G).touching(known[2].pairs, step2)
-    np.testing.assert_array_equal(lazy[2].pairs, known[2].pairs[around])
-    assert np.array_equal(lazy[2].known, step2)
+    monkeypatch.setattr(clearance, "PROTECT_ROUNDS", protect)
+    BV, BF = icosphere(3)
+    V, F = two_sheets(z_low=gap[0], z_high=gap[1])
+    full, info = separate(V, F, BV, BF, offset=0.01)
+    around, info_around = separate(V, F, BV, BF, offset=0.01, count_own=False)
+    assert info["crossings_before"] > 0 == info["crossings_after"] and info["rounds"] > protect
+    assert (info["undone"] > 0) == (protect > 0)
+    np.testing.assert_array_equal(around, full)
+    assert {k: info_around[k] for k in ("undone", "rounds", "crossings_after", "near_after", "moved_vertices")} == \
+        {k: info[k] for k in ("undone", "rounds", "crossings_after", "near_after", "moved_vertices")}
