@@ -191,11 +191,13 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
                     offsets=outfit_offsets(settings), method=settings.method, model_path=settings.model_path,
                     target_label=settings.target_label, field_share=settings.field_share,
                     evaluated=settings.use_evaluated, progress=progress)
+            rig_warnings = []
             if armature is not None:
                 try:
                     for result in results:
-                        rig_to_body(context, result, settings.target_body, max_influences=settings.max_influences,
-                                    ride_surface=settings.ride_surface)
+                        rig_warnings += rig_to_body(context, result, settings.target_body,
+                                                    max_influences=settings.max_influences,
+                                                    ride_surface=settings.ride_surface)[1]["warnings"]
                 except BaseException:
                     convert.remove_results(results)
                     raise
@@ -221,6 +223,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         for obj, check in zip(results, outcome.checks):
             for warning in result_warnings(check, obj.name) + check.get("pose_warnings", []):
                 self.report({'WARNING'}, warning)
+        for warning in rig_warnings:
+            self.report({'WARNING'}, warning)
         return {'FINISHED'}
 
 

@@ -359,8 +359,13 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     -------
     armature : bpy.types.Object
     info : dict
-        The weight transfer's figures (``matched``, ``inpainted``, ``riding``, ``hanging``: the vertices kept out
-        beyond the cloth offset, ``warnings``).
+        The weight transfer's figures (``matched``, ``inpainted``, ``unweighted``, ``riding``, ``hanging``: the
+        vertices kept out beyond the cloth offset, ``warnings``).
+
+    Raises
+    ------
+    RigError
+        The body's weights give none of the garment's vertices a weight (nothing is changed).
     """
     from ..garment_transfer import OFFSET_SHARE, RigError, body_scale, inpainted_weights, riding_share
 
@@ -377,6 +382,9 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
     weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
                                       max_influences=max_influences, name=obj.name)
+    if info["unweighted"] == len(cloth.V):
+        # Weights that move nothing: refused before the garment is changed.
+        raise RigError(body.name, info["warnings"][-1])
     write_vertex_groups(obj, weights)
     remove_keep_outside(obj)
     for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == RIDE_MODIFIER]:

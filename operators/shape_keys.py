@@ -255,7 +255,8 @@ def build_result(context, garment, body, fit, garment_basis_local, weights=None,
 
 def bone_weights(context, body, body_mesh, cloth):
     """With an armature on the body: the garment's weights of its deforming bones (matched where the cloth lies
-    on the skin, inpainted elsewhere, ``rigging.rig_to_body``'s rule), as ((g,k) array, names); else None."""
+    on the skin, inpainted elsewhere, ``rigging.rig_to_body``'s rule), as ((g,k) array, names, warnings: the weight
+    transfer's, such as cloth left with no weight); else None."""
     from ..garment_transfer import inpainted_weights
 
     armature = rigging.body_armature(body)
@@ -264,11 +265,11 @@ def bone_weights(context, body, body_mesh, cloth):
     body_weights = rigging.vertex_group_weights(body, rigging.deform_bones(armature))
     if not body_weights.influences().any():
         return None
-    weights, _ = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
-                                   max_influences=context.scene.garment_transfer.max_influences, name=cloth.name)
+    weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
+                                      max_influences=context.scene.garment_transfer.max_influences, name=cloth.name)
     used = weights.influences() > 0
     keep = [j for j in range(len(weights.groups)) if weights.W[:, j].nnz] if used.any() else []
-    return weights.dense()[:, keep], [weights.groups[j] for j in keep]
+    return weights.dense()[:, keep], [weights.groups[j] for j in keep], info["warnings"]
 
 
 def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0.0,
@@ -276,7 +277,7 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
     """Read the objects, transfer one key per step, then make the object: a generator.
 
     Yields the fraction done; returns ``(result object, ShapeKeyFit, kept garment keys, weight note, warnings)``:
-    the warnings of each key at 1 as stored (``key_warnings``).
+    the weights' warnings (``bone_weights``), then those of each key at 1 as stored (``key_warnings``).
     """
     from ..garment_transfer import MeshError, all_pairs, surface_weights
     from ..garment_transfer import fit_steps as core_steps
@@ -298,16 +299,19 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
         garment_basis_local = convert.local_from_world(cloth.V, garment.matrix_world, garment.name)
     weights = None
     note = ""
+    weight_warnings = []
     if weights_from_body:
         if len(garment.vertex_groups):
             note = f"kept {garment.name}'s own vertex groups (it has weights)"
         elif not len(body.vertex_groups):
             note = f"{body.name} has no vertex groups to take weights from"
         else:
-            weights = bone_weights(context, body, body_mesh, cloth)
-            if weights is None:
+            found = bone_weights(context, body, body_mesh, cloth)
+            if found is None:
                 W, group_names = body_weights(body)
                 weights = (surface_weights(body_mesh.V, body_mesh.F, W, cloth.V), group_names)
+            else:
+                weights, weight_warnings = found[:2], found[2]
             note = f"took {len(weights[1])} vertex groups from {body.name}"
     steps = core_steps(body_mesh, shapes, cloth, pairs=all_pairs(shapes) if correctives else (),
                        margin=margin, offset=offset, lift=mix_lift)
@@ -328,7 +332,7 @@ def fit_steps(context, body, garment, *, names=None, correctives=False, margin=0
         held += [(rigging.shrinkwrap_surface(body, V), fit.keys[name]) for name, V in shapes.items()]
         bands = held_bands(held, fit.info["Basis"]["offset"])
     result = build_result(context, garment, body, fit, garment_basis_local, weights, bands)
-    return result, fit, kept, note, key_warnings(result, fit, cloth, body_mesh, shapes)
+    return result, fit, kept, note, weight_warnings + key_warnings(result, fit, cloth, body_mesh, shapes)
 
 
 def key_warnings(result, fit, cloth, body_mesh, shapes):

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from garment_transfer import (MeshError, RigError, Rig, axes_between, body_scale, bvh_rotations, inpainted_weights,
                               matching_rotations, nearest_weights, parse_bvh, pose_transforms, read_bvh,
                               read_joints, read_skeleton, read_weights, riding_share, skin, skin_weights,
-                              write_weights)
+                              unweighted_vertices, write_weights)
 from garment_transfer.rigging import (bone_frames, cotangent_laplacian, group_transforms, inpaint, match,
                                       skeleton_from_dict, smoothness_matrix, weights_from_dict)
 from tests.meshes import grid, icosphere, random_rotation, require_makehuman
@@ -352,3 +352,34 @@ def test_makehuman_rig_poses_a_body_and_round_trips_its_pose():
     again = rig.posed_joints(rig.transforms(R))
     err = max(np.linalg.norm(again[j] - joints_posed[j]) for j in skeleton.heads)
     assert err < 1e-9 and angles.max() > 45
+
+
+def test_cloth_left_with_no_weight_is_counted_and_said_and_none_weighted_is_said_so():
+    V, F, W = sphere_rig()
+    # The body's weights left empty on its top cap (a region not painted).
+    bare = V[:, 2] > 0.5
+    W = skin_weights(W.groups, W.dense() * ~bare[:, None], "cap-less weights")
+    G, GF = icosphere(2, radius=1.02)
+    weights, info = inpainted_weights(V, F, W, G, GF, max_influences=None, name="shirt")
+    # Every vertex is matched, so each takes the weights at its closest body point: none where that point's
+    # triangle has only unweighted corners.
+    expected = int((nearest_weights(V, F, W, G).sums() <= 0).sum())
+    assert info["inpainted"] == 0 and 0 < expected < len(G)
+    assert info["unweighted"] == expected == int((weights.sums() <= 0).sum())
+    assert np.allclose(weights.sums()[weights.sums() > 0], 1)
+    assert info["warnings"] == [
+        f"{expected} of the {len(G)} vertices of shirt have no weight ({int(bare.sum())} of the body's {len(V)} "
+        "vertices have none in cap-less weights, where the garment takes its weights from them): they stay where "
+        "they are when the bones move; give the body weights there"]
+    assert unweighted_vertices(weights, W, "shirt") == (expected, info["warnings"])
+    # A cap of cloth over that region only: no vertex has a weight.
+    cap = np.flatnonzero(G[:, 2] > 0.75)
+    keep = np.isin(GF, cap).all(axis=1)
+    local = np.full(len(G), -1)
+    local[cap] = np.arange(cap.size)
+    weights, info = inpainted_weights(V, F, W, G[cap], local[GF[keep]], name="hat")
+    assert info["unweighted"] == cap.size and weights.W.nnz == 0
+    assert info["warnings"][-1].startswith(f"none of the {cap.size} vertices of hat has a weight (")
+    # Every vertex weighted: nothing said.
+    painted, info = inpainted_weights(V, F, sphere_rig()[2], G, GF)
+    assert info["unweighted"] == 0 and unweighted_vertices(painted, W, "shirt") == (0, [])

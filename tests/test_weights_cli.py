@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from meshes import icosphere
 
-from garment_transfer import mesh_from_triangles, read_weights, skin_weights, write_obj, write_weights
+from garment_transfer import mesh_from_triangles, read_obj, read_weights, skin_weights, write_obj, write_weights
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,3 +69,41 @@ def test_weights_command_refuses_bad_input_and_writes_nothing(tmp_path):
     assert p.returncode == 2
     assert not out.exists() and sorted(f.name for f in tmp_path.iterdir()) == [
         "body.obj", "body_weights.json", "far.obj", "garment.obj", "other_weights.json"]
+
+
+def test_weights_that_leave_cloth_unweighted_are_said_in_the_json_and_weights_that_move_nothing_are_refused(tmp_path):
+    body, weights, garment, n = files(tmp_path)
+    V = read_obj(body).V
+    full = read_weights(weights, len(V))
+    # The body's weights left empty on its top cap (a region not painted).
+    bare = V[:, 2] > 0.5
+    capless = tmp_path / "capless.json"
+    write_weights(capless, skin_weights(full.groups, full.dense() * ~bare[:, None]))
+    for rule in ("inpaint", "nearest"):
+        out = tmp_path / f"{rule}.json"
+        p = run("--body", body, "--weights", capless, "--garment", garment, "--out", out, "--rule", rule, "--json")
+        assert p.returncode == 0, p.stderr
+        data = json.loads(p.stdout)
+        written = read_weights(out, n)
+        # The count is the file's: its vertices with no weight.
+        assert data["unweighted"] == int((written.sums() <= 0).sum()) > 0, rule
+        assert data["warnings"][-1].startswith(f"{data['unweighted']} of the {n} vertices of {garment} have no weight "
+                                               f"({int(bare.sum())} of the body's {len(V)} vertices have none in "
+                                               f"{capless}, "), rule
+    # Weights on the body's lowest vertex only, and a hat over its top: the hat would not move with the bones;
+    # refused, naming the weights file, nothing written.
+    bottom = int(np.argmin(V[:, 2]))
+    lone = tmp_path / "lone.json"
+    lone.write_text(json.dumps({"weights": {"a": [[bottom, 1.0]]}}))
+    G, GF = icosphere(2, radius=1.03)
+    cap = np.flatnonzero(G[:, 2] > 0.6)
+    local = np.full(len(G), -1)
+    local[cap] = np.arange(cap.size)
+    hat = tmp_path / "hat.obj"
+    write_obj(hat, mesh_from_triangles(G[cap], local[GF[np.isin(GF, cap).all(axis=1)]], "hat"))
+    for rule in ("inpaint", "nearest"):
+        out = tmp_path / f"lone_{rule}.json"
+        p = run("--body", body, "--weights", lone, "--garment", hat, "--out", out, "--rule", rule)
+        assert p.returncode == 1, p.stderr
+        assert p.stderr.startswith(f"error: {lone}: none of the {cap.size} vertices of {hat} has a weight"), p.stderr
+        assert not out.exists()

@@ -5,10 +5,12 @@ from __future__ import annotations
 import os
 import time
 
+from ..errors import RigError
 from ..files import check_output
 from ..geometry.obj import read_obj
 from ..rigging.skinning import read_weights, write_weights
-from ..rigging.weight_transfer import MATCH_ANGLE, MAX_INFLUENCES, inpainted_weights, nearest_weights
+from ..rigging.weight_transfer import (MATCH_ANGLE, MAX_INFLUENCES, inpainted_weights, nearest_weights,
+                                      unweighted_vertices)
 from .options import emit, number_option
 
 RULES = ("inpaint", "nearest")
@@ -46,7 +48,6 @@ def weights_main(args):
     body = read_obj(args.body)
     garment = read_obj(args.garment)
     body_weights = read_weights(args.weights, body.n_vertices)
-    info = {"warnings": []}
     if args.rule == "inpaint":
         weights, info = inpainted_weights(body.V, body.F, body_weights, garment.V, garment.F,
                                           distance=args.match_distance, angle=args.match_angle,
@@ -54,6 +55,11 @@ def weights_main(args):
     else:
         weights = nearest_weights(body.V, body.F, body_weights, garment.V, max_influences=args.max_influences,
                                   name=garment.name)
+        unweighted, warnings = unweighted_vertices(weights, body_weights, garment.name)
+        info = {"unweighted": unweighted, "warnings": warnings}
+    if info["unweighted"] == garment.n_vertices:
+        # Weights that move nothing: refused, nothing written.
+        raise RigError(args.weights, info["warnings"][-1])
     weights.name = f"{os.path.basename(args.garment)} weights from {os.path.basename(args.body)} ({args.rule})"
     write_weights(args.out, weights, inputs=inputs)
     used = weights.W.getnnz(axis=0) > 0

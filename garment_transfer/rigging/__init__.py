@@ -19,13 +19,13 @@ from .skinning import (SkinWeights, deforming, group_transforms, pose_transforms
                        weights_from_dict, weights_to_dict, write_weights)
 from .weight_transfer import (MATCH_ANGLE, MATCH_DISTANCE_SHARE, MAX_INFLUENCES, cotangent_laplacian, inpaint,
                               inpainted_weights, match, nearest_weights, riding_share, smoothness_matrix,
-                              surface_weights)
+                              surface_weights, unweighted_vertices)
 
 __all__ = ["Skeleton", "read_skeleton", "read_joints", "skeleton_from_dict", "bone_frames", "plane_normals",
            "Motion", "read_bvh", "parse_bvh", "axes_between", "SkinWeights", "skin_weights", "read_weights",
            "write_weights", "weights_from_dict", "weights_to_dict", "skin", "pose_transforms", "group_transforms",
            "deforming", "Rig", "rig_from_bones", "bvh_rotations", "matching_rotations", "twist_from_body",
-           "surface_weights",
+           "surface_weights", "unweighted_vertices",
            "nearest_weights", "inpainted_weights", "riding_share", "match", "inpaint", "cotangent_laplacian",
            "smoothness_matrix", "MATCH_ANGLE", "MATCH_DISTANCE_SHARE", "MAX_INFLUENCES", "Landmarks", "landmarks_of",
            "naming_of", "pose_to_landmarks", "read_target_skeleton", "read_target_frames", "bones_from_dict",

@@ -266,7 +266,8 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
         (p, g), the body's groups; normalised, at most ``max_influences`` per vertex.
     info : dict
         ``matched`` (vertices), ``inpainted`` (vertices), ``groups_used``, ``distance``, ``angle``,
-        ``max_influences``, ``warnings`` (a list of sentences).
+        ``max_influences``, ``unweighted`` (vertices left with no weight: ``unweighted_vertices``), ``warnings``
+        (a list of sentences).
     """
     garment_V = np.asarray(garment_V, dtype=np.float64)
     garment_F = np.asarray(garment_F, dtype=np.int64)
@@ -304,9 +305,48 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
         info["warnings"].append(f"{seeded} pieces of {name} (or vertices in no face) have no vertex close to the "
                                 "body and facing it: each follows the bones at its vertex nearest the body, as "
                                 "a whole")
+    info["unweighted"], warnings = unweighted_vertices(weights, body_weights, name)
+    info["warnings"] += warnings
     log.debug("weights of %s: %d of %d vertices matched, %d inpainted", name, info["matched"],
               garment_V.shape[0], info["inpainted"])
     return weights, info
+
+
+def unweighted_vertices(weights: SkinWeights, body_weights: SkinWeights, name="garment"):
+    """The garment's vertices that its weights leave with none (a skinned vertex with no weight stays where it is
+    when the bones move), and the sentence that says so.
+
+    Such vertices come from a body whose weights are empty where the cloth takes them (a region left unpainted,
+    a weights file of another body or of a few bones only).
+
+    Parameters
+    ----------
+    weights : SkinWeights
+        The garment's weights (``inpainted_weights``, ``nearest_weights``).
+    body_weights : SkinWeights
+        The body's weights they were carried from.
+    name : str
+        The garment's name, for the sentence.
+
+    Returns
+    -------
+    count : int
+        Garment vertices with no weight.
+    warnings : list of str
+        One sentence naming the garment, the count and the body's unweighted vertices; empty when every vertex has
+        a weight.
+    """
+    count = int((weights.sums() <= 0).sum())
+    if not count:
+        return 0, []
+    n, bare = weights.n_vertices, int((body_weights.sums() <= 0).sum())
+    body = f"{bare} of the body's {body_weights.n_vertices} vertices have none in {body_weights.name}"
+    if count == n:
+        return count, [f"none of the {n} vertices of {name} has a weight ({body}, among them all those the "
+                       "garment takes its weights from): it will not move with the bones; are these the weights "
+                       "of the body it is dressed on?"]
+    return count, [f"{count} of the {n} vertices of {name} have no weight ({body}, where the garment takes its "
+                   "weights from them): they stay where they are when the bones move; give the body weights there"]
 
 
 def nearest_weights(body_V, body_F, body_weights: SkinWeights, garment_V, *, max_influences=None, surface=None,

@@ -573,3 +573,34 @@ def test_a_character_whose_skeleton_is_named_otherwise_is_matched_by_its_landmar
     expected, counted = against_the_kick(character, rest_body, result)
     assert np.linalg.norm(world_vertices(result) - expected.V, axis=1).mean() < 3e-3
     assert counted["crossings_outside_contact"] == 0 and counted["penetrating_vertices"] == 0
+
+
+def test_rig_to_body_says_where_the_bodys_weights_leave_the_cloth_unweighted_and_refuses_weights_that_move_nothing(
+        character):
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    from garment_transfer import RigError
+
+    settings.rig_result = False
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    Z = world_vertices(body)[:, 2]
+    everyone = list(range(len(body.data.vertices)))
+    # The body's lower legs left unpainted (below 20% of its height): the suit's trouser legs there have no weight.
+    low = [int(i) for i in np.flatnonzero(Z < Z.min() + 0.2 * np.ptp(Z))]
+    for group in body.vertex_groups:
+        group.remove(low)
+    _, info = rigging.rig_to_body(bpy.context, result, body)
+    # Weighted by a bone (the Keep Outside bands' vertex groups are not bones).
+    bones = {g.index for g in result.vertex_groups if g.name in set(rigging.deform_bones(armature))}
+    weighted = np.array([any(g.group in bones and g.weight > 0 for g in v.groups) for v in result.data.vertices])
+    assert info["unweighted"] == int((~weighted).sum()) > 0
+    assert any(w.startswith(f"{info['unweighted']} of the {len(weighted)} vertices of {result.name} have no weight")
+               for w in info["warnings"])
+    # Only the head painted: none of the suit's vertices gets a weight; refused, the result left as it was.
+    head = Z > Z.min() + 0.88 * np.ptp(Z)
+    for group in body.vertex_groups:
+        group.remove([i for i in everyone if not head[i]])
+    groups, modifiers = [g.name for g in result.vertex_groups], [m.name for m in result.modifiers]
+    with pytest.raises(RigError, match=f"none of the {len(weighted)} vertices of {result.name} has a weight"):
+        rigging.rig_to_body(bpy.context, result, body)
+    assert [g.name for g in result.vertex_groups] == groups and [m.name for m in result.modifiers] == modifiers
