@@ -181,6 +181,33 @@ def test_train_garment_kind_then_transfer_equals_the_core(tmp_path):
     assert p.returncode == 2 and "--nearest-garments" in p.stderr and not (tmp_path / "bad.npz").exists()
 
 
+def test_train_refuses_names_the_dataset_lacks_before_it_needs_torch(tmp_path):
+    import os
+
+    from test_dataset import make_tiny_dataset
+
+    ds = make_tiny_dataset(tmp_path / "ds")
+    # A torch that cannot be imported, found first: the names are checked before it is asked for.
+    (tmp_path / "blocked" / "torch").mkdir(parents=True)
+    (tmp_path / "blocked" / "torch" / "__init__.py").write_text("raise ImportError('blocked here')\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path / "blocked"), str(ROOT)]))
+    out = tmp_path / "m.npz"
+
+    def train(*args):
+        return subprocess.run([sys.executable, "-m", "garment_transfer", "train", "--dataset", str(ds), "--out",
+                               str(out), *args], cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
+
+    for args, problem in ((("--source", "nope", "--targets", "pear"), "has no body 'nope'"),
+                          (("--source", "src", "--targets", "pear,tall"), "has no body 'tall'"),
+                          (("--source", "src", "--targets", "pear", "--garments", "top,hat"), "has no garment 'hat'"),
+                          (("--source", "src", "--targets", "pear", "--hold-out", "hat"), "has no garment 'hat'")):
+        p = train(*args)
+        assert p.returncode == 1 and p.stderr.startswith(f"error: {ds}: ") and problem in p.stderr, p.stderr
+    p = train("--source", "src", "--targets", "pear")
+    assert p.returncode == 1 and "training needs torch (blocked here)" in p.stderr, p.stderr
+    assert not out.exists()
+
+
 def test_train_with_held_out_garments_checks_the_written_model_against_direct_transfer(tmp_path):
     pytest.importorskip("torch")
     import numpy as np

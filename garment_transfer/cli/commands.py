@@ -31,6 +31,7 @@ from ..learning.garment_training import (
     PLACEMENT_MEMBERS,
     train_garment_fit_from_dataset,
 )
+from ..learning.dataset import load_dataset
 from ..learning.model_files import DEFAULT_FIELD_SHARE, read_model_file
 from ..learning.placement import LIBRARY_SHARE
 from ..learning.training import train_from_dataset
@@ -367,22 +368,25 @@ def cmd_evaluate(args):
 
 
 def cmd_train(args):
+    targets = [t for t in args.targets.split(",") if t]
+    garments = [g for g in args.garments.split(",") if g] if args.garments else None
+    held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
+    # The names checked before torch is imported (seconds): a body or garment named wrongly is refused at once.
+    dataset = load_dataset(args.dataset)
+    for body in [args.source, *targets]:
+        dataset.require_body(body)
+    for garment in garments or []:
+        dataset.require_garment(garment)
+    if held:
+        garments = training_garments(dataset, args.source, targets, garments, held)
     try:
         import torch  # noqa: F401
     except ImportError as exc:
         raise GarmentTransferError(
             f"training needs torch ({exc}); install it with: pip install torch==2.13.0") from None
-
-    targets = [t for t in args.targets.split(",") if t]
-    garments = [g for g in args.garments.split(",") if g] if args.garments else None
-    held = [g for g in args.hold_out.split(",") if g] if args.hold_out else []
-    if held:
-
-        garments = training_garments(args.dataset, args.source, targets, garments, held)
     if args.kind == "garment":
         summary, lines = _train_garment(args, targets, garments)
     else:
-
         summary = train_from_dataset(args.dataset, args.source, targets, garments=garments,
                                      epochs=args.epochs or 1000, latent=args.latent or 30, seed=args.seed,
                                      out=args.out,
@@ -391,7 +395,6 @@ def cmd_train(args):
         lines = [f"wrote {args.out}: {summary.get('epochs')} epochs, final loss {summary.get('final_loss')}, "
                  f"{summary.get('seconds', 0):.1f} s"]
     if held:
-
         summary["check"] = check_after_training(args.dataset, args.source, targets, held, args.out,
                                                 progress=stderr_progress("check"))
         lines += check_lines(summary["check"])

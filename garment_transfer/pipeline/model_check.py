@@ -40,7 +40,6 @@ def training_garments(dataset, source, targets, garments, held):
     SettingError
         A held-out garment also among ``garments``; every garment held out.
     """
-
     ds = dataset if hasattr(dataset, "garment") else load_dataset(dataset)
     held = list(held)
     for g in held:
