@@ -268,6 +268,23 @@ def test_cli_bad_shape_exits_1_and_writes_nothing(tmp_path, keyed):
     assert not out.exists()
 
 
+def test_cli_refuses_a_target_shape_given_twice_or_two_of_one_name_and_writes_nothing(tmp_path, keyed):
+    folder = keyed[5]
+    pear = folder / "bodies" / "female_pear.obj"
+    (tmp_path / "copy").mkdir()
+    twin = tmp_path / "copy" / "female_pear.obj"
+    twin.write_bytes(pear.read_bytes())
+    out = tmp_path / "sizes"
+    for second, problem in ((pear, f"error: {pear}: is given twice as a target shape"),
+                            (twin, f"error: {twin}: has the same name as {pear}; each target shape needs its own "
+                                   "file name")):
+        r = run("shapes", "--source-body", folder / "bodies" / "female_average.obj", "--target-body", pear,
+                "--target-body", second, "--garment", folder / "garments" / "female_sportsuit01" / "female_average.obj",
+                "--out", out)
+        assert r.returncode == 1 and r.stderr.startswith(problem), r.stderr
+        assert not out.exists()
+
+
 def test_hanging_bands_keep_the_free_cloth_as_far_out_as_at_rest_and_move_nothing_at_rest():
     # A floor (z = 0, facing up) and cloth above it at known heights, in offsets; every other vertex hangs free.
     floor_V = np.array([[-100.0, -100.0, 0.0], [100.0, -100.0, 0.0], [100.0, 100.0, 0.0], [-100.0, 100.0, 0.0]])

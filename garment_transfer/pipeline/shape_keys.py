@@ -642,6 +642,8 @@ def shapes_outputs(target_body_paths, garment_path, out_dir):
     for path in target_body_paths:
         name = Path(os.fspath(path)).stem
         if name in outs:
+            if os.path.abspath(os.fspath(path)) == os.path.abspath(paths[name]):
+                raise MeshError(str(path), "is given twice as a target shape")
             raise MeshError(str(path), f"has the same name as {paths[name]}; each target shape needs "
                                        "its own file name (it names the output)")
         outs[name], paths[name] = out_dir / f"{g}_on_{name}.obj", str(path)
