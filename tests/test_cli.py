@@ -78,6 +78,14 @@ def test_help_on_every_command():
         assert p.returncode == 0 and "usage" in p.stdout
     p = run("--help")
     assert p.returncode == 0 and "python -m lab" in p.stdout
+    # The version a pipeline records: the package's, which the extension's manifest gives too.
+    import tomllib
+
+    from garment_transfer import __version__
+
+    p = run("--version")
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    assert p.returncode == 0 and p.stdout == f"garment_transfer {__version__}\n" and manifest["version"] == __version__
     for experiment in ("bench", "demo"):
         assert run(experiment, "--help").returncode == 2      # the lab's, not the product's
 

@@ -48,6 +48,7 @@ from ..pipeline.rest_pose import (fold_warnings, outfit_across_rest_poses, targe
 from ..pipeline.pose_fit import posed_counts, poses_to_files
 from ..pipeline.shape_keys import shapes_to_files
 from ..pipeline.result_check import PASS_RESULT_KEYS, check_result, result_warnings
+from ..version import __version__
 from .batch import add_batch_arguments, batch_main
 from .options import WarningLog, emit, number_option, share_option, stderr_progress
 from .paths import check_command_paths, outfit_out_paths
@@ -431,6 +432,8 @@ def build_parser():
                                 epilog="The demo, benchmarks and studies live in the repository's lab: "
                                        "python -m lab --help.")
     p.add_argument("-v", "--verbose", action="store_true", help="log details on stderr")
+    p.add_argument("--version", action="version", version=f"garment_transfer {__version__}",
+                   help="print the version (the extension's, the core's and the command line's) and exit")
     sub = p.add_subparsers(dest="command", required=True)
 
     t = sub.add_parser("transfer", help="move a garment from the source body onto a target body")
