@@ -576,8 +576,10 @@ def test_a_character_whose_skeleton_is_named_otherwise_is_matched_by_its_landmar
 
 
 def test_rig_to_body_says_where_the_bodys_weights_leave_the_cloth_unweighted_and_refuses_weights_that_move_nothing(
-        character):
+        character, capfd):
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    from test_outfit_operator import set_layers
+
     from garment_transfer import RigError
 
     settings.rig_result = False
@@ -596,6 +598,14 @@ def test_rig_to_body_says_where_the_bodys_weights_leave_the_cloth_unweighted_and
     assert info["unweighted"] == int((~weighted).sum()) > 0
     assert any(w.startswith(f"{info['unweighted']} of the {len(weighted)} vertices of {result.name} have no weight")
                for w in info["warnings"])
+    # A rigged outfit says it too, for each layer (Blender's reports, printed by the bpy module).
+    settings.rig_result = True
+    set_layers(settings, [garment])
+    capfd.readouterr()
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    layer = settings.result
+    said = [line for line in capfd.readouterr().out.splitlines() if "have no weight" in line]
+    assert len(said) == 1 and said[0].startswith("Warning: ") and f"vertices of {layer.name} have no weight" in said[0]
     # Only the head painted: none of the suit's vertices gets a weight; refused, the result left as it was.
     head = Z > Z.min() + 0.88 * np.ptp(Z)
     for group in body.vertex_groups:
