@@ -532,3 +532,34 @@ def test_one_body_mirrored_and_the_other_not_is_named():
     b = mesh_from_polygons(V, [[0, 3, 2, 1], [1, 2, 4]], name="b.obj")     # each polygon turned around
     with pytest.raises(TopologyMismatchError, match="b.obj: has the faces of a.obj turned around"):
         require_same_topology(a, b)
+
+
+def test_a_garment_whose_pieces_are_not_joined_is_told_how_far_the_result_opens_its_seams(tmp_path, capsys):
+    import json
+
+    root = require_makehuman()
+    suit = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
+    # Its left and right halves written as pieces (each vertex on the seam between them twice), as a pattern's
+    # pieces or a split along UV seams come out of other tools.
+    F = np.asarray(suit.F)
+    right = suit.V[F].mean(axis=1)[:, 0] > 0
+    seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
+    copy = np.full(suit.n_vertices, -1)
+    copy[seam] = suit.n_vertices + np.arange(seam.size)
+    F[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
+    pieces = tmp_path / "pieces.obj"
+    write_obj(pieces, mesh_from_triangles(np.vstack([suit.V, suit.V[seam]]), F, "pieces"))
+    out = tmp_path / "out.obj"
+    code, text, err = run_cli(capsys, "transfer", "--source-body", root / "bodies" / "female_average.obj",
+                              "--target-body", root / "bodies" / "female_pear.obj", "--garment", pieces,
+                              "--out", out, "--json")
+    assert code == 0, err
+    data = json.loads(text)
+    V = read_obj(out).V
+    gap = float(np.linalg.norm(V[copy[seam]] - V[seam], axis=1).max())
+    # Measured on the file as written: the seam's vertices, how far apart they came, and the warning in the JSON.
+    assert data["check"]["seam_vertices"] == seam.size and data["check"]["seam_gap"] == gap > 0.01
+    assert [w for w in data["warnings"] if "not joined" in w] == [
+        f"{out}: {seam.size} of the garment's vertices lie on another of its vertices (its pieces are not joined at "
+        f"their seams), and the result moves them apart by up to {gap:.3g}: join the pieces (Merge by Distance in "
+        "Blender) before the transfer"]

@@ -27,3 +27,40 @@ def test_a_surface_of_the_body_given_gives_the_same_figures_and_one_of_another_b
     assert check_result(garment, V, body, surface=other) == plain
     grown = check_result(garment, V, mesh_from_triangles(BV * 1.2, BF, name="grown"))
     assert grown["inside_vertices"] > plain["inside_vertices"]
+
+
+def test_a_garment_whose_pieces_are_not_joined_has_its_seams_measured_on_the_result_and_said_when_opened():
+    import numpy as np
+
+    from garment_transfer.pipeline.result_check import SEAM_TOLERANCE, result_warnings, seam_gap, seam_pairs
+
+    BV, BF = icosphere(2)
+    body = mesh_from_triangles(BV, BF, name="body")
+    # A shell around the body cut into two pieces at x = 0: each vertex the two halves share written twice.
+    SV, SF = icosphere(2, radius=1.1)
+    right = SV[SF].mean(axis=1)[:, 0] > 0
+    seam = np.intersect1d(np.unique(SF[right]), np.unique(SF[~right]))
+    copy = np.full(len(SV), -1)
+    copy[seam] = len(SV) + np.arange(seam.size)
+    F = SF.copy()
+    F[right] = np.where(copy[SF[right]] >= 0, copy[SF[right]], SF[right])
+    pieces = mesh_from_triangles(np.vstack([SV, SV[seam]]), F, name="pieces")
+    pairs = seam_pairs(pieces.V)
+    assert sorted(map(tuple, pairs)) == sorted(zip(copy[seam].tolist(), seam.tolist()))
+    assert seam_pairs(SV).shape == (0, 2)
+    # The result moves the right piece's copies 1 mm out along x: the seam opens by exactly that at each pair.
+    V = pieces.V.copy()
+    V[copy[seam]] += [0.001, 0.0, 0.0]
+    check = check_result(pieces, V, body)
+    assert (check["seam_vertices"], check["seam_gap"]) == (seam.size, seam_gap(pieces.V, V)[1])
+    assert abs(check["seam_gap"] - 0.001) < 1e-15
+    assert check["seam_tolerance"] == SEAM_TOLERANCE * float(np.linalg.norm(np.ptp(pieces.V, axis=0)))
+    said = [w for w in result_warnings(check, "out.obj") if "not joined" in w]
+    assert said == [f"out.obj: {seam.size} of the garment's vertices lie on another of its vertices (its pieces are "
+                    "not joined at their seams), and the result moves them apart by up to 0.001: join the pieces "
+                    "(Merge by Distance in Blender) before the transfer"]
+    # Moved as one, or joined: nothing said.
+    closed = check_result(pieces, pieces.V * 1.01, body)
+    assert closed["seam_gap"] == 0.0 and not [w for w in result_warnings(closed, "out.obj") if "not joined" in w]
+    joined = check_result(mesh_from_triangles(SV, SF, name="joined"), SV * 1.01, body)
+    assert (joined["seam_vertices"], joined["seam_gap"]) == (0, 0.0)

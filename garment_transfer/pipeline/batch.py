@@ -68,7 +68,7 @@ METRIC_KEYS = ("vertices", "triangles", "mdc", "penetration_ratio", "max_penetra
 #: The figures of the promise a record keeps (``result_check.check_result``'s, of the file as written).
 CHECK_KEYS = ("garment_edges_through_body", "body_edges_through_garment", "garment_edge_body_pairs",
               "body_edge_garment_pairs", "inside_vertices", "self_intersections", "self_intersections_source",
-              "self_intersections_new", "min_body_distance")
+              "self_intersections_new", "min_body_distance", "seam_vertices", "seam_gap")
 #: Outcomes of a pair: transferred now, found from an earlier run, failed, or not reached.
 OUTCOMES = ("done", "skipped", "failed", "not run")
 PARTIAL_PREFIX = ".partial-"

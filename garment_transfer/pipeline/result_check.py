@@ -21,10 +21,55 @@ from ..geometry.readings import Readings, readings_of
 from ..geometry.self_check import beyond_source, pairs_in_full
 from ..geometry.threads import together
 
+#: Vertices of a result that lay on each other on the source and lie apart by more than this share of the
+#: garment's size are said to be opened (a file's 9 significant digits round far finer).
+SEAM_TOLERANCE = 1e-6
+
 #: The keys of a transfer's ``info`` that describe the result as the pass left it in memory; a report of the
 #: result as written gives ``check_result``'s figures instead.
 PASS_RESULT_KEYS = ("crossings_after", "near_after", "inside_after", "self_intersections_after",
                     "self_intersections_new", "self_intersections_added", "self_intersections_source")
+
+
+def seam_pairs(V):
+    """(k,2) int64: each vertex of V (n,3) that lies exactly on an earlier one, and that vertex (the first at
+    that place).
+
+    A garment whose pieces are not joined at their seams (its file has a vertex of each piece at each place
+    along a seam: pattern pieces written as they were cut, or split along their UV seams) has such pairs; a
+    joined one has none.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.shape[0] == 0:
+        return np.zeros((0, 2), np.int64)
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    at = first[np.asarray(inverse).ravel()]
+    on = np.flatnonzero(at != np.arange(V.shape[0]))
+    return np.stack([on, at[on]], axis=1).astype(np.int64)
+
+
+def seam_gap(garment_V, V) -> tuple[int, float]:
+    """How far a result opens the seams of its garment's unjoined pieces.
+
+    Parameters
+    ----------
+    garment_V : (n,3) float
+        The garment on its source body.
+    V : (n,3) float
+        The result.
+
+    Returns
+    -------
+    vertices : int
+        Vertices that lie on another on the source (``seam_pairs``).
+    gap : float
+        The largest distance between such a vertex and the one it lay on, in the result (0 with none).
+    """
+    pairs = seam_pairs(garment_V)
+    if pairs.shape[0] == 0:
+        return 0, 0.0
+    V = np.asarray(V, dtype=np.float64)
+    return int(pairs.shape[0]), float(np.linalg.norm(V[pairs[:, 0]] - V[pairs[:, 1]], axis=1).max())
 
 
 def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, readings: Readings | None = None,
@@ -60,7 +105,10 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
         (garment vertices inside the body), ``self_intersections`` (pairs of the result),
         ``self_intersections_source`` (of the garment on the source), ``self_intersections_new`` (pairs of the
         result that count against the source: ``self_check.beyond_source``), ``layer_crossings`` (pairs with
-        the layers below, both ways) and ``min_body_distance`` (0 where it crosses the body).
+        the layers below, both ways), ``min_body_distance`` (0 where it crosses the body), ``seam_vertices`` and
+        ``seam_gap`` (``seam_gap``: the vertices that lay on another on the source, pieces not joined, and how far
+        apart the result puts them) and ``seam_tolerance`` (the gap said to open a seam: ``SEAM_TOLERANCE`` of the
+        garment's size).
     """
     V = np.asarray(V, dtype=np.float64)
     G = readings if readings is not None else readings_of(garment)
@@ -91,12 +139,15 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     (distance, inside), (c, pairs, source, new, layer) = together(apart, crossed)
     if c["a_edge_pairs"] + c["b_edge_pairs"] > 0:
         distance = 0.0
+    seam_vertices, gap = seam_gap(garment.V, V)
+    size = float(np.linalg.norm(np.ptp(np.asarray(garment.V, dtype=np.float64), axis=0))) if garment.n_vertices else 0.0
     return {"garment_edges_through_body": c["a_edges_through_b"],
             "body_edges_through_garment": c["b_edges_through_a"],
             "garment_edge_body_pairs": c["a_edge_pairs"], "body_edge_garment_pairs": c["b_edge_pairs"],
             "inside_vertices": inside, "self_intersections": int(pairs.shape[0]),
             "self_intersections_source": int(source.shape[0]), "self_intersections_new": new,
-            "layer_crossings": int(layer), "min_body_distance": distance}
+            "layer_crossings": int(layer), "min_body_distance": distance, "seam_vertices": seam_vertices,
+            "seam_gap": gap, "seam_tolerance": SEAM_TOLERANCE * size}
 
 
 def result_warnings(check: dict, name: str) -> list:
@@ -115,4 +166,8 @@ def result_warnings(check: dict, name: str) -> list:
                    f"{check['self_intersections_source']} on the source)")
     if check.get("layer_crossings"):
         out.append(f"{name}: {check['layer_crossings']} edge-triangle pairs cross the layers under it")
+    if check.get("seam_gap", 0.0) > check.get("seam_tolerance", 0.0):
+        out.append(f"{name}: {check['seam_vertices']} of the garment's vertices lie on another of its vertices (its "
+                   f"pieces are not joined at their seams), and the result moves them apart by up to "
+                   f"{check['seam_gap']:.3g}: join the pieces (Merge by Distance in Blender) before the transfer")
     return out
