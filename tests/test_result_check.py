@@ -32,7 +32,8 @@ def test_a_surface_of_the_body_given_gives_the_same_figures_and_one_of_another_b
 def test_a_garment_whose_pieces_are_not_joined_has_its_seams_measured_on_the_result_and_said_when_opened():
     import numpy as np
 
-    from garment_transfer.pipeline.result_check import SEAM_TOLERANCE, result_warnings, seam_gap, seam_pairs
+    from garment_transfer.geometry.mesh import shared_places
+    from garment_transfer.pipeline.result_check import SEAM_TOLERANCE, result_warnings, seam_gap
 
     BV, BF = icosphere(2)
     body = mesh_from_triangles(BV, BF, name="body")
@@ -45,9 +46,9 @@ def test_a_garment_whose_pieces_are_not_joined_has_its_seams_measured_on_the_res
     F = SF.copy()
     F[right] = np.where(copy[SF[right]] >= 0, copy[SF[right]], SF[right])
     pieces = mesh_from_triangles(np.vstack([SV, SV[seam]]), F, name="pieces")
-    pairs = seam_pairs(pieces.V)
+    pairs = shared_places(pieces.V)
     assert sorted(map(tuple, pairs)) == sorted(zip(copy[seam].tolist(), seam.tolist()))
-    assert seam_pairs(SV).shape == (0, 2)
+    assert shared_places(SV).shape == (0, 2)
     # The result moves the right piece's copies 1 mm out along x: the seam opens by exactly that at each pair.
     V = pieces.V.copy()
     V[copy[seam]] += [0.001, 0.0, 0.0]

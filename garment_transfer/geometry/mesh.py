@@ -323,6 +323,42 @@ def mesh_report(mesh: Mesh) -> dict:
     }
 
 
+def vertex_places(V):
+    """Each vertex's place, vertices at exactly the same coordinates sharing one: where a garment's pieces are not
+    joined at their seams (its file has a vertex of each piece at each place along a seam: pattern pieces written
+    as cut, or split along their UV seams).
+
+    Parameters
+    ----------
+    V : (n,3) float
+
+    Returns
+    -------
+    place : (n,) int64
+        Each vertex's place, numbered in the order of their first vertices.
+    first : (p,) int64
+        The first vertex at each place (increasing); ``p == n`` when no two vertices share a place.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if V.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    # np.unique numbers the places by their coordinates; renumber them by their first vertex.
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return rank[np.asarray(inverse).ravel()].astype(np.int64), first[order].astype(np.int64)
+
+
+def shared_places(V):
+    """(k,2) int64: each vertex that lies exactly on an earlier one (``vertex_places``), and the first vertex at that
+    place; none for a mesh whose vertices are all apart."""
+    place, first = vertex_places(V)
+    at = first[place]
+    on = np.flatnonzero(at != np.arange(place.size))
+    return np.stack([on, at[on]], axis=1).astype(np.int64)
+
+
 def connected_pieces(n, F):
     """Connected components of the triangles' vertices.
 

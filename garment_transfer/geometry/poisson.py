@@ -279,6 +279,39 @@ class PoissonSolver:
         return x
 
 
+class JoinedPoissonSolver:
+    """``PoissonSolver`` of a garment whose vertices at one place are one vertex (``mesh.vertex_places``): pieces
+    not joined at their seams are solved as the one surface they make (the garment with them joined), so that the
+    result keeps its seams closed.
+
+    Parameters
+    ----------
+    V : (n,3) float
+    F : (m,3) int
+    anchor_weight : float or (n,) float
+        Each place takes the weight of its first vertex (the vertices of a place lie on the same body point).
+    place : (n,) int
+        Each vertex's place (``vertex_places``).
+    triangle_weights, method, energy
+        As ``PoissonSolver``'s.
+    """
+
+    def __init__(self, V, F, anchor_weight, place, triangle_weights=None, method="factor", energy="gradients"):
+        V = np.asarray(V, dtype=np.float64)
+        self.place = np.asarray(place, dtype=np.int64)
+        self.first = np.zeros(int(self.place.max()) + 1, np.int64)
+        self.first[self.place[::-1]] = np.arange(self.place.size)[::-1]
+        weight = np.asarray(anchor_weight, dtype=np.float64)
+        self.solver = PoissonSolver(V[self.first], self.place[np.asarray(F, dtype=np.int64)],
+                                    weight if weight.ndim == 0 else weight[self.first], triangle_weights, method,
+                                    energy)
+        self.method = method
+
+    def solve(self, Q, anchors):
+        """As ``PoissonSolver.solve`` (each place anchored where its first vertex is): (n,3), equal at each place."""
+        return self.solver.solve(Q, np.asarray(anchors, dtype=np.float64)[self.first])[self.place]
+
+
 class OrderedFactor:
     """A sparse LU factor of ``K[p][:, p]``, solving ``K x = b``."""
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.intersections import crossings
-from ..geometry.mesh import Mesh
+from ..geometry.mesh import Mesh, shared_places
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings, garment_distance
 from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.readings import Readings, readings_of
@@ -31,23 +31,6 @@ PASS_RESULT_KEYS = ("crossings_after", "near_after", "inside_after", "self_inter
                     "self_intersections_new", "self_intersections_added", "self_intersections_source")
 
 
-def seam_pairs(V):
-    """(k,2) int64: each vertex of V (n,3) that lies exactly on an earlier one, and that vertex (the first at
-    that place).
-
-    A garment whose pieces are not joined at their seams (its file has a vertex of each piece at each place
-    along a seam: pattern pieces written as they were cut, or split along their UV seams) has such pairs; a
-    joined one has none.
-    """
-    V = np.asarray(V, dtype=np.float64)
-    if V.shape[0] == 0:
-        return np.zeros((0, 2), np.int64)
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
-    at = first[np.asarray(inverse).ravel()]
-    on = np.flatnonzero(at != np.arange(V.shape[0]))
-    return np.stack([on, at[on]], axis=1).astype(np.int64)
-
-
 def seam_gap(garment_V, V) -> tuple[int, float]:
     """How far a result opens the seams of its garment's unjoined pieces.
 
@@ -61,11 +44,11 @@ def seam_gap(garment_V, V) -> tuple[int, float]:
     Returns
     -------
     vertices : int
-        Vertices that lie on another on the source (``seam_pairs``).
+        Vertices that lie on another on the source (``mesh.shared_places``).
     gap : float
         The largest distance between such a vertex and the one it lay on, in the result (0 with none).
     """
-    pairs = seam_pairs(garment_V)
+    pairs = shared_places(garment_V)
     if pairs.shape[0] == 0:
         return 0, 0.0
     V = np.asarray(V, dtype=np.float64)

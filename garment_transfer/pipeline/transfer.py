@@ -33,8 +33,8 @@ from ..geometry import clearance, penetration
 from ..geometry.binding import Binding, bind, carry
 from ..geometry.embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
 from ..geometry.gradients import deformation_gradients
-from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topology
-from ..geometry.poisson import PoissonSolver, anchor_weight_for, choose_method
+from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topology, vertex_places
+from ..geometry.poisson import JoinedPoissonSolver, PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
 from ..geometry.self_check import pairs_in_full
@@ -142,7 +142,8 @@ class PreparedGarment:
 
     Build it with ``prepare_garment`` and pass it to ``transfer_garment`` for every target.
     The garment's own facts (mean edge length, degenerate triangles, vertex graph) are computed
-    here once and used by every stage.
+    here once and used by every stage. ``place``: each vertex's place (``mesh.vertex_places``) when some
+    vertices lie on others (pieces not joined at their seams: solved and spread across them as one), else None.
     """
 
     garment: Mesh
@@ -156,10 +157,12 @@ class PreparedGarment:
     degenerate: np.ndarray | None = None
     embed_matrix: object = None
     anchoring: str = "everywhere"
+    place: np.ndarray | None = None
     _adjacency: object = field(default=None, repr=False)
     _readings: object = field(default=None, repr=False)
     _source_pairs: object = field(default=None, repr=False)
     _limbs: object = field(default=None, repr=False)
+    _joined: object = field(default=None, repr=False)
 
     def adjacency(self):
         """The garment's (n,n) vertex adjacency (csr), built on first use (only a fix needs it)."""
@@ -172,6 +175,23 @@ class PreparedGarment:
         if self._readings is None:
             self._readings = readings_of(self.garment)
         return self._readings
+
+    def joined(self):
+        """The garment with the vertices of each place made one (``place``: its pieces joined at their seams, in the
+        order of their first vertices, with the garment's own polygons and triangulation), for the penetration fix
+        and the crossing pass: ``(PreparedGarment of it, first)``, ``first`` the first vertex at each place (the
+        joined garment is ``V[first]``; back, ``V_joined[place]``). None when no vertex lies on another."""
+        if self.place is None:
+            return None
+        if self._joined is None:
+            g, place = self.garment, self.place
+            first = np.zeros(int(place.max()) + 1, np.int64)
+            first[place[::-1]] = np.arange(place.size)[::-1]
+            mesh = Mesh(g.V[first], place[g.F], place[g.face_vertices], g.face_start, g.tri_to_face, g.name)
+            self._joined = (PreparedGarment(mesh, self.source_body, None, None, self.binding, None, {},
+                                            edge_length=edge_length_and_degenerate(mesh.V, mesh.F)[0],
+                                            anchoring=self.anchoring), first)
+        return self._joined
 
     def covered(self):
         """(n,) bool: the source body's vertices the garment lies on (the corners of the triangles it is bound
@@ -289,6 +309,8 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     scale = body_scale(source_body.V)
     length = stiffness if stiffness else STIFFNESS_SHARE * scale
     method = solver_method or choose_method(garment.n_vertices, reused)
+    place, first = vertex_places(garment.V)
+    place = place if first.size < garment.n_vertices else None
 
     def garment_facts():
         h, degenerate = edge_length_and_degenerate(garment.V, garment.F)
@@ -299,8 +321,13 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     def make_solver(distance, h, degenerate, with_adjacency=False):
         started = time.perf_counter()
         w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
-        solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
-                               method=method, energy=energy)
+        if place is not None:
+            # Pieces not joined at their seams: solved as the one surface they make (their seams kept closed).
+            solver = JoinedPoissonSolver(garment.V, garment.F, w, place, method=method, energy=energy,
+                                         triangle_weights=(~degenerate).astype(np.float64))
+        else:
+            solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
+                                   method=method, energy=energy)
         seconds["factor"] = time.perf_counter() - started
         # The penetration fix's vertex graph, while the main thread binds (otherwise built on first use).
         adjacency = penetration.vertex_adjacency(garment.n_vertices, garment.F) if with_adjacency else None
@@ -342,7 +369,7 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
             solver, adjacency = make_solver(binding.distance, h, degenerate)
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
                            edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring,
-                           _adjacency=adjacency)
+                           place=place, _adjacency=adjacency)
 
 
 def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None,
@@ -390,7 +417,8 @@ def pass_inputs_ahead(prepared: PreparedGarment, body: Mesh):
     fix) do not touch, started on a free core meanwhile (``threads.ahead``): the garment's own self-intersections
     on the source (its readings' topology with them) and the body's readings. ``fit_to_body(..., early=)`` waits
     for it."""
-    return ahead(lambda: (prepared.source_pairs(), readings_of(body)))
+    cloth = prepared if prepared.place is None else prepared.joined()[0]
+    return ahead(lambda: (cloth.source_pairs(), readings_of(body)))
 
 
 def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetration=True, resolve_crossings=True,
@@ -429,6 +457,15 @@ def fit_to_body(V, prepared: PreparedGarment, body: Mesh, offset, *, fix_penetra
     """
     info = {} if info is None else info
     seconds = {} if seconds is None else seconds
+    if prepared.place is not None:
+        # Pieces not joined at their seams: fixed and cleared as the one surface they make (the solve made the
+        # vertices of each place one), so that the seams stay closed.
+        joined, first = prepared.joined()
+        V, *rest = fit_to_body(np.asarray(V)[first], joined, body, offset, fix_penetration=fix_penetration,
+                               resolve_crossings=resolve_crossings,
+                               source_V=None if source_V is None else np.asarray(source_V)[first], info=info,
+                               seconds=seconds, step=step, early=early)
+        return (V[prepared.place], *rest)
     garment = prepared.garment
     if step is not None:
         step(0.8, "fix")
