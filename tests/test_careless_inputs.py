@@ -534,22 +534,28 @@ def test_one_body_mirrored_and_the_other_not_is_named():
         require_same_topology(a, b)
 
 
-def test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_and_is_transferred_as_the_joined_one(
-        tmp_path, capsys):
-    import json
-
-    root = require_makehuman()
-    suit = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
-    # Its left and right halves written as pieces (each vertex on the seam between them twice), as a pattern's
-    # pieces or a split along UV seams come out of other tools.
+def in_halves(suit):
+    """A garment's left and right halves as pieces (each vertex on the seam between them written again, after the
+    others), as a pattern's pieces or a split along UV seams come out of other tools: (Mesh, seam vertices, their
+    copies)."""
     F = np.array(suit.F)
     right = suit.V[F].mean(axis=1)[:, 0] > 0
     seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
     copy = np.full(suit.n_vertices, -1)
     copy[seam] = suit.n_vertices + np.arange(seam.size)
     F[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
+    return mesh_from_triangles(np.vstack([suit.V, suit.V[seam]]), F, f"{suit.name} in halves"), seam, copy[seam]
+
+
+def test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_and_is_transferred_as_the_joined_one(
+        tmp_path, capsys):
+    import json
+
+    root = require_makehuman()
+    suit = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
+    halves, seam, twins = in_halves(suit)
     pieces, joined = tmp_path / "pieces.obj", tmp_path / "joined.obj"
-    write_obj(pieces, mesh_from_triangles(np.vstack([suit.V, suit.V[seam]]), F, "pieces"))
+    write_obj(pieces, halves)
     write_obj(joined, mesh_from_triangles(suit.V, suit.F, "joined"))      # the same triangles, joined
     results = {}
     for name, garment in (("pieces", pieces), ("joined", joined)):
@@ -564,7 +570,27 @@ def test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_and_is_tra
     # up to 7.4 mm, as pieces), nothing said; and the suit as the joined one is transferred (0.016 mm apart at most:
     # the solves differ in their last bits, which the penetration fix's steps carry).
     assert data["check"]["seam_vertices"] == seam.size and data["check"]["seam_gap"] == 0.0
-    assert np.array_equal(V[copy[seam]], V[seam])
+    assert np.array_equal(V[twins], V[seam])
     assert not [w for w in data["warnings"] if "not joined" in w]
     assert data["check"]["garment_edges_through_body"] == data["check"]["body_edges_through_garment"] == 0
     assert np.abs(V[:suit.n_vertices] - results["joined"][1]).max() < 1e-3
+
+
+def test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_in_a_pose_and_as_an_outer_layer():
+    from garment_transfer import (Rig, bvh_rotations, fit_to_pose, read_bvh, read_joints, read_skeleton, read_weights,
+                                  transfer_outfit)
+
+    root = require_makehuman()
+    source, target = read_obj(root / "bodies" / "female_average.obj"), read_obj(root / "bodies" / "female_pear.obj")
+    suit, seam, twins = in_halves(read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj"))
+    # Running (the pose fit's own passes moved the halves 0.9 mm apart) ...
+    skeleton = read_skeleton(root / "rig" / "skeleton.json")
+    rig = Rig(skeleton, read_joints(root / "rig" / "joints" / "female_average.json"),
+              read_weights(root / "rig" / "weights.json", source.n_vertices))
+    R = bvh_rotations(read_bvh(root / "poses" / "run01.bvh"), skeleton, file_up="Z", body_up="Y")
+    fit = fit_to_pose(source, rig.pose(source.V, rig.transforms(R)), suit, untangle=True)
+    assert np.array_equal(fit.V[twins], fit.V[seam])
+    # ... and over another suit (pushed out of it: 2.2 mm apart).
+    sport, seam, twins = in_halves(read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj"))
+    outer = transfer_outfit(source, target, [suit, sport]).V[1]
+    assert np.array_equal(outer[twins], outer[seam])

@@ -359,6 +359,27 @@ def shared_places(V):
     return np.stack([on, at[on]], axis=1).astype(np.int64)
 
 
+def joined_pieces(mesh: Mesh):
+    """The mesh with the vertices at each place made one (``vertex_places``: pieces joined at their seams), with its
+    own polygons and triangulation, the vertices in the order of each place's first.
+
+    Returns
+    -------
+    None when no two vertices share a place, else
+    joined : Mesh
+    first : (p,) int64
+        The first vertex at each place: ``joined.V == mesh.V[first]``.
+    place : (n,) int64
+        Each vertex's place: positions of the joined mesh go back to the mesh's vertices as ``X[place]``.
+    """
+    place, first = vertex_places(mesh.V)
+    if first.size == mesh.n_vertices:
+        return None
+    joined = Mesh(mesh.V[first], place[mesh.F], place[mesh.face_vertices], mesh.face_start, mesh.tri_to_face,
+                  mesh.name)
+    return joined, first, place
+
+
 def connected_pieces(n, F):
     """Connected components of the triangles' vertices.
 

@@ -37,7 +37,7 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
 from ..fitting.registration import Registration
-from ..geometry.mesh import Mesh, edge_lengths_mean
+from ..geometry.mesh import Mesh, edge_lengths_mean, joined_pieces
 from ..geometry.proximity import TriangleSurface, as_same_mesh
 from .any_body import registration_for, transfer_to_any_body
 from .transfer import OFFSET_SHARE
@@ -364,7 +364,15 @@ def separate_layers(body_V, body_F, garments, Vs, offsets):
         obstacle_F = merge_readings([(u[0].shape[0], u[1]) for u in under])
         surface = TriangleSurface(obstacle_V, obstacle_F.split) if k else body
         G = readings_of(garment)
-        V, push = push_out(V, G, obstacle_V, obstacle_F, offsets[k], scale, surface=surface)
+        joined = joined_pieces(garment)
+        if joined is None:
+            V, push = push_out(V, G, obstacle_V, obstacle_F, offsets[k], scale, surface=surface)
+        else:
+            # Pieces not joined at their seams (transferred as the joined garment): pushed out as it, seams closed.
+            mesh, first, place = joined
+            V, push = push_out(np.asarray(V, dtype=np.float64)[first], readings_of(mesh), obstacle_V, obstacle_F,
+                               offsets[k], scale, surface=surface)
+            V = V[place]
         out.append(V)
         info.append(dict(push, self_intersections_added=push["self_intersections_after"]
                          - push["self_intersections_before"]))

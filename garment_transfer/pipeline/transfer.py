@@ -33,7 +33,8 @@ from ..geometry import clearance, penetration
 from ..geometry.binding import Binding, bind, carry
 from ..geometry.embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
 from ..geometry.gradients import deformation_gradients
-from ..geometry.mesh import Mesh, edge_length_and_degenerate, require_same_topology, vertex_places
+from ..geometry.mesh import (Mesh, edge_length_and_degenerate, joined_pieces, require_same_topology,
+                             vertex_places)
 from ..geometry.poisson import JoinedPoissonSolver, PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
@@ -184,10 +185,7 @@ class PreparedGarment:
         if self.place is None:
             return None
         if self._joined is None:
-            g, place = self.garment, self.place
-            first = np.zeros(int(place.max()) + 1, np.int64)
-            first[place[::-1]] = np.arange(place.size)[::-1]
-            mesh = Mesh(g.V[first], place[g.F], place[g.face_vertices], g.face_start, g.tri_to_face, g.name)
+            mesh, first, _ = joined_pieces(self.garment)
             self._joined = (PreparedGarment(mesh, self.source_body, None, None, self.binding, None, {},
                                             edge_length=edge_length_and_degenerate(mesh.V, mesh.F)[0],
                                             anchoring=self.anchoring), first)
