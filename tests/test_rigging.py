@@ -383,3 +383,26 @@ def test_cloth_left_with_no_weight_is_counted_and_said_and_none_weighted_is_said
     # Every vertex weighted: nothing said.
     painted, info = inpainted_weights(V, F, sphere_rig()[2], G, GF)
     assert info["unweighted"] == 0 and unweighted_vertices(painted, W, "shirt") == (0, [])
+
+
+def test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one():
+    V, F, W = sphere_rig()
+    # A garment matched but for a cap pulled far out (inpainted), cut into two pieces at x = 0 (each vertex they
+    # share written again for the second piece): the inpainting of each piece alone gives a seam vertex and its
+    # twin other weights, which skinning would pull apart.
+    G, GF = icosphere(2, radius=1.02)
+    G = G.copy()
+    G[G[:, 2] > 0.6] *= 1.5
+    right = G[GF].mean(axis=1)[:, 0] > 0
+    seam = np.intersect1d(np.unique(GF[right]), np.unique(GF[~right]))
+    twin = np.full(len(G), -1)
+    twin[seam] = len(G) + np.arange(seam.size)
+    F2 = GF.copy()
+    F2[right] = np.where(twin[GF[right]] >= 0, twin[GF[right]], GF[right])
+    pieces, info = inpainted_weights(V, F, W, np.vstack([G, G[seam]]), F2, max_influences=None)
+    joined, joined_info = inpainted_weights(V, F, W, G, GF, max_influences=None)
+    # Counted per vertex of the file: a twin of an inpainted seam vertex is inpainted too.
+    unmatched_seam = int((~match(V, F, G, GF)[0][seam]).sum())
+    assert info["inpainted"] > 0 and info["inpainted"] == joined_info["inpainted"] + unmatched_seam
+    D = pieces.dense()
+    assert np.array_equal(D[:len(G)], joined.dense()) and np.array_equal(D[len(G):], D[seam])

@@ -25,7 +25,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import MeshError, RigError
 from ..geometry.embedding import body_scale
-from ..geometry.mesh import connected_pieces, vertex_areas, vertex_normals
+from ..geometry.mesh import connected_pieces, vertex_areas, vertex_normals, vertex_places
 from ..geometry.proximity import TriangleSurface
 from .skinning import SkinWeights, skin_weights
 
@@ -276,6 +276,10 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
                                           f"{np.asarray(body_V).shape[0]}")
     if garment_V.shape[0] == 0 or garment_F.shape[0] == 0:
         raise MeshError(name, "has no faces to carry weights to")
+    # Pieces not joined at their seams (vertices at one place, ``mesh.vertex_places``): weighted as the joined
+    # garment, so that the vertices of a place move alike and the seams stay closed in motion.
+    place, first = vertex_places(garment_V)
+    garment_V, garment_F = garment_V[first], place[garment_F]
     surface = surface or TriangleSurface(body_V, body_F)
     if distance is None:
         distance = MATCH_DISTANCE_SHARE * body_scale(surface.V)
@@ -295,9 +299,10 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     np.clip(X, 0.0, 1.0, out=X)
     p = garment_V.shape[0]
     W = sp.csr_matrix((X.ravel(), (np.repeat(np.arange(p), present.size), np.tile(present, p))),
-                      shape=(p, len(body_weights.groups)))
+                      shape=(p, len(body_weights.groups)))[place]
     weights = skin_weights(body_weights.groups, W, name)
     weights = weights.limited(max_influences) if max_influences else weights.normalised()
+    matched, known = matched[place], known[place]
     info = {"matched": int(matched.sum()), "inpainted": int((~known).sum()), "groups_used": int(present.size),
             "distance": float(distance), "angle": float(angle),
             "max_influences": int(max_influences) if max_influences else None, "warnings": []}
@@ -308,7 +313,7 @@ def inpainted_weights(body_V, body_F, body_weights: SkinWeights, garment_V, garm
     info["unweighted"], warnings = unweighted_vertices(weights, body_weights, name)
     info["warnings"] += warnings
     log.debug("weights of %s: %d of %d vertices matched, %d inpainted", name, info["matched"],
-              garment_V.shape[0], info["inpainted"])
+              place.size, info["inpainted"])
     return weights, info
 
 
