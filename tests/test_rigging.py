@@ -406,3 +406,6 @@ def test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one():
     assert info["inpainted"] > 0 and info["inpainted"] == joined_info["inpainted"] + unmatched_seam
     D = pieces.dense()
     assert np.array_equal(D[:len(G)], joined.dense()) and np.array_equal(D[len(G):], D[seam])
+    # So is the share of the cloth that rides the skin (averaged over neighbours: across the seam, as one).
+    share = riding_share(V, F, np.vstack([G, G[seam]]), F2)
+    assert np.array_equal(share[:len(G)], riding_share(V, F, G, GF)) and np.array_equal(share[len(G):], share[seam])

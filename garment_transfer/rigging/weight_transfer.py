@@ -401,6 +401,9 @@ def riding_share(body_V, body_F, garment_V, garment_F, *, full=None, none=None, 
     """
     garment_V = np.asarray(garment_V, dtype=np.float64)
     garment_F = np.asarray(garment_F, dtype=np.int64)
+    # Pieces not joined at their seams: the joined garment's share, the vertices of a place alike.
+    place, first = vertex_places(garment_V)
+    garment_V, garment_F = garment_V[first], place[garment_F]
     surface = surface or TriangleSurface(body_V, body_F)
     scale = body_scale(surface.V)
     full = RIDE_FULL_SHARE * scale if full is None else float(full)
@@ -419,4 +422,4 @@ def riding_share(body_V, body_F, garment_V, garment_F, *, full=None, none=None, 
         alone = degree == 0
         for _ in range(int(smoothing)):
             share = np.where(alone, share, 0.5 * share + 0.5 * (mean @ share))
-    return share
+    return share[place]
