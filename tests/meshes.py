@@ -73,3 +73,25 @@ def arms_down(V, angle=np.radians(40)):
         V[:, 0] = np.where(w > 0, side * nx, V[:, 0])
         V[:, 1] = np.where(w > 0, ny, V[:, 1])
     return V
+
+
+def in_pieces(V, F):
+    """A mesh cut into two pieces at x = 0, as a pattern's pieces (or a split along UV seams) come out of other
+    tools: each vertex the two pieces share is written again, after the others, for the triangles with x > 0.
+
+    Returns
+    -------
+    V2 : (n+k,3) float, F2 : (m,3) int
+        The pieces: ``V2[:n] == V``, the last k the copies.
+    seam : (k,) int
+        The shared vertices.
+    twin : (k,) int
+        Each one's copy.
+    """
+    F = np.array(F, dtype=np.int64)
+    right = np.asarray(V)[F].mean(axis=1)[:, 0] > 0
+    seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
+    copy = np.full(len(V), -1)
+    copy[seam] = len(V) + np.arange(seam.size)
+    F[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
+    return np.vstack([V, np.asarray(V)[seam]]), F, seam, copy[seam]

@@ -9,7 +9,7 @@ import stat
 
 import numpy as np
 import pytest
-from meshes import icosphere, require_makehuman
+from meshes import icosphere, in_pieces, require_makehuman
 
 from garment_transfer.cli import commands as cli
 from garment_transfer.cli import options
@@ -535,16 +535,9 @@ def test_one_body_mirrored_and_the_other_not_is_named():
 
 
 def in_halves(suit):
-    """A garment's left and right halves as pieces (each vertex on the seam between them written again, after the
-    others), as a pattern's pieces or a split along UV seams come out of other tools: (Mesh, seam vertices, their
-    copies)."""
-    F = np.array(suit.F)
-    right = suit.V[F].mean(axis=1)[:, 0] > 0
-    seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
-    copy = np.full(suit.n_vertices, -1)
-    copy[seam] = suit.n_vertices + np.arange(seam.size)
-    F[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
-    return mesh_from_triangles(np.vstack([suit.V, suit.V[seam]]), F, f"{suit.name} in halves"), seam, copy[seam]
+    """A garment's left and right halves as pieces (``meshes.in_pieces``): (Mesh, seam vertices, their copies)."""
+    V, F, seam, twin = in_pieces(suit.V, suit.F)
+    return mesh_from_triangles(V, F, f"{suit.name} in halves"), seam, twin
 
 
 def test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_and_is_transferred_as_the_joined_one(

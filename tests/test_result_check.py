@@ -1,7 +1,7 @@
 """The figures of a result as written: what the transfer already searched is used only when it is of the body
 given."""
 
-from meshes import grid, icosphere
+from meshes import grid, icosphere, in_pieces
 
 from garment_transfer.geometry.intersections import crossings
 from garment_transfer.geometry.mesh import mesh_from_triangles
@@ -39,19 +39,14 @@ def test_a_garment_whose_pieces_are_not_joined_has_its_seams_measured_on_the_res
     body = mesh_from_triangles(BV, BF, name="body")
     # A shell around the body cut into two pieces at x = 0: each vertex the two halves share written twice.
     SV, SF = icosphere(2, radius=1.1)
-    right = SV[SF].mean(axis=1)[:, 0] > 0
-    seam = np.intersect1d(np.unique(SF[right]), np.unique(SF[~right]))
-    copy = np.full(len(SV), -1)
-    copy[seam] = len(SV) + np.arange(seam.size)
-    F = SF.copy()
-    F[right] = np.where(copy[SF[right]] >= 0, copy[SF[right]], SF[right])
-    pieces = mesh_from_triangles(np.vstack([SV, SV[seam]]), F, name="pieces")
+    PV, PF, seam, twin = in_pieces(SV, SF)
+    pieces = mesh_from_triangles(PV, PF, name="pieces")
     pairs = shared_places(pieces.V)
-    assert sorted(map(tuple, pairs)) == sorted(zip(copy[seam].tolist(), seam.tolist()))
+    assert sorted(map(tuple, pairs)) == sorted(zip(twin.tolist(), seam.tolist()))
     assert shared_places(SV).shape == (0, 2)
     # The result moves the right piece's copies 1 mm out along x: the seam opens by exactly that at each pair.
     V = pieces.V.copy()
-    V[copy[seam]] += [0.001, 0.0, 0.0]
+    V[twin] += [0.001, 0.0, 0.0]
     check = check_result(pieces, V, body)
     assert (check["seam_vertices"], check["seam_gap"]) == (seam.size, seam_gap(pieces.V, V)[1])
     assert abs(check["seam_gap"] - 0.001) < 1e-15

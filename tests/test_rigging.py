@@ -12,7 +12,7 @@ from garment_transfer import (MeshError, RigError, Rig, axes_between, body_scale
                               unweighted_vertices, write_weights)
 from garment_transfer.rigging import (bone_frames, cotangent_laplacian, group_transforms, inpaint, match,
                                       skeleton_from_dict, smoothness_matrix, weights_from_dict)
-from tests.meshes import grid, icosphere, random_rotation, require_makehuman
+from tests.meshes import grid, icosphere, in_pieces, random_rotation, require_makehuman
 
 TINY_BVH = """HIERARCHY
 ROOT hips
@@ -393,13 +393,8 @@ def test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one():
     G, GF = icosphere(2, radius=1.02)
     G = G.copy()
     G[G[:, 2] > 0.6] *= 1.5
-    right = G[GF].mean(axis=1)[:, 0] > 0
-    seam = np.intersect1d(np.unique(GF[right]), np.unique(GF[~right]))
-    twin = np.full(len(G), -1)
-    twin[seam] = len(G) + np.arange(seam.size)
-    F2 = GF.copy()
-    F2[right] = np.where(twin[GF[right]] >= 0, twin[GF[right]], GF[right])
-    pieces, info = inpainted_weights(V, F, W, np.vstack([G, G[seam]]), F2, max_influences=None)
+    PV, PF, seam, twin = in_pieces(G, GF)
+    pieces, info = inpainted_weights(V, F, W, PV, PF, max_influences=None)
     joined, joined_info = inpainted_weights(V, F, W, G, GF, max_influences=None)
     # Counted per vertex of the file: a twin of an inpainted seam vertex is inpainted too.
     unmatched_seam = int((~match(V, F, G, GF)[0][seam]).sum())
@@ -407,5 +402,5 @@ def test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one():
     D = pieces.dense()
     assert np.array_equal(D[:len(G)], joined.dense()) and np.array_equal(D[len(G):], D[seam])
     # So is the share of the cloth that rides the skin (averaged over neighbours: across the seam, as one).
-    share = riding_share(V, F, np.vstack([G, G[seam]]), F2)
+    share = riding_share(V, F, PV, PF)
     assert np.array_equal(share[:len(G)], riding_share(V, F, G, GF)) and np.array_equal(share[len(G):], share[seam])

@@ -2,7 +2,7 @@ import json
 
 import numpy as np
 import pytest
-from meshes import arms_down, icosphere, require_makehuman
+from meshes import arms_down, icosphere, in_pieces, require_makehuman
 
 from garment_transfer.errors import Cancelled, MeshError, PoseError, TopologyMismatchError
 from garment_transfer.geometry.mesh import mesh_from_polygons, mesh_from_triangles
@@ -180,16 +180,11 @@ def test_a_garment_whose_pieces_are_not_joined_is_transferred_as_the_joined_one_
     V, F = GV[used], index[GF[keep]]
     joined = mesh_from_triangles(V, F, name="joined")
     # The band cut into two pieces at x = 0: each vertex they share written again for the second piece.
-    right = V[F].mean(axis=1)[:, 0] > 0
-    seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
-    copy = np.full(len(V), -1)
-    copy[seam] = len(V) + np.arange(seam.size)
-    F2 = F.copy()
-    F2[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
-    pieces = mesh_from_triangles(np.vstack([V, V[seam]]), F2, name="pieces")
+    PV, PF, seam, twin = in_pieces(V, F)
+    pieces = mesh_from_triangles(PV, PF, name="pieces")
     place, first = vertex_places(pieces.V)
     assert np.array_equal(first, np.arange(len(V))) and np.array_equal(place[len(V):], seam)
-    assert np.array_equal(shared_places(pieces.V), np.stack([copy[seam], seam], axis=1))
+    assert np.array_equal(shared_places(pieces.V), np.stack([twin, seam], axis=1))
     # The solve of the pieces is the joined garment's, given to every vertex of a place.
     w = np.linspace(0.5, 2.0, pieces.n_vertices)
     Q = np.tile(np.diag([1.3, 1.3, 1.0]), (pieces.n_triangles, 1, 1))
@@ -199,6 +194,6 @@ def test_a_garment_whose_pieces_are_not_joined_is_transferred_as_the_joined_one_
     # The whole transfer (the fix and the crossing pass too): each seam vertex where its twin is, clear of the
     # body, and the joined garment's result.
     r = transfer_garment(source, target, pieces, offset=0.07)          # nearer than the offset: the fix pushes
-    assert np.array_equal(r.V[copy[seam]], r.V[seam]) and r.info["crossings_after"] == 0
+    assert np.array_equal(r.V[twin], r.V[seam]) and r.info["crossings_after"] == 0
     assert r.info["pushed_vertices"] > 0 and r.penetrating_vertices == 0
     assert np.abs(r.V[:len(V)] - transfer_garment(source, target, joined, offset=0.07).V).max() < 1e-4

@@ -286,20 +286,17 @@ def test_the_panel_and_the_warnings_say_what_the_object_crosses_as_blender_has_i
 
 
 def test_a_garment_in_pieces_not_joined_at_their_seams_keeps_them_closed(dressed, tmp_path):
+    from meshes import in_pieces
+
     from garment_transfer import mesh_from_triangles, read_obj, write_obj
 
     # The suit's left and right halves as pieces (each vertex on the seam between them written again), as a
     # pattern's pieces come out of other tools, imported as Blender imports them.
     suit = read_obj(dressed.makehuman / "garments" / GARMENT / "female_average.obj")
-    F = np.array(suit.F)
-    right = suit.V[F].mean(axis=1)[:, 0] > 0
-    seam = np.intersect1d(np.unique(F[right]), np.unique(F[~right]))
-    twin = np.full(suit.n_vertices, -1)
-    twin[seam] = suit.n_vertices + np.arange(seam.size)
-    F[right] = np.where(twin[F[right]] >= 0, twin[F[right]], F[right])
-    write_obj(tmp_path / "pieces.obj", mesh_from_triangles(np.vstack([suit.V, suit.V[seam]]), F, "pieces"))
+    V, F, seam, twin = in_pieces(suit.V, suit.F)
+    write_obj(tmp_path / "pieces.obj", mesh_from_triangles(V, F, "pieces"))
     dressed.settings.garment = import_obj(tmp_path / "pieces.obj", "pieces")
     assert len(dressed.settings.garment.data.vertices) == suit.n_vertices + seam.size
     W = world_vertices(transfer_result())
-    assert np.array_equal(W[twin[seam]], W[seam])
+    assert np.array_equal(W[twin], W[seam])
     assert np.abs(W[seam] - world_vertices(dressed.settings.garment)[seam]).max() > 1e-3     # moved, together
