@@ -254,7 +254,7 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
                               resolve_crossings=False, check_pose=False)
     t = time.perf_counter()
     # Pieces not joined at their seams (transferred as the joined garment): cleared as it, seams closed.
-    joined = joined_pieces(garment)
+    joined = None if prepared.place is None else joined_pieces(garment)
     cloth, V = (garment, result.V) if joined is None else (joined[0], result.V[joined[1]])
     result.contact = body_contact(posed, result.info["offset"], rest_body.V, contact_rings)
     result.obstacle = free_body(posed, result.contact[0], cloth, V)
