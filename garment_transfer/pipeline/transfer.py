@@ -144,7 +144,8 @@ class PreparedGarment:
     Build it with ``prepare_garment`` and pass it to ``transfer_garment`` for every target.
     The garment's own facts (mean edge length, degenerate triangles, vertex graph) are computed
     here once and used by every stage. ``place``: each vertex's place (``mesh.vertex_places``) when some
-    vertices lie on others (pieces not joined at their seams: solved and spread across them as one), else None.
+    vertices lie on others (pieces not joined at their seams: solved, fixed and cleared as the joined garment),
+    else None.
     """
 
     garment: Mesh
@@ -186,7 +187,9 @@ class PreparedGarment:
             return None
         if self._joined is None:
             mesh, first, _ = joined_pieces(self.garment)
-            self._joined = (PreparedGarment(mesh, self.source_body, None, None, self.binding, None, {},
+            b = self.binding
+            binding = Binding(b.triangle[first], b.bary[first], b.local[first], b.distance[first])
+            self._joined = (PreparedGarment(mesh, self.source_body, None, None, binding, None, {},
                                             edge_length=edge_length_and_degenerate(mesh.V, mesh.F)[0],
                                             anchoring=self.anchoring), first)
         return self._joined
