@@ -44,6 +44,17 @@ ROWS = {
     "a few loose vertices": ["test_broken_meshes.py::test_zero_area_needle_duplicate_and_loose"],
     "non-manifold edges": ["test_broken_meshes.py::test_non_manifold_and_disconnected_pieces",
                            "test_broken_meshes.py::test_flipped_faces_give_nearly_the_same_result"],
+    "a garment whose pieces are not joined at their seams": [
+        "test_transfer.py::test_a_garment_whose_pieces_are_not_joined_is_transferred_as_the_joined_one_with_its_seams_closed",
+        "test_careless_inputs.py::test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_and_is_transferred_as_the_joined_one",
+        "test_careless_inputs.py::test_a_garment_whose_pieces_are_not_joined_keeps_its_seams_closed_in_a_pose_and_as_an_outer_layer",
+        "test_result_check.py::test_a_garment_whose_pieces_are_not_joined_has_its_seams_measured_on_the_result_and_said_when_opened",
+        "test_rigging.py::test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one",
+        "blender/test_transfer_operator.py::test_a_garment_in_pieces_not_joined_at_their_seams_keeps_them_closed"],
+    "body weights (`weights`, Rig to Body) that leave part of the garment with no weight": [
+        "test_rigging.py::test_cloth_left_with_no_weight_is_counted_and_said_and_none_weighted_is_said_so",
+        "test_weights_cli.py::test_weights_that_leave_cloth_unweighted_are_said_in_the_json_and_weights_that_move_nothing_are_refused",
+        "blender/test_motion.py::test_rig_to_body_says_where_the_bodys_weights_leave_the_cloth_unweighted_and_refuses_weights_that_move_nothing"],
     "a garment slightly inside the body": ["test_broken_meshes.py::test_garment_inside_the_body_is_pushed_out"],
     "open bodies": ["test_broken_meshes.py::test_bodies_with_holes",
                     "test_geometry.py::test_penetration_counted_on_closed_and_open_bodies"],
