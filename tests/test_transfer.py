@@ -190,7 +190,13 @@ def test_a_garment_whose_pieces_are_not_joined_is_transferred_as_the_joined_one_
     Q = np.tile(np.diag([1.3, 1.3, 1.0]), (pieces.n_triangles, 1, 1))
     anchors = pieces.V * [1.3, 1.3, 1.0]
     expected = PoissonSolver(V, F, w[:len(V)]).solve(Q, anchors[:len(V)])
-    assert np.array_equal(JoinedPoissonSolver(pieces.V, pieces.F, w, place).solve(Q, anchors), expected[place])
+    joined_solver = PoissonSolver(V, place[pieces.F], w[first])
+    assert np.array_equal(JoinedPoissonSolver(joined_solver, first, place).solve(Q, anchors), expected[place])
+    # And it is the solve a transfer prepares for the pieces.
+    prepared = prepare_garment(source, pieces)
+    assert isinstance(prepared.solver, JoinedPoissonSolver)
+    assert np.array_equal(prepared.solver.solve(Q, anchors),
+                          prepare_garment(source, joined).solver.solve(Q, anchors[:len(V)])[place])
     # The whole transfer (the fix and the crossing pass too): each seam vertex where its twin is, clear of the
     # body, and the joined garment's result.
     r = transfer_garment(source, target, pieces, offset=0.07)          # nearer than the offset: the fix pushes

@@ -280,35 +280,28 @@ class PoissonSolver:
 
 
 class JoinedPoissonSolver:
-    """``PoissonSolver`` of a garment whose vertices at one place are one vertex (``mesh.vertex_places``): pieces
-    not joined at their seams are solved as the one surface they make (the garment with them joined), so that the
-    result keeps its seams closed.
+    """The solve of a garment whose vertices at one place are one (``mesh.joined_pieces``: pieces not joined at
+    their seams): the joined garment's ``PoissonSolver``, each place anchored where its first vertex is, the answer
+    given to every vertex of the place, so that the result keeps its seams closed.
 
     Parameters
     ----------
-    V : (n,3) float
-    F : (m,3) int
-    anchor_weight : float or (n,) float
-        Each place takes the weight of its first vertex (the vertices of a place lie on the same body point).
+    solver : PoissonSolver
+        Of the joined garment (its anchor weights those of each place's first vertex).
+    first : (p,) int
+        The first vertex at each place.
     place : (n,) int
-        Each vertex's place (``vertex_places``).
-    triangle_weights, method, energy
-        As ``PoissonSolver``'s.
+        Each vertex's place.
     """
 
-    def __init__(self, V, F, anchor_weight, place, triangle_weights=None, method="factor", energy="gradients"):
-        V = np.asarray(V, dtype=np.float64)
+    def __init__(self, solver: PoissonSolver, first, place):
+        self.solver = solver
+        self.first = np.asarray(first, dtype=np.int64)
         self.place = np.asarray(place, dtype=np.int64)
-        self.first = np.zeros(int(self.place.max()) + 1, np.int64)
-        self.first[self.place[::-1]] = np.arange(self.place.size)[::-1]
-        weight = np.asarray(anchor_weight, dtype=np.float64)
-        self.solver = PoissonSolver(V[self.first], self.place[np.asarray(F, dtype=np.int64)],
-                                    weight if weight.ndim == 0 else weight[self.first], triangle_weights, method,
-                                    energy)
-        self.method = method
+        self.method = solver.method
 
     def solve(self, Q, anchors):
-        """As ``PoissonSolver.solve`` (each place anchored where its first vertex is): (n,3), equal at each place."""
+        """As ``PoissonSolver.solve``: (n,3), equal at each place."""
         return self.solver.solve(Q, np.asarray(anchors, dtype=np.float64)[self.first])[self.place]
 
 

@@ -32,7 +32,7 @@ from ..files import check_outputs, write_json_atomic
 from ..geometry import clearance
 from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
-from ..geometry.mesh import Mesh, joined_pieces, require_same_topology
+from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
 from ..geometry.pc2 import write_pc2
 from ..geometry.penetration import vertex_adjacency
@@ -254,8 +254,8 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
                               resolve_crossings=False, check_pose=False)
     t = time.perf_counter()
     # Pieces not joined at their seams (transferred as the joined garment): cleared as it, seams closed.
-    joined = None if prepared.place is None else joined_pieces(garment)
-    cloth, V = (garment, result.V) if joined is None else (joined[0], result.V[joined[1]])
+    joined = prepared.joined()
+    cloth, V = (garment, result.V) if joined is None else (joined[0].garment, result.V[joined[1]])
     result.contact = body_contact(posed, result.info["offset"], rest_body.V, contact_rings)
     result.obstacle = free_body(posed, result.contact[0], cloth, V)
     V, result.penetrating_vertices = clear_posed_body(V, cloth, posed, result.info, rest_V=rest_body.V,
@@ -263,7 +263,7 @@ def fit_to_pose(rest_body: Mesh, posed_V, garment: Mesh, *, prepared: PreparedGa
                                                       name=name, contact=result.contact, free=result.obstacle,
                                                       surface=result.surface,
                                                       clear_of_body=result.penetrating_vertices == 0)
-    result.V = V if joined is None else V[joined[2]]
+    result.V = V if joined is None else V[prepared.place]
     result.seconds["crossings"] = time.perf_counter() - t
     result.seconds["total"] += result.seconds["crossings"]
     if untangle and resolve_crossings:
@@ -277,12 +277,12 @@ def untangle_result(result: TransferResult, garment: Mesh, posed: Mesh) -> Trans
     (named after the pose)."""
     t = time.perf_counter()
     # Pieces not joined at their seams: untangled as the joined garment (as the fit cleared it).
-    joined = joined_pieces(garment)
-    cloth, V = (garment, result.V) if joined is None else (joined[0], result.V[joined[1]])
+    joined = result.prepared.joined()
+    cloth, V = (garment, result.V) if joined is None else (joined[0].garment, result.V[joined[1]])
     V, result.penetrating_vertices, result.info["untangle"] = untangle_fit(
         V, cloth, posed, result.info, result.contact[0], result.obstacle, surface=result.surface,
         inside=result.penetrating_vertices)
-    result.V = V if joined is None else V[joined[2]]
+    result.V = V if joined is None else V[result.prepared.place]
     result.info["warnings"] = pose_warnings(result.info["crossings_outside_contact"],
                                             result.info["crossings_at_contact"], result.info["body_self_crossings"],
                                             posed.name)

@@ -33,8 +33,7 @@ from ..geometry import clearance, penetration
 from ..geometry.binding import Binding, bind, carry
 from ..geometry.embedding import body_scale, cloth_to_body, interpolation_matrix, unembed, unembed_with_matrix
 from ..geometry.gradients import deformation_gradients
-from ..geometry.mesh import (Mesh, edge_length_and_degenerate, joined_pieces, require_same_topology,
-                             vertex_places)
+from ..geometry.mesh import Mesh, edge_length_and_degenerate, joined_pieces, require_same_topology
 from ..geometry.poisson import JoinedPoissonSolver, PoissonSolver, anchor_weight_for, choose_method
 from ..geometry.proximity import THREADS, TriangleSurface
 from ..geometry.readings import Readings, readings_of
@@ -164,6 +163,7 @@ class PreparedGarment:
     _readings: object = field(default=None, repr=False)
     _source_pairs: object = field(default=None, repr=False)
     _limbs: object = field(default=None, repr=False)
+    _pieces: object = field(default=None, repr=False)
     _joined: object = field(default=None, repr=False)
 
     def adjacency(self):
@@ -186,7 +186,7 @@ class PreparedGarment:
         if self.place is None:
             return None
         if self._joined is None:
-            mesh, first, _ = joined_pieces(self.garment)
+            mesh, first = self._pieces
             b = self.binding
             binding = Binding(b.triangle[first], b.bary[first], b.local[first], b.distance[first])
             self._joined = (PreparedGarment(mesh, self.source_body, None, None, binding, None, {},
@@ -310,8 +310,8 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     scale = body_scale(source_body.V)
     length = stiffness if stiffness else STIFFNESS_SHARE * scale
     method = solver_method or choose_method(garment.n_vertices, reused)
-    place, first = vertex_places(garment.V)
-    place = place if first.size < garment.n_vertices else None
+    pieces = joined_pieces(garment)
+    place = None if pieces is None else pieces[2]
 
     def garment_facts():
         h, degenerate = edge_length_and_degenerate(garment.V, garment.F)
@@ -322,13 +322,15 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
     def make_solver(distance, h, degenerate, with_adjacency=False):
         started = time.perf_counter()
         w = anchor_weights(garment, distance, scale, length, anchoring, contact, edge_length=h)
-        if place is not None:
-            # Pieces not joined at their seams: solved as the one surface they make (their seams kept closed).
-            solver = JoinedPoissonSolver(garment.V, garment.F, w, place, method=method, energy=energy,
-                                         triangle_weights=(~degenerate).astype(np.float64))
-        else:
+        if pieces is None:
             solver = PoissonSolver(garment.V, garment.F, w, triangle_weights=(~degenerate).astype(np.float64),
                                    method=method, energy=energy)
+        else:
+            # Pieces not joined at their seams: solved as the one surface they make (their seams kept closed).
+            mesh, first, _ = pieces
+            solver = JoinedPoissonSolver(PoissonSolver(mesh.V, mesh.F, w if np.ndim(w) == 0 else w[first],
+                                                       triangle_weights=(~degenerate).astype(np.float64),
+                                                       method=method, energy=energy), first, place)
         seconds["factor"] = time.perf_counter() - started
         # The penetration fix's vertex graph, while the main thread binds (otherwise built on first use).
         adjacency = penetration.vertex_adjacency(garment.n_vertices, garment.F) if with_adjacency else None
@@ -370,7 +372,7 @@ def prepare_garment(source_body: Mesh, garment: Mesh, *, interpolate=True, stiff
             solver, adjacency = make_solver(binding.distance, h, degenerate)
     return PreparedGarment(garment, source_body, index, weights, binding, solver, seconds,
                            edge_length=h, degenerate=degenerate, embed_matrix=matrix, anchoring=anchoring,
-                           place=place, _adjacency=adjacency)
+                           place=place, _pieces=None if pieces is None else pieces[:2], _adjacency=adjacency)
 
 
 def body_field(source_body: Mesh, target_body: Mesh, method="direct", model=None, target=None,
