@@ -268,7 +268,9 @@ def registration_text(context, outcome):
              f"{', untangled: ' + untangled + ' pairs its source does not have' if untangled else ''})"
              if pose.get("posed") else "")
     if not reg:
-        return "Same mesh as the source body: no registration" + posed
+        faces = " and ".join(w for k, w in (("target_faces_split", "triangulated"), ("target_faces_turned", "turned"))
+                             if outcome.info.get(k))
+        return f"Same mesh as the source body{f' (its faces {faces})' if faces else ''}: no registration" + posed
     q = reg["quality"]
     text = fit_text(context, reg)
     names = getattr(outcome, "shape_keys", [])

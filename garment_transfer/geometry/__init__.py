@@ -16,6 +16,7 @@ from .mesh import (
                    Mesh,
                    connected_pieces,
                    faces_hash,
+                   faces_split,
                    faces_turned,
                    mesh_from_polygons,
                    mesh_from_triangles,
@@ -36,7 +37,8 @@ from .readings import Readings, readings_of
 from .self_check import SelfCheck
 
 __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
-           "faces_turned", "turned_around", "as_same_mesh", "facing_outward", "connected_pieces", "triangle_normals",
+           "faces_turned", "faces_split", "turned_around", "as_same_mesh", "facing_outward", "connected_pieces",
+           "triangle_normals",
            "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text",
            "read_pc2", "write_pc2", "is_pc2", "TriangleSurface", "closest_on_triangles", "deformation_gradients",
            "body_scale",

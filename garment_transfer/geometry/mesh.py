@@ -452,6 +452,77 @@ def faces_turned(a: Mesh, b: Mesh) -> bool:
                                _from_lowest_corner(b.face_vertices, b.face_start)))
 
 
+def faces_split(a: Mesh, b: Mesh) -> bool:
+    """Whether ``b`` has ``a``'s vertex count and polygons split into smaller ones, winding kept: each polygon of
+    ``b`` lies within one of ``a``'s and together they tile it (a body written triangulated: each quad cut along
+    either diagonal, an n-gon into any triangles or smaller polygons; corners may start anywhere). ``a``'s own
+    polygons count as a split of themselves.
+
+    Each polygon of ``b`` is placed in the polygon of ``a`` holding all its corners; its corners must come in
+    that polygon's cyclic order (the same winding), and, polygon by polygon, the sides of ``b``'s pieces must
+    add up to ``a``'s sides alone (every inner cut crossed once each way): pieces of one winding whose sides add
+    up to the polygon's sides cover it once everywhere, with no gap and no overlap.
+    """
+    n = a.n_vertices
+    # A tiling of a's polygons has as many triangles as they have.
+    if n != b.n_vertices or b.face_start.shape[0] < a.face_start.shape[0] or b.F.shape[0] != a.F.shape[0]:
+        return False
+    a_size, b_size = np.diff(a.face_start), np.diff(b.face_start)
+    if b.face_vertices.shape[0] == 0 or b_size.min() < 3:
+        return False
+    k = int(a_size.max()) + 1
+    # Every corner of a as (vertex, polygon) sorted, with its place in its polygon.
+    a_poly = np.repeat(np.arange(a_size.shape[0]), a_size)
+    a_place = np.arange(a.face_vertices.shape[0]) - np.repeat(a.face_start[:-1], a_size)
+    order = np.lexsort((a_poly, a.face_vertices))
+    a_vertex, a_poly, a_place = a.face_vertices[order], a_poly[order], a_place[order]
+    incident = np.searchsorted(a_vertex, np.arange(n + 1))
+    # Candidates: the polygons of a at each b polygon's first corner, tried with all of its corners.
+    first = b.face_vertices[b.face_start[:-1]]
+    degree = incident[first + 1] - incident[first]
+    pair_piece = np.repeat(np.arange(b_size.shape[0]), degree)
+    pair_poly = a_poly[np.repeat(incident[first], degree) + np.arange(degree.sum())
+                       - np.repeat(np.cumsum(degree) - degree, degree)]
+    corner_pair = np.repeat(np.arange(pair_piece.shape[0]), b_size[pair_piece])
+    corner = b.face_vertices[np.repeat(b.face_start[pair_piece], b_size[pair_piece]) + np.arange(corner_pair.shape[0])
+                             - np.repeat(np.cumsum(b_size[pair_piece]) - b_size[pair_piece], b_size[pair_piece])]
+    # Each corner looked up among its vertex's polygons in a.
+    lo, hi = incident[corner], incident[corner + 1]
+    span = hi - lo
+    look = np.repeat(lo, span) + np.arange(span.sum()) - np.repeat(np.cumsum(span) - span, span)
+    owner = np.repeat(np.arange(corner.shape[0]), span)
+    hit = a_poly[look] == pair_poly[corner_pair[owner]]
+    found = np.zeros(corner.shape[0], dtype=bool)
+    found[owner[hit]] = True
+    place = np.full(corner.shape[0], -1)
+    place[owner[hit]] = a_place[look[hit]]
+    whole = np.bincount(corner_pair, weights=found, minlength=pair_piece.shape[0]) == b_size[pair_piece]
+    homes = np.bincount(pair_piece[whole], minlength=b_size.shape[0])
+    if homes.min() != 1 or homes.max() != 1:
+        return False
+    # The corners of each piece in its polygon's cyclic order.
+    keep = whole[corner_pair]
+    poly, place = pair_poly[corner_pair[keep]], place[keep]
+    start = np.r_[0, np.cumsum(b_size)]
+    local = (place - np.repeat(place[start[:-1]], b_size)) % a_size[poly]
+    inner = np.ones(local.shape[0] - 1, dtype=bool)
+    inner[start[1:-1] - 1] = False
+    if np.any(np.diff(local)[inner] <= 0):
+        return False
+    # Sides: each piece's directed sides (as places in its polygon) must add up to its polygon's sides.
+    nxt = np.arange(local.shape[0]) + 1
+    nxt[start[1:] - 1] = start[:-1]
+    side_poly = np.repeat(np.arange(a_size.shape[0]), a_size)
+    side_u = np.arange(a.face_vertices.shape[0]) - np.repeat(a.face_start[:-1], a_size)
+    side_v = (side_u + 1) % np.repeat(a_size, a_size)
+    u, v = np.concatenate([place, side_u]), np.concatenate([place[nxt], side_v])
+    keys, inverse = np.unique((np.concatenate([poly, side_poly]) * k + np.minimum(u, v)) * k + np.maximum(u, v),
+                              return_inverse=True)
+    sign = np.where(u < v, 1, -1) * np.r_[np.ones(place.shape[0]), -np.ones(side_u.shape[0])]
+    net = np.bincount(inverse, weights=sign, minlength=keys.shape[0])
+    return not np.any(net)
+
+
 def turned_around(mesh: Mesh, name=None) -> Mesh:
     """The same vertices with every polygon and triangle turned the other way round (normals reversed)."""
     return Mesh(mesh.V, np.ascontiguousarray(mesh.F[:, ::-1]), mesh.face_vertices[_turned_order(mesh.face_start)],

@@ -44,7 +44,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import Mesh, cross_rows, faces_turned, same_mesh, triangle_normals, turned_around
+from .mesh import Mesh, cross_rows, faces_split, faces_turned, same_mesh, triangle_normals, turned_around
 
 #: Threads for the numpy part of a query (per-point work on the found triangles); libigl's tree
 #: search runs on all cores by itself.
@@ -156,11 +156,15 @@ def facing_outward(mesh: Mesh) -> Mesh:
 def as_same_mesh(a: Mesh, b: Mesh):
     """``b`` as a shape of ``a``'s mesh, or None when it is another mesh.
 
-    ``b`` itself when the two are one mesh (``same_mesh``). When ``b`` has ``a``'s polygons each turned
-    the other way round (an OBJ written with the other winding), ``b``'s vertices with ``a``'s faces,
-    provided that its shape read with ``a``'s faces encloses a volume of the sign ``a``'s does: the vertex
-    order then keeps left and right, and the winding alone differs. Otherwise, ``b`` is ``a``'s mirror
-    image by its vertex order (one of two objects mirrored in Blender): None, as for another mesh.
+    ``b`` itself when the two are one mesh (``same_mesh``). When ``b`` has ``a``'s polygons each turned the
+    other way round (an OBJ written with the other winding), or split into smaller ones (written triangulated:
+    ``mesh.faces_split``), or both, ``b``'s vertices with ``a``'s faces, provided that its shape read with
+    ``a``'s faces encloses a volume of the sign ``a``'s does: the vertex order then keeps left and right, and
+    the faces alone differ. Otherwise, ``b`` is ``a``'s mirror image by its vertex order (one of two objects
+    mirrored in Blender): None, as for another mesh.
+
+    A split ``b`` is the surface of ``a``'s polygons read along one of their diagonals, which every check of
+    the project reads already (``readings``: every split of a polygon).
 
     Parameters
     ----------
@@ -172,7 +176,10 @@ def as_same_mesh(a: Mesh, b: Mesh):
     """
     if same_mesh(a, b):
         return b
-    if not faces_turned(a, b) or orientation(b.V, a.F) != orientation(a.V, a.F):
+    if a.n_vertices != b.n_vertices or not (faces_turned(a, b) or faces_split(a, b)
+                                            or faces_split(turned_around(a), b)):
+        return None
+    if orientation(b.V, a.F) != orientation(a.V, a.F):
         return None
     return a.with_vertices(b.V, name=b.name)
 

@@ -7,7 +7,7 @@ import time
 from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
-from ..geometry.mesh import Mesh
+from ..geometry.mesh import Mesh, faces_split
 from ..geometry.proximity import as_same_mesh
 from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahead, pose_check, prepare_garment,
                        transfer_garment)
@@ -68,14 +68,18 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         In the target's frame; ``info["registration"]`` holds the fit's figures when one was made.
     registration : Registration or None
         None when the two bodies are one mesh (also when the target is the source's mesh with every face
-        turned the other way round, an OBJ of the other winding: ``proximity.as_same_mesh``;
-        ``info["target_faces_turned"]`` then says so).
+        turned the other way round, an OBJ of the other winding, or with its polygons split, written
+        triangulated: ``proximity.as_same_mesh``; ``info["target_faces_turned"]`` and
+        ``info["target_faces_split"]`` then say so).
     """
     same = as_same_mesh(source_body, target_body)
     if same is not None:
         result = transfer_garment(source_body, same, garment, progress=progress, **options)
         if same is not target_body:
-            result.info["target_faces_turned"] = True
+            if target_body.face_start.shape != source_body.face_start.shape:
+                result.info["target_faces_split"] = True
+            if not faces_split(source_body, target_body):
+                result.info["target_faces_turned"] = True
         return result, None
 
     def sub(lo, hi):

@@ -75,7 +75,9 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     layers_below : sequence of (V (k,3), Readings or (l,3) int)
         Garments worn under this one, as the user has them.
     obstacle : Obstacle, optional
-        ``target_body`` binned already (``TransferResult.obstacle``: the same body, as the crossing pass saw it).
+        ``target_body`` binned already (``TransferResult.obstacle``: the same body, as the crossing pass saw it);
+        used only when it holds ``target_body``'s own polygons (a target written triangulated is checked on its
+        own triangles, though the pass saw the source's polygons).
     surface : TriangleSurface, optional
         ``target_body``'s own triangles searched already (``TransferResult.surface``: the body the penetration fix
         searched), for the body binned here when ``obstacle`` is not of it.
@@ -95,7 +97,8 @@ def check_result(garment: Mesh, V, target_body: Mesh, *, source_pairs=None, read
     """
     V = np.asarray(V, dtype=np.float64)
     G = readings if readings is not None else readings_of(garment)
-    if made_of(obstacle, target_body.V):
+    if made_of(obstacle, target_body.V) and np.array_equal(obstacle.R.face_start, target_body.face_start) \
+            and np.array_equal(obstacle.R.face_vertices, target_body.face_vertices):
         body = obstacle
     else:
         B = body_readings if body_readings is not None else readings_of(target_body)
