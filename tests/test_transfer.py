@@ -167,6 +167,42 @@ def test_a_target_in_another_pose_is_refused_naming_the_limb_and_the_angle():
 
 
 
+def test_a_target_standing_turned_in_the_world_is_in_the_same_pose():
+    # A character facing another way in the scene: the source's mesh in the pear's shape, a quarter turn about
+    # the vertical (MakeHuman's y) and moved. The limbs are compared after turning its trunk onto the source's.
+    from garment_transfer.fitting.limbs import TURN_NOISE, find_limbs, limb_angles, trunk_rotation
+
+    root = require_makehuman()
+    source = read_obj(root / "bodies" / "female_average.obj", name="female_average")
+    garment = read_obj(root / "garments" / "female_sportsuit01" / "female_average.obj")
+    pear = read_obj(root / "bodies" / "female_pear.obj")
+    t = np.radians(90.0)
+    R = np.array([[np.cos(t), 0.0, np.sin(t)], [0.0, 1.0, 0.0], [-np.sin(t), 0.0, np.cos(t)]])
+    shift = np.array([30.0, 5.0, -20.0])
+    turned = pear.with_vertices(pear.V @ R.T + shift, name="pear_turned")
+    limbs = find_limbs(source.V, source.F)
+    np.testing.assert_allclose(trunk_rotation(pear.V, turned.V, limbs.trunk), R, atol=1e-12)
+    straight = limb_angles(source.V, source.F, pear.V, limbs)
+    # The same angles, but for the pear's own trunk turn (0.06 degrees), taken out with the world's.
+    assert limb_angles(source.V, source.F, turned.V, limbs)["bands"] == pytest.approx(straight["bands"], abs=0.1)
+    # The shapes' own trunks differ by less than the turn taken for the world's (measured: 2.1 degrees from women
+    # to men), so a target in the source's frame is measured as before.
+    men = read_obj(root / "bodies" / "male_average.obj")
+    R_men = trunk_rotation(source.V, men.V, limbs.trunk)
+    assert 0.5 < np.degrees(np.arccos((np.trace(R_men) - 1.0) / 2.0)) < TURN_NOISE
+    # The transfer onto it is the transfer onto the pear, turned and moved (up to the rounds of the crossing pass).
+    expected = transfer_garment(source, pear, garment).V @ R.T + shift
+    result = transfer_garment(source, turned, garment)
+    assert result.info["limb_angles"]["degrees"] == pytest.approx(straight["degrees"], abs=0.1)
+    assert np.linalg.norm(result.V - expected, axis=1).mean() < 0.001
+    # Turned and in another pose, it is refused with the figure of the same pose in the source's frame.
+    lowered = arms_down(source.V, np.radians(35))
+    degrees = limb_angles(source.V, source.F, lowered, limbs)["degrees"]
+    posed = source.with_vertices(lowered @ R.T + shift, name="arms_down_turned")
+    with pytest.raises(MeshError, match=rf"arms_down_turned: is in another pose .* points {degrees:.0f} degrees away"):
+        transfer_garment(source, posed, garment, resolve_crossings=False)
+
+
 def test_a_garment_whose_pieces_are_not_joined_is_transferred_as_the_joined_one_with_its_seams_closed():
     from garment_transfer.geometry.mesh import shared_places, vertex_places
     from garment_transfer.geometry.poisson import JoinedPoissonSolver, PoissonSolver

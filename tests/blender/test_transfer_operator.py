@@ -120,6 +120,19 @@ def test_transfer_works_in_world_space(dressed):
     assert second_obj.parent is None
 
 
+def test_a_target_character_facing_another_way_is_dressed_facing_it(dressed):
+    # Only the target turned (a character placed facing another way in the scene): the same pose, dressed as in
+    # place and turned with it (it was refused as "another pose": its arms pointed elsewhere in the world).
+    first = world_vertices(transfer_result())
+    before = np.array(dressed.target.matrix_world)
+    dressed.target.rotation_euler[2] += np.pi / 2
+    dressed.target.location = (2.0, 1.0, 0.0)
+    bpy.context.view_layer.update()
+    turned = transfer_result()
+    M = np.array(dressed.target.matrix_world) @ np.linalg.inv(before)
+    err = np.linalg.norm(world_vertices(turned) - (first @ M[:3, :3].T + M[:3, 3]), axis=1)
+    assert err.mean() < 1e-4
+
 def test_shape_keys_and_modifiers_evaluated_or_base(dressed):
     garment = dressed.garment
     n = len(garment.data.vertices)
