@@ -7,8 +7,8 @@ import time
 from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
-from ..geometry.mesh import Mesh, faces_split
-from ..geometry.proximity import as_same_mesh
+from ..geometry.mesh import Mesh, faces_turned
+from ..geometry.proximity import as_same_mesh, orientation
 from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahead, pose_check, prepare_garment,
                        transfer_garment)
 
@@ -76,9 +76,12 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     if same is not None:
         result = transfer_garment(source_body, same, garment, progress=progress, **options)
         if same is not target_body:
-            if target_body.face_start.shape != source_body.face_start.shape:
+            # Split: more polygons than the source's; turned: its own faces enclose its shape the other way round.
+            split = target_body.face_start.shape != source_body.face_start.shape
+            if split:
                 result.info["target_faces_split"] = True
-            if not faces_split(source_body, target_body):
+            if faces_turned(source_body, target_body) or (
+                    split and orientation(target_body.V, target_body.F) != orientation(target_body.V, source_body.F)):
                 result.info["target_faces_turned"] = True
         return result, None
 
