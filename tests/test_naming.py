@@ -172,9 +172,12 @@ def test_the_command_line_takes_the_rolls_of_a_bones_file_onto_a_target_of_anoth
     root, skeleton, bodies = rigs()
     (source, _), (target, target_rig) = bodies["female_average"], bodies["female_pear"]
     T, posed = in_pose(root, skeleton, target, target_rig, "run01")
-    # The running pear as a scan or an export has it (its triangles: another mesh, registered), and its armature's
-    # bones with each bone's roll (its Z axis).
-    write_obj(tmp_path / "running.obj", mesh_from_triangles(posed.V, posed.F, name="running"))
+    # The running pear as a scan or an export has it (its triangles, its vertices in another order: another mesh,
+    # registered), and its armature's bones with each bone's roll (its Z axis).
+    order = np.random.default_rng(0).permutation(posed.n_vertices)
+    place = np.empty_like(order)
+    place[order] = np.arange(order.size)
+    write_obj(tmp_path / "running.obj", mesh_from_triangles(posed.V[order], place[posed.F], name="running"))
     joints, frames = target_rig.posed_joints(T), target_rig.posed_frames(T)
     bones = {b: {"parent": None if p < 0 else skeleton.names[p], "head": joints[h].tolist(),
                  "tail": joints[t].tolist(), "z_axis": frames[i][:, 2].tolist()}
