@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
 from ..geometry.mesh import triangle_normals
+from .alignment import rigid_fit
 
 #: The bands of each limb, as shares of the body's height from the limb's end: (name, near, far). An arm in
 #: an A-pose is about 0.37 of the height from fingertip to shoulder, a leg about 0.48 from sole to hip.
@@ -138,14 +139,12 @@ def find_limbs(V, F) -> Limbs | None:
 
 def trunk_rotation(source_V, other_V, index=None):
     """(3,3) the rotation that best turns the vertices ``index`` of ``source_V`` onto those of ``other_V`` about
-    their centroids (least squares, no reflection): ``other ~ source @ R.T`` up to a shift."""
+    their centroids (least squares, no reflection: ``alignment.rigid_fit``): ``other ~ source @ R.T`` up to a
+    shift."""
     P, Q = np.asarray(source_V, float), np.asarray(other_V, float)
     if index is not None:
         P, Q = P[index], Q[index]
-    P, Q = P - P.mean(axis=0), Q - Q.mean(axis=0)
-    U, _, Vt = np.linalg.svd(P.T @ Q)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T
+    return rigid_fit(P, Q)[0]
 
 
 def _angles(names, d0, d1):

@@ -471,26 +471,23 @@ def faces_split(a: Mesh, b: Mesh) -> bool:
     if b.face_vertices.shape[0] == 0 or b_size.min() < 3:
         return False
     k = int(a_size.max()) + 1
-    # Every corner of a as (vertex, polygon) sorted, with its place in its polygon.
-    a_poly = np.repeat(np.arange(a_size.shape[0]), a_size)
-    a_place = np.arange(a.face_vertices.shape[0]) - np.repeat(a.face_start[:-1], a_size)
-    order = np.lexsort((a_poly, a.face_vertices))
-    a_vertex, a_poly, a_place = a.face_vertices[order], a_poly[order], a_place[order]
+    # Every corner of a: its polygon and its place in it; sorted by (vertex, polygon) for the lookups.
+    corner_poly = np.repeat(np.arange(a_size.shape[0]), a_size)
+    corner_place = np.arange(a.face_vertices.shape[0]) - np.repeat(a.face_start[:-1], a_size)
+    order = np.lexsort((corner_poly, a.face_vertices))
+    a_vertex, a_poly, a_place = a.face_vertices[order], corner_poly[order], corner_place[order]
     incident = np.searchsorted(a_vertex, np.arange(n + 1))
     # Candidates: the polygons of a at each b polygon's first corner, tried with all of its corners.
     first = b.face_vertices[b.face_start[:-1]]
     degree = incident[first + 1] - incident[first]
     pair_piece = np.repeat(np.arange(b_size.shape[0]), degree)
-    pair_poly = a_poly[np.repeat(incident[first], degree) + np.arange(degree.sum())
-                       - np.repeat(np.cumsum(degree) - degree, degree)]
+    pair_poly = a_poly[_spans(incident[first], degree)]
     corner_pair = np.repeat(np.arange(pair_piece.shape[0]), b_size[pair_piece])
-    corner = b.face_vertices[np.repeat(b.face_start[pair_piece], b_size[pair_piece]) + np.arange(corner_pair.shape[0])
-                             - np.repeat(np.cumsum(b_size[pair_piece]) - b_size[pair_piece], b_size[pair_piece])]
+    corner = b.face_vertices[_spans(b.face_start[pair_piece], b_size[pair_piece])]
     # Each corner looked up among its vertex's polygons in a.
     lo, hi = incident[corner], incident[corner + 1]
-    span = hi - lo
-    look = np.repeat(lo, span) + np.arange(span.sum()) - np.repeat(np.cumsum(span) - span, span)
-    owner = np.repeat(np.arange(corner.shape[0]), span)
+    look = _spans(lo, hi - lo)
+    owner = np.repeat(np.arange(corner.shape[0]), hi - lo)
     hit = a_poly[look] == pair_poly[corner_pair[owner]]
     found = np.zeros(corner.shape[0], dtype=bool)
     found[owner[hit]] = True
@@ -512,15 +509,18 @@ def faces_split(a: Mesh, b: Mesh) -> bool:
     # Sides: each piece's directed sides (as places in its polygon) must add up to its polygon's sides.
     nxt = np.arange(local.shape[0]) + 1
     nxt[start[1:] - 1] = start[:-1]
-    side_poly = np.repeat(np.arange(a_size.shape[0]), a_size)
-    side_u = np.arange(a.face_vertices.shape[0]) - np.repeat(a.face_start[:-1], a_size)
-    side_v = (side_u + 1) % np.repeat(a_size, a_size)
-    u, v = np.concatenate([place, side_u]), np.concatenate([place[nxt], side_v])
-    keys, inverse = np.unique((np.concatenate([poly, side_poly]) * k + np.minimum(u, v)) * k + np.maximum(u, v),
+    side_v = (corner_place + 1) % np.repeat(a_size, a_size)
+    u, v = np.concatenate([place, corner_place]), np.concatenate([place[nxt], side_v])
+    keys, inverse = np.unique((np.concatenate([poly, corner_poly]) * k + np.minimum(u, v)) * k + np.maximum(u, v),
                               return_inverse=True)
-    sign = np.where(u < v, 1, -1) * np.r_[np.ones(place.shape[0]), -np.ones(side_u.shape[0])]
+    sign = np.where(u < v, 1, -1) * np.r_[np.ones(place.shape[0]), -np.ones(corner_place.shape[0])]
     net = np.bincount(inverse, weights=sign, minlength=keys.shape[0])
     return not np.any(net)
+
+
+def _spans(start, count):
+    """(count.sum(),) int64: ``start[i], start[i] + 1, ..., start[i] + count[i] - 1`` for each i in turn."""
+    return np.repeat(start, count) + np.arange(int(np.sum(count))) - np.repeat(np.cumsum(count) - count, count)
 
 
 def turned_around(mesh: Mesh, name=None) -> Mesh:
