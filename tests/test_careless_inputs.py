@@ -287,7 +287,7 @@ def polygons(V, faces):
 def test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces():
     from garment_transfer.geometry.mesh import faces_split, turned_around
 
-    # A hexagon beside a quad (sharing the side 1-2 of the quad as the hexagon's side 0-1... kept apart here).
+    # A hexagon and, apart from it, a quad that is not flat.
     hexagon = [[np.cos(t), np.sin(t), 0.0] for t in np.arange(6) * np.pi / 3]
     quad = [[3.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 1.0, 0.2], [3.0, 1.0, 0.0]]
     V = hexagon + quad
@@ -305,10 +305,12 @@ def test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces():
         "overlapping": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [6, 7, 9]], False),
         "turned": ([[2, 1, 0], [3, 2, 0], [4, 3, 0], [5, 4, 0], [8, 7, 6], [9, 8, 6]], False),
         "across": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [0, 6, 8]], False),
+        "the quad left out": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]], False),
     }
     for name, (faces, expected) in cases.items():
         assert faces_split(a, polygons(V, faces)) is expected, name
-    # A split of the turned mesh is one of a turned around; the polygons are a split of themselves only.
+    # A split of the turned mesh is one of a turned around; a's polygons split themselves, but do not split its
+    # triangles.
     turned = polygons(V, [[f[2], f[1], f[0]] for f in cases["fan from 0"][0]])
     assert faces_split(turned_around(a), turned) and not faces_split(a, turned)
     assert faces_split(a, a) and not faces_split(polygons(V, cases["fan from 0"][0]), a)
