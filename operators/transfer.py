@@ -270,6 +270,10 @@ def registration_text(context, outcome):
     if not reg:
         faces = " and ".join(w for k, w in (("target_faces_split", "triangulated"), ("target_faces_turned", "turned"))
                              if outcome.info.get(k))
+        if outcome.info.get("source_faces_split"):
+            which = ("both bodies' faces triangulated, differently" if outcome.info.get("target_faces_split")
+                     else "the source's faces triangulated")
+            return f"Same mesh as the source body ({which}): no registration" + posed
         return f"Same mesh as the source body{f' (its faces {faces})' if faces else ''}: no registration" + posed
     q = reg["quality"]
     text = fit_text(context, reg)

@@ -518,6 +518,68 @@ def faces_split(a: Mesh, b: Mesh) -> bool:
     return not np.any(net)
 
 
+#: The most corners a polygon that two splits share may have (a body's n-gons have far fewer; two meshes whose
+#: vertex orders differ share few edges, and their would-be polygons grow far larger).
+MAX_SHARED_CORNERS = 32
+
+
+def faces_split_alike(a: Mesh, b: Mesh) -> bool:
+    """Whether ``a`` and ``b`` are one polygon mesh split in two ways: the same vertex count, and the polygons
+    each makes by joining its faces across the sides the other lacks are the same polygons (each quad of a body
+    cut along one diagonal in ``a`` and along the other in ``b``, or kept whole in either; either winding).
+
+    Each such polygon is checked to be a polygon indeed, split without inner corners (its pieces' corners less
+    two pieces for each add up to its corners less two) and of at most ``MAX_SHARED_CORNERS`` corners, and the
+    two meshes' polygons to hold the same corners. A mesh is split alike with itself, and with any split of its
+    polygons (``faces_split``).
+    """
+    n = a.n_vertices
+    if n != b.n_vertices or a.face_vertices.shape[0] == 0 or b.face_vertices.shape[0] == 0:
+        return False
+    a_keys, b_keys = _side_keys(a), _side_keys(b)
+    shared = np.intersect1d(a_keys, b_keys)
+    joined_a = _joined_across(a, a_keys, shared)
+    joined_b = None if joined_a is None else _joined_across(b, b_keys, shared)
+    return joined_b is not None and np.array_equal(joined_a, joined_b)
+
+
+def _side_keys(mesh: Mesh):
+    """(k,) int64: each corner's side to the next corner of its polygon, as one key of its two vertices."""
+    fv, start = mesh.face_vertices, mesh.face_start
+    nxt = np.arange(fv.shape[0]) + 1
+    nxt[start[1:] - 1] = start[:-1]
+    u, v = fv, fv[nxt]
+    return np.minimum(u, v) * mesh.n_vertices + np.maximum(u, v)
+
+
+def _joined_across(mesh: Mesh, keys, shared):
+    """The polygons ``mesh`` makes by joining its faces across its sides not in ``shared``, each told by its
+    corner count and a sum of random keys of its corners (sorted), or None when one is not a polygon split
+    without inner corners, has more than ``MAX_SHARED_CORNERS`` corners, or a side to join is not between two
+    faces."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    sizes = np.diff(mesh.face_start)
+    face = np.repeat(np.arange(sizes.shape[0]), sizes)
+    inner = ~np.isin(keys, shared)
+    order = np.argsort(keys[inner], kind="stable")
+    k, f = keys[inner][order], face[inner][order]
+    if k.shape[0] % 2 or np.any(k[0::2] != k[1::2]) or np.any(k[2::2] == k[1:-1:2]):
+        return None
+    graph = coo_matrix((np.ones(f.shape[0] // 2), (f[0::2], f[1::2])), shape=(sizes.shape[0],) * 2)
+    count, label = connected_components(graph, directed=False)
+    corners = np.unique(label[face].astype(np.int64) * mesh.n_vertices + mesh.face_vertices)
+    group = corners // mesh.n_vertices
+    n_corners = np.bincount(group, minlength=count)
+    pieces = np.bincount(label, weights=sizes - 2, minlength=count)
+    if n_corners.max() > MAX_SHARED_CORNERS or np.any(pieces != n_corners - 2):
+        return None
+    code = np.random.default_rng(0).integers(0, 2 ** 63, size=mesh.n_vertices, dtype=np.uint64)
+    total = np.add.reduceat(code[corners % mesh.n_vertices], np.r_[0, np.cumsum(n_corners)[:-1]])
+    return np.sort(n_corners.astype(np.uint64) << np.uint64(58) ^ total)
+
+
 def _spans(start, count):
     """(count.sum(),) int64: ``start[i], start[i] + 1, ..., start[i] + count[i] - 1`` for each i in turn."""
     return np.repeat(start, count) + np.arange(int(np.sum(count))) - np.repeat(np.cumsum(count) - count, count)

@@ -44,7 +44,8 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import Mesh, cross_rows, faces_split, faces_turned, same_mesh, triangle_normals, turned_around
+from .mesh import (Mesh, cross_rows, faces_split, faces_split_alike, faces_turned, same_mesh, triangle_normals,
+                   turned_around)
 
 #: Threads for the numpy part of a query (per-point work on the found triangles); libigl's tree
 #: search runs on all cores by itself.
@@ -182,6 +183,14 @@ def as_same_mesh(a: Mesh, b: Mesh):
     if orientation(b.V, a.F) != orientation(a.V, a.F):
         return None
     return a.with_vertices(b.V, name=b.name)
+
+
+def one_mesh(a: Mesh, b: Mesh) -> bool:
+    """True when ``a`` and ``b`` are shapes of one mesh, either of them or both written with their faces turned or
+    split (``mesh.faces_split_alike``: a body triangulated by two exporters along other diagonals), provided that
+    ``b``'s shape read with ``a``'s faces encloses a volume of the sign ``a``'s does (not its mirror image by its
+    vertex order): their vertices correspond one to one."""
+    return same_mesh(a, b) or (faces_split_alike(a, b) and orientation(b.V, a.F) == orientation(a.V, a.F))
 
 
 def _orientation(volume, area) -> int:

@@ -8,7 +8,7 @@ from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, faces_turned
-from ..geometry.proximity import as_same_mesh, orientation
+from ..geometry.proximity import as_same_mesh, one_mesh, orientation
 from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahead, pose_check, prepare_garment,
                        transfer_garment)
 
@@ -20,9 +20,10 @@ REGISTER_OPTIONS = ("cache", "limits", "progress", "shape_basis", "shape_bounds"
 def registration_for(source_body: Mesh, target_body: Mesh, registration: Registration | None = None, *, cache=True,
                      limits=None, progress=None, shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False):
     """The registration a transfer onto ``target_body`` goes through: None for the source's own mesh (or that mesh
-    with every face turned, ``proximity.as_same_mesh``), else ``registration`` where given, else a new one
-    (``register``, with these options; ``progress(fraction, stage)`` over the first 60% of a transfer's)."""
-    if as_same_mesh(source_body, target_body) is not None:
+    with every face turned, or either of the two written triangulated: ``proximity.one_mesh``), else
+    ``registration`` where given, else a new one (``register``, with these options; ``progress(fraction, stage)``
+    over the first 60% of a transfer's)."""
+    if one_mesh(source_body, target_body):
         return None
     if registration is not None:
         return registration
@@ -70,7 +71,9 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         None when the two bodies are one mesh (also when the target is the source's mesh with every face
         turned the other way round, an OBJ of the other winding, or with its polygons split, written
         triangulated: ``proximity.as_same_mesh``; ``info["target_faces_turned"]`` and
-        ``info["target_faces_split"]`` then say so).
+        ``info["target_faces_split"]`` then say so; and when the source is the target's mesh written
+        triangulated, or both are, along other diagonals, ``info["source_faces_split"]``: solved on the
+        source's triangles, cleared on the target's own faces: ``proximity.one_mesh``).
     """
     same = as_same_mesh(source_body, target_body)
     if same is not None:
@@ -85,20 +88,44 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
                 result.info["target_faces_turned"] = True
         return result, None
 
+    if one_mesh(source_body, target_body):
+        # The source written triangulated and the target with its polygons, or the two triangulated along other
+        # diagonals (either winding): solved on the source's faces in the target's shape, then fixed and cleared
+        # on the target's own faces (every split of its polygons read).
+        result = _solve_then_fit(source_body, source_body.with_vertices(target_body.V), target_body, garment,
+                                 None, progress, options)
+        result.info["source_faces_split"] = True
+        if as_same_mesh(target_body, source_body) is None:
+            result.info["target_faces_split"] = True
+        if orientation(target_body.V, target_body.F) != orientation(target_body.V, source_body.F):
+            result.info["target_faces_turned"] = True
+        return result, None
+    reg = registration_for(source_body, target_body, registration, cache=cache, limits=limits, progress=progress,
+                           shape_basis=shape_basis, shape_bounds=shape_bounds, body_model=body_model)
+    fitted = source_body.with_vertices(reg.V_source_frame,
+                                       name=f"{source_body.name} fitted to {target_body.name}")
+    result = _solve_then_fit(source_body, fitted, target_body, garment, reg.alignment.inverse(), progress, options)
+    result.info["registration"] = reg.summary()
+    result.seconds["register"] = float(reg.seconds.get("total", 0.0)) if not reg.cached else 0.0
+    result.seconds["total"] += result.seconds["register"]
+    return result, reg
+
+
+def _solve_then_fit(source_body, fitted, target_body, garment, back, progress, options):
+    """The garment solved on ``fitted`` (the source's mesh in the target's shape, in the source's frame), taken
+    to the target's frame by ``back`` (a ``Similarity``; None: the same frame), and there fixed and cleared on
+    the target itself (``fit_to_body``)."""
+
     def sub(lo, hi):
         if progress is None:
             return None
         return lambda f, *stage: progress(lo + (hi - lo) * f, *(stage or ("register",)))
 
-    reg = registration_for(source_body, target_body, registration, cache=cache, limits=limits, progress=progress,
-                           shape_basis=shape_basis, shape_bounds=shape_bounds, body_model=body_model)
     options = dict(options)
     offset = options.pop("offset", None)
     fix = options.pop("fix_penetration", True)
     resolve = options.pop("resolve_crossings", True)
     prepared = options.pop("prepared", None)
-    fitted = source_body.with_vertices(reg.V_source_frame,
-                                       name=f"{source_body.name} fitted to {target_body.name}")
     made = prepared is None
     if made:
         prepared = prepare_garment(source_body, garment, interpolate=options.get("interpolate", True),
@@ -118,18 +145,15 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
             result.seconds[stage] = result.seconds.get(stage, 0.0) + seconds
         result.seconds["total"] += sum(prepared.seconds.values())
     t = time.perf_counter()
-    back = reg.alignment.inverse()
-    V = back.apply(result.V)
+    V = result.V if back is None else back.apply(result.V)
     offset = check_offset(offset, target_body)
     if offset is None:
         offset = OFFSET_SHARE * body_scale(target_body.V)
     result.info.update(offset=float(offset), fix_penetration=bool(fix))
     result.V, result.penetrating_vertices, result.obstacle, result.surface = fit_to_body(
         V, prepared, target_body, offset, fix_penetration=fix, resolve_crossings=resolve,
-        source_V=back.apply(garment.V), info=result.info, seconds=result.seconds,
+        source_V=None if back is None else back.apply(garment.V), info=result.info, seconds=result.seconds,
         step=None if progress is None else (lambda f, stage: progress(0.9 + 0.5 * (f - 0.8), stage)), early=early)
-    result.info["registration"] = reg.summary()
-    result.seconds["register"] = float(reg.seconds.get("total", 0.0)) if not reg.cached else 0.0
     result.seconds["target_fit"] = time.perf_counter() - t
-    result.seconds["total"] += result.seconds["register"] + result.seconds["target_fit"]
-    return result, reg
+    result.seconds["total"] += result.seconds["target_fit"]
+    return result

@@ -183,3 +183,24 @@ def test_a_target_with_a_triangulate_modifier_is_the_source_mesh(dressed, extens
     shown = json.loads(dressed.settings.last_metrics)
     assert shown["garment_edges_through_body"] == c["a_edges_through_b"] == 0
     assert shown["body_edges_through_garment"] == c["b_edges_through_a"] == 0
+    # The other way round: the source body triangulated by a modifier, the target with its quads. Solved on the
+    # source's triangles, cleared on the pear's own quads, read along both diagonals.
+    dressed.target.modifiers.remove(mod)
+    source_split = dressed.source.modifiers.new("Triangulate", 'TRIANGULATE')
+    source_split.quad_method = 'FIXED'
+    for target_split, which in ((None, "the source's faces triangulated"),
+                                ('FIXED_ALTERNATE', "both bodies' faces triangulated, differently")):
+        if target_split is not None:
+            # Both triangulated, each quad along the other diagonal.
+            dressed.target.modifiers.new("Triangulate", 'TRIANGULATE').quad_method = target_split
+        assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+        assert dressed.settings.last_registration == f"Same mesh as the source body ({which}): no registration"
+        result = dressed.settings.result
+        assert np.linalg.norm(world_vertices(result) - plain, axis=1).mean() < 0.0003
+        body = convert.core_mesh_from_object(dressed.target, bpy.context.evaluated_depsgraph_get())
+        assert (body.n_faces < body.F.shape[0]) is (target_split is None)
+        cloth = convert.core_mesh_from_object(result, bpy.context.evaluated_depsgraph_get())
+        c = gt.crossings(cloth.V, gt.readings_of(cloth), body.V, gt.readings_of(body))
+        shown = json.loads(dressed.settings.last_metrics)
+        assert shown["garment_edges_through_body"] == c["a_edges_through_b"] == 0
+        assert shown["body_edges_through_garment"] == c["b_edges_through_a"] == 0
