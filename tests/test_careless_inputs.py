@@ -318,39 +318,59 @@ def test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces():
     assert not faces_split(a, polygons(V + [[9.0, 9.0, 9.0]], cases["fan from 0"][0]))
 
 
-def test_faces_split_alike_tells_two_splits_of_one_mesh_from_other_faces():
-    from garment_transfer.geometry.mesh import MAX_SHARED_CORNERS, faces_split_alike
+def test_common_polygons_of_two_splits_of_one_mesh():
+    from garment_transfer.geometry.mesh import MAX_SHARED_CORNERS, common_polygons, turned_around
+
+    def cycles(mesh):
+        """Its polygons as a set of cycles, each from its lowest corner: the same polygons in the same winding."""
+        rolled = (np.roll(p, -int(np.argmin(p))) for p in mesh.polygons())
+        return {tuple(int(i) for i in p) for p in rolled}
 
     hexagon = [[np.cos(t), np.sin(t), 0.0] for t in np.arange(6) * np.pi / 3]
     quad = [[3.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 1.0, 0.2], [3.0, 1.0, 0.0]]
     V = hexagon + quad
     fan = polygons(V, [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [6, 8, 9]])
+    whole, halves = polygons(V, [range(6), [6, 7, 8, 9]]), polygons(V, [[0, 1, 2, 3], [0, 3, 4, 5], [6, 7, 8, 9]])
     cases = {
-        # Other splits of the same two polygons, either winding, and the polygons themselves.
-        "fan from 3, other diagonal": ([[3, 4, 5], [3, 5, 0], [3, 0, 1], [3, 1, 2], [7, 8, 9], [7, 9, 6]], True),
-        "two quads": ([[0, 1, 2, 3], [3, 4, 5, 0], [6, 7, 8, 9]], True),
-        "ears and a middle, turned": ([[2, 1, 0], [4, 3, 2], [0, 5, 4], [4, 2, 0], [7, 6, 9], [8, 7, 9]], True),
-        "the polygons": ([range(6), [6, 7, 8, 9]], True),
+        # Other splits of the same two polygons, either winding, and the polygons themselves: what they share.
+        "fan from 3, other diagonal": ([[3, 4, 5], [3, 5, 0], [3, 0, 1], [3, 1, 2], [7, 8, 9], [7, 9, 6]], halves),
+        "two quads": ([[0, 1, 2, 3], [3, 4, 5, 0], [6, 7, 8, 9]], halves),
+        "ears and a middle, turned": ([[2, 1, 0], [4, 3, 2], [0, 5, 4], [4, 2, 0], [7, 6, 9], [8, 7, 9]],
+                                      polygons(V, [[0, 1, 2], [0, 2, 3, 4], [0, 4, 5], [6, 7, 8, 9]])),
+        "the polygons": ([range(6), [6, 7, 8, 9]], whole),
         # Not one mesh: a gap and an overlap, pieces overlapping, a piece across two polygons, the quad left
-        # out, one polygon of all ten corners.
-        "ears and the other middle": ([[0, 1, 2], [2, 3, 4], [4, 5, 0], [1, 3, 5], [6, 7, 8], [6, 8, 9]], False),
-        "overlapping": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [6, 7, 9]], False),
-        "across": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [0, 6, 8]], False),
-        "the quad left out": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]], False),
+        # out.
+        "ears and the other middle": ([[0, 1, 2], [2, 3, 4], [4, 5, 0], [1, 3, 5], [6, 7, 8], [6, 8, 9]], None),
+        "overlapping": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [6, 7, 9]], None),
+        "across": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5], [6, 7, 8], [0, 6, 8]], None),
+        "the quad left out": ([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]], None),
     }
     for name, (faces, expected) in cases.items():
         b = polygons(V, faces)
-        assert faces_split_alike(fan, b) is expected and faces_split_alike(b, fan) is expected, name
-    assert faces_split_alike(fan, fan)
+        for x, y in ((fan, b), (b, fan)):
+            common = common_polygons(x, y)
+            if expected is None:
+                assert common is None, name
+            else:
+                # The polygons themselves, in x's winding.
+                assert common is not None, name
+                assert cycles(common) == cycles(expected if x is fan or "turned" not in name
+                                                else turned_around(expected)), name
+                assert np.array_equal(common.V, x.V)
+    assert common_polygons(fan, fan) is fan
     # Another vertex count is another mesh.
-    assert not faces_split_alike(fan, polygons(V + [[9.0, 9.0, 9.0]], cases["fan from 3, other diagonal"][0]))
+    assert common_polygons(fan, polygons(V + [[9.0, 9.0, 9.0]], cases["fan from 3, other diagonal"][0])) is None
     # Two splits of one polygon of many corners: one mesh up to MAX_SHARED_CORNERS corners, beyond it no longer
     # told from two meshes that share no side.
     for corners in (MAX_SHARED_CORNERS, MAX_SHARED_CORNERS + 1):
         ring = [[np.cos(t), np.sin(t), 0.0] for t in np.arange(corners) * 2 * np.pi / corners]
         one = polygons(ring, [[0, i, i + 1] for i in range(1, corners - 1)])
         other = polygons(ring, [[1, (1 + i) % corners, (2 + i) % corners] for i in range(1, corners - 1)])
-        assert faces_split_alike(one, other) is (corners <= MAX_SHARED_CORNERS)
+        common = common_polygons(one, other)
+        if corners <= MAX_SHARED_CORNERS:
+            assert common is not None and cycles(common) == cycles(polygons(ring, [range(corners)]))
+        else:
+            assert common is None
 
 
 def triangulated_obj(src, dst, diagonal=1, turn=False):
@@ -441,6 +461,17 @@ def test_a_body_written_triangulated_is_the_same_body(tmp_path, capsys):
     assert c["a_edge_pairs"] == info["check"]["garment_edge_body_pairs"] == 0
     assert c["b_edge_pairs"] == info["check"]["body_edge_garment_pairs"] == 0
     assert np.linalg.norm(written.V - runs["own"], axis=1).mean() < 0.003
+    # shapes as well, with a shape of each kind: fitted on the quads both split, each checked on its own faces.
+    code, _, err = run_cli(capsys, "shapes", "--source-body", tmp_path / "src_tri.obj", "--target-body", pear,
+                           "--target-body", tmp_path / "pear_tri0.obj", "--garment", garment,
+                           "--out", tmp_path / "shapes_tri")
+    assert code == 0, err
+    summary = json.loads((tmp_path / "shapes_tri" / "shapes.json").read_text())
+    for row in summary["shapes"]:
+        written, body = read_obj(row["out"]), read_obj(row["target_body"])
+        c = crossings(written.V, readings_of(written), body.V, readings_of(body))
+        assert c["a_edge_pairs"] == row["check"]["garment_edge_body_pairs"] == 0
+        assert c["b_edge_pairs"] == row["check"]["body_edge_garment_pairs"] == 0
     code, text, err = run_cli(capsys, "evaluate", "--source", garment, "--result", out, "--target-body", pear,
                               "--source-body", tmp_path / "src_tri.obj", "--json")
     assert code == 0, err

@@ -33,7 +33,7 @@ ROWS = {
         "test_careless_inputs.py::test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces",
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body"],
     "a source body written triangulated and a target body of its mesh": [
-        "test_careless_inputs.py::test_faces_split_alike_tells_two_splits_of_one_mesh_from_other_faces",
+        "test_careless_inputs.py::test_common_polygons_of_two_splits_of_one_mesh",
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body",
         "blender/test_registration_operator.py::test_a_target_with_a_triangulate_modifier_is_the_source_mesh"],
     "a body whose faces point inward": [

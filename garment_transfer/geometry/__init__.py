@@ -14,10 +14,10 @@ from .gradients import deformation_gradients
 from .intersections import crossings, intersection_report, minimum_distance, self_intersections
 from .mesh import (
                    Mesh,
+                   common_polygons,
                    connected_pieces,
                    faces_hash,
                    faces_split,
-                   faces_split_alike,
                    faces_turned,
                    mesh_from_polygons,
                    mesh_from_triangles,
@@ -33,12 +33,12 @@ from .obj import obj_text, read_obj, write_obj
 from .pc2 import is_pc2, read_pc2, write_pc2
 from .penetration import fix_penetration, vertex_adjacency
 from .poisson import PoissonSolver
-from .proximity import TriangleSurface, as_same_mesh, closest_on_triangles, facing_outward, one_mesh
+from .proximity import TriangleSurface, as_same_mesh, closest_on_triangles, common_mesh, facing_outward, one_mesh
 from .readings import Readings, readings_of
 from .self_check import SelfCheck
 
 __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "require_same_topology", "same_mesh",
-           "faces_turned", "faces_split", "faces_split_alike", "turned_around", "as_same_mesh", "one_mesh",
+           "faces_turned", "faces_split", "common_polygons", "turned_around", "as_same_mesh", "one_mesh", "common_mesh",
            "facing_outward", "connected_pieces", "triangle_normals",
            "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text",
            "read_pc2", "write_pc2", "is_pc2", "TriangleSurface", "closest_on_triangles", "deformation_gradients",

@@ -519,48 +519,67 @@ def faces_split(a: Mesh, b: Mesh) -> bool:
 
 
 #: The most corners a polygon that two splits share may have (a body's n-gons have far fewer; two meshes whose
-#: vertex orders differ share few edges, and their would-be polygons grow far larger).
+#: vertex orders differ share few sides, and their would-be polygons grow far larger).
 MAX_SHARED_CORNERS = 32
 
 
-def faces_split_alike(a: Mesh, b: Mesh) -> bool:
-    """Whether ``a`` and ``b`` are one polygon mesh split in two ways: the same vertex count, and the polygons
-    each makes by joining its faces across the sides the other lacks are the same polygons (each quad of a body
-    cut along one diagonal in ``a`` and along the other in ``b``, or kept whole in either; either winding).
+def common_polygons(a: Mesh, b: Mesh):
+    """The polygons that ``a`` and ``b`` both split, with ``a``'s vertices and winding, or None when the two are
+    not one polygon mesh split in two ways.
 
-    Each such polygon is checked to be a polygon indeed, split without inner corners (its pieces' corners less
-    two pieces for each add up to its corners less two) and of at most ``MAX_SHARED_CORNERS`` corners, and the
-    two meshes' polygons to hold the same corners. A mesh is split alike with itself, and with any split of its
-    polygons (``faces_split``).
+    Each quad of a body cut along one diagonal in ``a`` and along the other in ``b`` (two exporters), or kept
+    whole in either, in either winding. ``a``'s faces are joined across the sides that ``b`` lacks, into polygons
+    of at most ``MAX_SHARED_CORNERS`` corners each; these are the common polygons when ``a`` and ``b`` (or
+    ``b`` turned around) each tile them (``faces_split``). A mesh and any split of its polygons have its own
+    polygons in common.
+
+    Returns
+    -------
+    Mesh or None
     """
     n = a.n_vertices
-    if n != b.n_vertices or a.face_vertices.shape[0] == 0 or b.face_vertices.shape[0] == 0:
-        return False
-    a_keys, b_keys = _side_keys(a), _side_keys(b)
-    shared = np.intersect1d(a_keys, b_keys)
-    joined_a = _joined_across(a, a_keys, shared)
-    joined_b = None if joined_a is None else _joined_across(b, b_keys, shared)
-    return joined_b is not None and np.array_equal(joined_a, joined_b)
+    if n != b.n_vertices or a.F.shape[0] != b.F.shape[0] or a.face_vertices.shape[0] == 0:
+        return None
+    if same_mesh(a, b):
+        return a
+    a_keys = _side_keys(a)
+    joined = _joined_across(a, a_keys, np.intersect1d(a_keys, _side_keys(b)))
+    if joined is None:
+        return None
+    common = a if joined[1].shape[0] == a.face_start.shape[0] else \
+        mesh_from_polygon_arrays(a.V, *joined, name=a.name)
+    if not faces_split(common, a) or not (faces_split(common, b) or faces_split(turned_around(common), b)):
+        return None
+    return common
 
 
 def _side_keys(mesh: Mesh):
     """(k,) int64: each corner's side to the next corner of its polygon, as one key of its two vertices."""
     fv, start = mesh.face_vertices, mesh.face_start
-    nxt = np.arange(fv.shape[0]) + 1
+    return _side_key(fv, fv[_next_corner(start)], mesh.n_vertices)
+
+
+def _side_key(u, v, n):
+    return np.minimum(u, v) * n + np.maximum(u, v)
+
+
+def _next_corner(start):
+    """(k,) int64: the index of each corner's next corner in its polygon."""
+    nxt = np.arange(start[-1]) + 1
     nxt[start[1:] - 1] = start[:-1]
-    u, v = fv, fv[nxt]
-    return np.minimum(u, v) * mesh.n_vertices + np.maximum(u, v)
+    return nxt
 
 
 def _joined_across(mesh: Mesh, keys, shared):
-    """The polygons ``mesh`` makes by joining its faces across its sides not in ``shared``, each told by its
-    corner count and a sum of random keys of its corners (sorted), or None when one is not a polygon split
-    without inner corners, has more than ``MAX_SHARED_CORNERS`` corners, or a side to join is not between two
-    faces."""
+    """``mesh``'s faces joined across their sides not in ``shared`` (``keys``: ``_side_keys``), as polygon arrays
+    (face_vertices, face_start) in the faces' winding, each polygon's corners from its lowest vertex; None when a
+    side to join across is not between two faces, or a joined polygon has inner corners, holes or more than
+    ``MAX_SHARED_CORNERS`` corners."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    sizes = np.diff(mesh.face_start)
+    n, fv, start = mesh.n_vertices, mesh.face_vertices, mesh.face_start
+    sizes = np.diff(start)
     face = np.repeat(np.arange(sizes.shape[0]), sizes)
     inner = ~np.isin(keys, shared)
     order = np.argsort(keys[inner], kind="stable")
@@ -569,15 +588,31 @@ def _joined_across(mesh: Mesh, keys, shared):
         return None
     graph = coo_matrix((np.ones(f.shape[0] // 2), (f[0::2], f[1::2])), shape=(sizes.shape[0],) * 2)
     count, label = connected_components(graph, directed=False)
-    corners = np.unique(label[face].astype(np.int64) * mesh.n_vertices + mesh.face_vertices)
-    group = corners // mesh.n_vertices
-    n_corners = np.bincount(group, minlength=count)
+    label = label.astype(np.int64)
+    # The polygon's sides are its faces' sides not joined across, each vertex the start of one of them.
+    outer = ~inner
+    frm, to, group = fv[outer], fv[_next_corner(start)][outer], label[face[outer]]
+    corners = np.bincount(group, minlength=count)
     pieces = np.bincount(label, weights=sizes - 2, minlength=count)
-    if n_corners.max() > MAX_SHARED_CORNERS or np.any(pieces != n_corners - 2):
+    if corners.max() > MAX_SHARED_CORNERS or np.any(pieces != corners - 2):
         return None
-    code = np.random.default_rng(0).integers(0, 2 ** 63, size=mesh.n_vertices, dtype=np.uint64)
-    total = np.add.reduceat(code[corners % mesh.n_vertices], np.r_[0, np.cumsum(n_corners)[:-1]])
-    return np.sort(n_corners.astype(np.uint64) << np.uint64(58) ^ total)
+    at = group * n + frm
+    order = np.argsort(at)
+    at, to = at[order], to[order]
+    if np.any(at[1:] == at[:-1]):
+        return None
+    first_at = np.searchsorted(at, np.arange(count) * n)
+    walk = np.empty((count, int(corners.max())), dtype=np.int64)
+    walk[:, 0] = at[first_at] % n
+    for j in range(1, walk.shape[1]):
+        look = np.minimum(np.searchsorted(at, np.arange(count) * n + walk[:, j - 1]), at.shape[0] - 1)
+        walk[:, j] = to[look]
+    keep = np.arange(walk.shape[1]) < corners[:, None]
+    face_vertices = walk[keep]
+    # One cycle through all the polygon's corners: no corner twice.
+    if np.unique(np.repeat(np.arange(count), corners) * n + face_vertices).shape[0] != face_vertices.shape[0]:
+        return None
+    return face_vertices, np.r_[0, np.cumsum(corners)].astype(np.int64)
 
 
 def _spans(start, count):

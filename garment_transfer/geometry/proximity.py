@@ -44,7 +44,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import (Mesh, cross_rows, faces_split, faces_split_alike, faces_turned, same_mesh, triangle_normals,
+from .mesh import (Mesh, common_polygons, cross_rows, faces_split, faces_turned, same_mesh, triangle_normals,
                    turned_around)
 
 #: Threads for the numpy part of a query (per-point work on the found triangles); libigl's tree
@@ -185,12 +185,22 @@ def as_same_mesh(a: Mesh, b: Mesh):
     return a.with_vertices(b.V, name=b.name)
 
 
+def common_mesh(a: Mesh, b: Mesh):
+    """``a``'s vertices with the polygons that ``a`` and ``b`` both split (``mesh.common_polygons``: either of them
+    or both written triangulated, one along other diagonals than the other, in either winding), or None when they
+    are other meshes, or when ``b``'s shape read with those faces encloses a volume of another sign than ``a``'s
+    (``b`` is ``a``'s mirror image by its vertex order). Every split of its polygons holds ``a``'s and ``b``'s
+    own faces (``readings``)."""
+    common = common_polygons(a, b)
+    if common is None or orientation(b.V, common.F) != orientation(a.V, common.F):
+        return None
+    return common
+
+
 def one_mesh(a: Mesh, b: Mesh) -> bool:
-    """True when ``a`` and ``b`` are shapes of one mesh, either of them or both written with their faces turned or
-    split (``mesh.faces_split_alike``: a body triangulated by two exporters along other diagonals), provided that
-    ``b``'s shape read with ``a``'s faces encloses a volume of the sign ``a``'s does (not its mirror image by its
-    vertex order): their vertices correspond one to one."""
-    return same_mesh(a, b) or (faces_split_alike(a, b) and orientation(b.V, a.F) == orientation(a.V, a.F))
+    """True when ``a`` and ``b`` are shapes of one mesh written with the same faces or others (``common_mesh``):
+    their vertices correspond one to one."""
+    return same_mesh(a, b) or common_mesh(a, b) is not None
 
 
 def _orientation(volume, area) -> int:

@@ -36,12 +36,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import Cancelled, MeshError
+from ..errors import Cancelled, MeshError, TopologyMismatchError
 from ..files import check_outputs, write_json_atomic
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.proximity import TriangleSurface, as_same_mesh
+from ..geometry.proximity import TriangleSurface, common_mesh
 from ..geometry.readings import readings_of, split_readings
 from ..geometry.self_check import pairs_in_full
 from ..geometry.threads import in_threads
@@ -678,14 +678,21 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
                   inputs=[source_body_path, *target_body_paths, garment_path])
     source = read_obj(source_body_path)
     garment = read_obj(garment_path)
-    shapes, paths = {}, {}
+    shapes, paths, bodies = {}, {}, {}
+    # Shapes written with the other winding, or triangulated (the source too, along any diagonals), are shapes of
+    # the source's mesh: fitted on the polygons they all split, so that every split of them is cleared.
+    common = source
     for path in target_body_paths:
         name = Path(path).stem
         body = read_obj(path)
-        # A shape written with the other winding is still a shape of the source's mesh.
-        require_same_topology(source, as_same_mesh(source, body) or body)
-        shapes[name], paths[name] = body.V, str(path)
-    fit = fit_shape_keys(source, shapes, garment, with_basis=False, **options)
+        common, last = common_mesh(common, body), common
+        if common is None:
+            require_same_topology(source, body)
+            raise TopologyMismatchError(body.name, f"is a mirror image of {last.name} by its vertex order (its "
+                                                   "shape encloses its volume the other way round); mirror both "
+                                                   "or neither")
+        shapes[name], paths[name], bodies[name] = body.V, str(path), body
+    fit = fit_shape_keys(common, shapes, garment, with_basis=False, **options)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows, warnings = [], []
@@ -694,7 +701,7 @@ def shapes_to_files(source_body_path, target_body_paths, garment_path, out_dir, 
         write_obj(out, garment, V, header=f"Garment Transfer: {os.path.basename(garment_path)} on "
                                           f"{os.path.basename(paths[name])} (one of {len(shapes)} shapes)")
         # The figures of the file as written, against that shape as given.
-        check = check_result(garment, read_obj(out).V, source.with_vertices(shapes[name]),
+        check = check_result(garment, read_obj(out).V, bodies[name],
                              source_pairs=fit.prepared.source_pairs(), readings=fit.prepared.readings())
         info = fit.info[name]
         warnings += result_warnings(check, str(out))
