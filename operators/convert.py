@@ -150,6 +150,34 @@ def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh"):
     return mesh_from_polygons(V, polygons, name=obj.name)
 
 
+#: Modifiers that add faces to refine a surface: an object whose stack ends in them has a cage, its mesh before them.
+SUBDIVIDING_MODIFIERS = frozenset({"SUBSURF", "MULTIRES"})
+
+
+def cage_mesh_from_object(obj, context, role="mesh"):
+    """The object as the viewport shows it without the subdividing modifiers that end its stack (a Subdivision
+    Surface last: the mesh it subdivides, posed and shaped by everything before it), or None when its stack does
+    not end in one that shows in the viewport. Those modifiers are hidden while it is read and shown again."""
+    hidden = []
+    for mod in reversed(obj.modifiers):
+        if not mod.show_viewport:
+            continue
+        if mod.type not in REFINING_MODIFIERS:
+            break
+        hidden.append(mod)
+    if not any(mod.type in SUBDIVIDING_MODIFIERS for mod in hidden):
+        return None
+    try:
+        for mod in hidden:
+            mod.show_viewport = False
+        context.view_layer.update()
+        return core_mesh_from_object(obj, context.evaluated_depsgraph_get(), True, role)
+    finally:
+        for mod in hidden:
+            mod.show_viewport = True
+        context.view_layer.update()
+
+
 def local_from_world(V_world, matrix_world, name):
     """Object-space positions of world-space ones, for an object with ``matrix_world``."""
     M = matrix_array(matrix_world)

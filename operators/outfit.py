@@ -81,6 +81,9 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloths = [convert.core_mesh_from_object(g, depsgraph, evaluated, "garment") for g in garments]
+    # A target subdivided by its last modifiers: the mesh they subdivide may be the source's (not registered).
+    cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+    depsgraph = context.evaluated_depsgraph_get()
     model, frame = chosen_model(method, model_path, source, field_share)
 
     def framed(mesh):
@@ -96,7 +99,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
             outcome = outfit_across_rest_poses(source_framed, framed(target), [framed(c) for c in cloths], *rigs,
                                                **options)
         else:
-            outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths], **options)
+            outcome = transfer_outfit(source_framed, framed(target), [framed(c) for c in cloths],
+                                      target_cage=None if cage is None else framed(cage), **options)
     outcome.V = [V @ frame for V in outcome.V]
     outcome.source_V = [V @ frame for V in outcome.source_V]
     outcome.model_text = model_text(model)

@@ -136,6 +136,9 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
+    # A target subdivided by its last modifiers: the mesh they subdivide may be the source's (not registered).
+    cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+    depsgraph = context.evaluated_depsgraph_get()
 
     model, frame = chosen_model(method, model_path, source, field_share)
 
@@ -167,7 +170,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
             outcome, registration = transfer_across_rest_poses(framed(source), framed(target), framed(cloth), *rigs,
                                                                untangle=untangle, **options)
         else:
-            outcome, registration = transfer_to_any_body(framed(source), framed(target), framed(cloth), **options)
+            outcome, registration = transfer_to_any_body(framed(source), framed(target), framed(cloth),
+                                                         target_cage=None if cage is None else framed(cage), **options)
     outcome.shape_keys = key_names
     outcome.body_model = body_model
     outcome.model_text = model_text(model)
@@ -270,6 +274,8 @@ def registration_text(context, outcome):
     if not reg:
         faces = " and ".join(w for k, w in (("target_faces_split", "triangulated"), ("target_faces_turned", "turned"))
                              if outcome.info.get(k))
+        if outcome.info.get("target_cage"):
+            return "Same mesh as the source body under its subdivision: no registration" + posed
         if outcome.info.get("source_faces_split"):
             which = ("both bodies' faces triangulated, differently" if outcome.info.get("target_faces_split")
                      else "the source's faces triangulated")

@@ -95,3 +95,45 @@ def in_pieces(V, F):
     copy[seam] = len(V) + np.arange(seam.size)
     F[right] = np.where(copy[F[right]] >= 0, copy[F[right]], F[right])
     return np.vstack([V, np.asarray(V)[seam]]), F, seam, copy[seam]
+
+
+def catmull_clark(mesh):
+    """One step of Catmull-Clark subdivision of a core Mesh (each polygon into quads around its centre; the
+    corners, sides and centres placed by the scheme's rules, a side on the border at its middle and a border
+    corner kept where it is), as Blender's Subdivision Surface makes it, to be read back as a new Mesh."""
+    from garment_transfer.geometry.mesh import mesh_from_polygon_arrays
+
+    V, fv, fs = mesh.V, mesh.face_vertices, mesh.face_start
+    n, sizes = V.shape[0], np.diff(fs)
+    p = sizes.shape[0]
+    face = np.repeat(np.arange(p), sizes)
+    centre = np.zeros((p, 3))
+    np.add.at(centre, face, V[fv])
+    centre /= sizes[:, None]
+    nxt = np.arange(fv.shape[0]) + 1
+    nxt[fs[1:] - 1] = fs[:-1]
+    u, v = fv, fv[nxt]
+    key = np.minimum(u, v) * n + np.maximum(u, v)
+    sides, side_of, uses = np.unique(key, return_inverse=True, return_counts=True)
+    a, b = sides // n, sides % n
+    face_sum = np.zeros((sides.shape[0], 3))
+    np.add.at(face_sum, side_of, centre[face])
+    border = uses == 1
+    side_point = np.where(border[:, None], 0.5 * (V[a] + V[b]), (V[a] + V[b] + face_sum) / (2 + uses[:, None]))
+    # Corners: (Q + 2R + (k - 3)P) / k, Q the mean of the centres around, R of the sides' middles, k the valence.
+    k = np.bincount(np.r_[a, b], minlength=n).astype(float)
+    R = np.zeros((n, 3))
+    np.add.at(R, np.r_[a, b], np.r_[0.5 * (V[a] + V[b]), 0.5 * (V[a] + V[b])])
+    Q = np.zeros((n, 3))
+    np.add.at(Q, fv, centre[face])
+    faces_at = np.bincount(fv, minlength=n)[:, None]
+    on_border = np.zeros(n, dtype=bool)
+    on_border[np.r_[a[border], b[border]]] = True
+    corner = (Q / faces_at + 2 * R / k[:, None] + (k[:, None] - 3) * V) / k[:, None]
+    corner[on_border] = V[on_border]
+    W = np.vstack([corner, side_point, centre])
+    prev = np.arange(fv.shape[0]) - 1
+    prev[fs[:-1]] = fs[1:] - 1
+    quads = np.stack([fv, n + side_of, n + sides.shape[0] + face, n + side_of[prev]], axis=1)
+    return mesh_from_polygon_arrays(W, quads.ravel(), np.arange(0, 4 * quads.shape[0] + 1, 4),
+                                    name=f"{mesh.name} subdivided")

@@ -9,7 +9,7 @@ import stat
 
 import numpy as np
 import pytest
-from meshes import icosphere, in_pieces, require_makehuman
+from meshes import catmull_clark, icosphere, in_pieces, require_makehuman
 
 from garment_transfer.cli import commands as cli
 from garment_transfer.cli import options
@@ -476,6 +476,41 @@ def test_a_body_written_triangulated_is_the_same_body(tmp_path, capsys):
                               "--source-body", tmp_path / "src_tri.obj", "--json")
     assert code == 0, err
     assert json.loads(text)["drape_reference"] == "body_fit"
+
+
+def test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage():
+    from garment_transfer.geometry.intersections import crossings
+    from garment_transfer.geometry.readings import readings_of
+    from garment_transfer.pipeline.any_body import transfer_to_any_body
+    from garment_transfer.pipeline.result_check import check_result
+
+    # The subdivision itself: a cube's corners go to 5/9 and its sides' points to 3/4 of the way out.
+    cube = polygons(np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float),
+                    [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+    smooth = catmull_clark(cube)
+    assert smooth.n_vertices == 26 and smooth.n_faces == 24
+    np.testing.assert_allclose(np.abs(smooth.V[:8]), 5 / 9)
+    np.testing.assert_allclose(np.sort(np.abs(smooth.V[8:20]), axis=1), [[0, 0.75, 0.75]] * 12)
+
+    root = require_makehuman()
+    source, pear = read_obj(root / "bodies" / "female_average.obj"), read_obj(root / "bodies" / "female_pear.obj")
+    garment = read_obj(root / "garments" / "female_casualsuit01" / "female_average.obj")
+    surface = catmull_clark(pear)
+    result, registration = transfer_to_any_body(source, surface, garment, target_cage=pear)
+    assert registration is None and result.info["target_cage"] is True
+    # Fitted to the surface given, every split of its quads: the counts are those of an independent check.
+    c = crossings(result.V, readings_of(garment), surface.V, readings_of(surface))
+    check = check_result(garment, result.V, surface)
+    assert c["a_edge_pairs"] == check["garment_edge_body_pairs"] == 0
+    assert c["b_edge_pairs"] == check["body_edge_garment_pairs"] == 0
+    assert result.penetrating_vertices == check["inside_vertices"] == 0
+    # Solved on the cage: close to the transfer onto the cage itself (the surface lies inside the cage where the
+    # body is convex, by up to a few millimetres).
+    plain, _ = transfer_to_any_body(source, pear, garment)
+    assert np.linalg.norm(result.V - plain.V, axis=1).mean() < 0.015      # decimetres
+    # A target of the source's own mesh needs no cage: the cage given is not used.
+    same, _ = transfer_to_any_body(source, pear, garment, target_cage=pear)
+    assert "target_cage" not in same.info and np.array_equal(same.V, plain.V)
 
 
 def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch):

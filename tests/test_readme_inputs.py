@@ -32,6 +32,11 @@ ROWS = {
     "a target body that is the source's mesh written triangulated": [
         "test_careless_inputs.py::test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces",
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body"],
+    "a target body whose modifiers end in a Subdivision Surface": [
+        "test_careless_inputs.py::test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage",
+        "blender/test_registration_operator.py::"
+        "test_a_target_under_a_subdivision_surface_is_dressed_on_the_mesh_it_subdivides",
+        "blender/test_outfit_operator.py::test_an_outfit_onto_a_target_under_a_subdivision_surface"],
     "a source body written triangulated and a target body of its mesh": [
         "test_careless_inputs.py::test_common_polygons_of_two_splits_of_one_mesh",
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body",

@@ -34,7 +34,8 @@ def registration_for(source_body: Mesh, target_body: Mesh, registration: Registr
 
 def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *, cache=True,
                          limits=None, registration: Registration | None = None, progress=None,
-                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, **options):
+                         shape_basis=None, shape_bounds=SHAPE_BOUNDS, body_model=False, target_cage=None,
+                         **options):
     """``transfer_garment`` onto any target body: registered first when it is another mesh.
 
     The garment is solved in the source's frame on the fitted body (so the ``model`` method sees the
@@ -59,6 +60,11 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
         See ``register``.
     body_model : bool
         See ``register``.
+    target_cage : Mesh, optional
+        The target before a modifier refined its surface (a Subdivision Surface in Blender: ``target_body`` is
+        the surface it makes, ``target_cage`` the mesh it subdivides). Where the cage is the source's mesh and
+        the target is not, the garment is solved on the cage, with no registration, and fixed and cleared on
+        ``target_body`` (``info["target_cage"]`` says so).
     **options
         Passed to ``transfer_garment`` (method, model, target, offset, fix_penetration, prepared, ...);
         ``offset`` is in the target's units.
@@ -99,6 +105,12 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
             result.info["target_faces_split"] = True
         if orientation(target_body.V, target_body.F) != orientation(target_body.V, source_body.F):
             result.info["target_faces_turned"] = True
+        return result, None
+    if target_cage is not None and one_mesh(source_body, target_cage):
+        # The target's own surface refines its cage, the source's mesh: solved on the cage, fitted to the surface.
+        result = _solve_then_fit(source_body, source_body.with_vertices(target_cage.V), target_body, garment,
+                                 None, progress, options)
+        result.info["target_cage"] = True
         return result, None
     reg = registration_for(source_body, target_body, registration, cache=cache, limits=limits, progress=progress,
                            shape_basis=shape_basis, shape_bounds=shape_bounds, body_model=body_model)

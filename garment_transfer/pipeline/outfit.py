@@ -38,7 +38,7 @@ from ..geometry.obstacle import Obstacle, edge_length
 from ..geometry.readings import Readings, as_readings, merge_readings, readings_of
 from ..fitting.registration import Registration
 from ..geometry.mesh import Mesh, edge_lengths_mean, joined_pieces
-from ..geometry.proximity import TriangleSurface, as_same_mesh
+from ..geometry.proximity import TriangleSurface, as_same_mesh, one_mesh
 from .any_body import registration_for, transfer_to_any_body
 from .transfer import OFFSET_SHARE
 
@@ -433,7 +433,8 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     cache, limits
         For the registration of a target of another mesh (``registration.register``).
     **transfer_options
-        Passed to ``any_body.transfer_to_any_body`` for every layer (method, model, target, ...).
+        Passed to ``any_body.transfer_to_any_body`` for every layer (method, model, target, ...; a
+        ``target_cage`` of the source's mesh: no registration, and the layers separated on the target).
 
     Returns
     -------
@@ -461,8 +462,9 @@ def transfer_outfit(source_body: Mesh, target_body: Mesh, garments, *, offsets=N
     # A target of another mesh: the source fitted onto it once, for every layer, over the first 10% of the outfit's
     # progress (``registration_for`` gives it 60%).
     step = None if progress is None else (lambda f, *stage: progress(f / 6.0, *stage))
-    registration = registration_for(source_body, target_body, registration, cache=cache, limits=limits,
-                                    progress=step)
+    cage = transfer_options.get("target_cage")
+    registration = None if cage is not None and one_mesh(source_body, cage) else registration_for(
+        source_body, target_body, registration, cache=cache, limits=limits, progress=step)
     scale = 1.0
     if registration is not None:
         scale = registration.alignment.scale

@@ -298,3 +298,23 @@ def test_outfit_with_a_model_file_says_which_model_it_used(outfit, extension, tm
     settings.method = 'DIRECT'
     assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
     assert settings.last_outfit_model == ""
+
+
+def test_an_outfit_onto_a_target_under_a_subdivision_surface(outfit, extension):
+    o = outfit.objects
+    set_layers(outfit.settings, (o[INNER], o[OUTER]))
+    subsurf = o["pear"].modifiers.new("Subdivision", 'SUBSURF')
+    subsurf.levels = 1
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    # The mesh it subdivides is the source's: not registered; the layers fitted to the surface the viewport shows.
+    assert outfit.settings.last_outfit_registration == ""
+    assert subsurf.show_viewport
+    target, g_in, g_out = core_meshes(extension, (o["pear"], o[INNER], o[OUTER]))
+    assert target.n_vertices > 2 * len(o["pear"].data.vertices)
+    got = [world_vertices(bpy.data.objects[f"{g}_on_pear"]) for g in (INNER, OUTER)]
+    R_in, R_out, B = readings_of(g_in), readings_of(g_out), readings_of(target)
+    for V, R in zip(got, (R_in, R_out)):
+        c = crossings(V, R, target.V, B)
+        assert c["a_edge_pairs"] == 0 and c["b_edge_pairs"] == 0
+    c = crossings(got[0], R_in, got[1], R_out)
+    assert c["a_edge_pairs"] == 0 and c["b_edge_pairs"] == 0
