@@ -40,7 +40,7 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
         ``written`` (bool), ``scale`` (value shown in full red), ``max``, and ``reason`` why it was
         not written (None when it was).
     """
-    from ..garment_transfer import MeshError, evaluate, per_vertex_change
+    from ..garment_transfer import MeshError, evaluate, one_mesh, per_vertex_change
 
     for role, obj in (("result", result_obj), ("garment", garment), ("target body", target_body)):
         convert.require_mesh_object(obj, role)
@@ -58,7 +58,14 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
            if reference is not None else None)
     src_body = (convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
                 if source_body is not None and reference is None else None)
-    metrics = evaluate(source, result, body, reference=ref, source_body=src_body)
+    cage = None
+    if src_body is not None and not one_mesh(src_body, body):
+        # The body fit needs the target's vertices to be the source's: a target subdivided by its last modifiers
+        # has them in the mesh it subdivides; a target of another mesh has no body fit to measure against.
+        cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+        if cage is None or not one_mesh(src_body, cage):
+            src_body, cage = None, None
+    metrics = evaluate(source, result, body, reference=ref, source_body=src_body, target_cage=cage)
     change = np.asarray(per_vertex_change(source.V, result.V), dtype=np.float64)
     scale = float(np.percentile(change, 99)) if change.size else 0.0
     scale = scale if scale > 0 else 1.0

@@ -508,6 +508,12 @@ def test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage():
     # body is convex, by up to a few millimetres).
     plain, _ = transfer_to_any_body(source, pear, garment)
     assert np.linalg.norm(result.V - plain.V, axis=1).mean() < 0.015      # decimetres
+    # The body fit of the evaluation is carried onto the cage; without it, the surface is another mesh.
+    measured = evaluate(garment, garment.with_vertices(result.V), surface, source_body=source, target_cage=pear,
+                        intersections=False)
+    assert measured["drape_reference"] == "body_fit" and measured["drape_error"] < 0.05
+    with pytest.raises(GarmentTransferError, match="vertices"):
+        evaluate(garment, garment.with_vertices(result.V), surface, source_body=source, intersections=False)
     # A target of the source's own mesh needs no cage: the cage given is not used.
     same, _ = transfer_to_any_body(source, pear, garment, target_cage=pear)
     assert "target_cage" not in same.info and np.array_equal(same.V, plain.V)

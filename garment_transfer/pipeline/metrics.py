@@ -79,7 +79,7 @@ def per_vertex_change(V_source, V_result):
 
 
 def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | None = None,
-             source_body: Mesh | None = None, smoothing=0.025, intersections=True, layers_below=()):
+             source_body: Mesh | None = None, smoothing=0.025, intersections=True, layers_below=(), target_cage=None):
     """All quality figures of a transferred garment.
 
     Parameters
@@ -102,6 +102,9 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
         Add the exact intersection figures (``intersections.intersection_report``).
     layers_below : sequence of Mesh
         Garments worn under this one (for ``layer_crossings``).
+    target_cage : Mesh, optional
+        The mesh a subdivided ``target_body`` refines (``any_body.transfer_to_any_body``'s): the body fit is
+        carried onto it, where it is the source body's mesh.
 
     Returns
     -------
@@ -130,9 +133,10 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
     elif source_body is not None:
         # A target of the source's mesh written with the other winding or triangulated (or a source so written)
         # is that mesh: only the vertices are carried (one_mesh).
-        if not one_mesh(source_body, target_body):
-            require_same_topology(source_body, target_body)
-        ref_V = carry(bind(source.V, source_body.V, source_body.F), target_body.V, source_body.F)
+        fit_on = target_cage if target_cage is not None and not one_mesh(source_body, target_body) else target_body
+        if not one_mesh(source_body, fit_on):
+            require_same_topology(source_body, fit_on)
+        ref_V = carry(bind(source.V, source_body.V, source_body.F), fit_on.V, source_body.F)
         ref_F, kind = F, "body_fit"
     out["drape_reference"] = kind
     if ref_V is None:

@@ -221,3 +221,29 @@ def test_the_model_file_is_refused_in_the_dataset_it_reads_before_training(dress
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before
     settings.train_output = str(ds / "model.npz")      # beside bodies/ and garments/: fine
     assert train.training_plan(settings)["out"] == str(ds / "model.npz")
+
+
+def test_evaluate_after_a_transfer_onto_a_subdivided_target_or_another_mesh(dressed, extension):
+    import json
+
+    gt, convert = extension.garment_transfer, extension.operators.convert
+    subsurf = dressed.target.modifiers.new("Subdivision", 'SUBSURF')
+    subsurf.levels = 1
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    # The body fit is carried onto the mesh the target subdivides (it was refused: "has 53514 vertices but
+    # average has 13380").
+    assert bpy.ops.garment_transfer.evaluate() == {'FINISHED'}
+    metrics = json.loads(dressed.settings.last_metrics)
+    assert metrics["drape_error"] is not None and np.isfinite(metrics["drape_error"])
+    assert subsurf.show_viewport
+    dg = bpy.context.evaluated_depsgraph_get()
+    body = convert.core_mesh_from_object(dressed.target, dg)
+    cloth = convert.core_mesh_from_object(dressed.settings.result, dg)
+    c = gt.crossings(cloth.V, gt.readings_of(cloth), body.V, gt.readings_of(body))
+    assert metrics["garment_edges_through_body"] == c["a_edges_through_b"] == 0
+    # A Displace after it: another mesh, no body fit to measure against; the other figures all there.
+    dressed.target.modifiers.new("Displace", 'DISPLACE').strength = 0.001
+    assert bpy.ops.garment_transfer.evaluate() == {'FINISHED'}
+    metrics = json.loads(dressed.settings.last_metrics)
+    assert metrics["drape_error"] is None
+    assert metrics["mdc"] > 0 and metrics["garment_edges_through_body"] is not None
