@@ -288,6 +288,25 @@ def shrinkwrap_surface(body, V_world):
     return TriangleSurface(V_world, tris.reshape(-1, 3))
 
 
+def evaluated_shrinkwrap_surface(body, depsgraph):
+    """What a Shrinkwrap on ``body`` sees in ``depsgraph``: its evaluated mesh (every modifier, a Subdivision
+    Surface included, and its shape keys) in world space, split into triangles as Blender splits its faces."""
+    from ..garment_transfer import TriangleSurface
+
+    ev = body.evaluated_get(depsgraph)
+    me = ev.to_mesh()
+    try:
+        co = np.empty(3 * len(me.vertices), dtype=np.float32)
+        me.vertices.foreach_get("co", co)
+        me.calc_loop_triangles()
+        tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
+        me.loop_triangles.foreach_get("vertices", tris)
+    finally:
+        ev.to_mesh_clear()
+    M = convert.matrix_array(ev.matrix_world)
+    return TriangleSurface(co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3], tris.reshape(-1, 3))
+
+
 def add_keep_outside_bands(obj, body, bands):
     """``add_keep_outside`` per band of ``shape_keys.keep_outside_bands`` (distance, vertices), in increasing
     order: ``KEEP_OUTSIDE_MODIFIER``, ``KEEP_OUTSIDE_MODIFIER 2``, ``3``..., each limited to a vertex group of the
@@ -380,6 +399,9 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         depsgraph = context.evaluated_depsgraph_get()
         body_mesh = convert.core_mesh_from_object(body, depsgraph, False, "body")
         cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
+        # The surface the Shrinkwraps keep the cloth outside of, at rest (a Subdivision Surface's, where the body
+        # has one).
+        seen = evaluated_shrinkwrap_surface(body, depsgraph)
     weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
                                       max_influences=max_influences, name=obj.name)
     if info["unweighted"] == len(cloth.V):
@@ -408,7 +430,7 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         from ..garment_transfer import HANGING_BANDS, KEEP_OUTSIDE_BANDS, hanging_bands, held_bands
 
         offset = OFFSET_SHARE * body_scale(body_mesh.V)
-        surface = shrinkwrap_surface(body, body_mesh.V)
+        surface = seen
         bands = held_bands([(surface, cloth.V)], offset, [outside * b for b in KEEP_OUTSIDE_BANDS])
         if hanging:
             # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
