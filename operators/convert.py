@@ -150,14 +150,15 @@ def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh"):
     return mesh_from_polygons(V, polygons, name=obj.name)
 
 
-#: Modifiers that add faces to refine a surface: an object whose stack ends in them has a cage, its mesh before them.
-SUBDIVIDING_MODIFIERS = frozenset({"SUBSURF", "MULTIRES"})
+#: Modifiers that add faces to smooth a surface: an object whose stack ends in them has a cage, its mesh before them
+#: (a Multiresolution's sculpted detail may lie far from its base mesh: not one of them).
+SUBDIVIDING_MODIFIERS = frozenset({"SUBSURF"})
 
 
 def cage_mesh_from_object(obj, context, role="mesh"):
-    """The object as the viewport shows it without the subdividing modifiers that end its stack (a Subdivision
-    Surface last: the mesh it subdivides, posed and shaped by everything before it), or None when its stack does
-    not end in one that shows in the viewport. Those modifiers are hidden while it is read and shown again."""
+    """The object as the viewport shows it without the Subdivision Surface that ends its stack (followed by nothing
+    but refining modifiers: the mesh it subdivides, posed and shaped by everything before it), or None when its
+    stack does not end so. Those modifiers are hidden while it is read and shown again."""
     hidden = []
     for mod in reversed(obj.modifiers):
         if not mod.show_viewport:

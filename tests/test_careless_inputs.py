@@ -5,6 +5,7 @@ left exactly as they were (bytes and mode); or, where the input is fine, the rig
 from __future__ import annotations
 
 import os
+import re
 import stat
 
 import numpy as np
@@ -517,6 +518,42 @@ def test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage():
     # A target of the source's own mesh needs no cage: the cage given is not used.
     same, _ = transfer_to_any_body(source, pear, garment, target_cage=pear)
     assert "target_cage" not in same.info and np.array_equal(same.V, plain.V)
+
+
+def test_the_command_line_takes_the_cage_of_a_subdivided_target(tmp_path, capsys):
+    import json
+
+    from garment_transfer.geometry.intersections import crossings
+    from garment_transfer.geometry.readings import readings_of
+
+    root = require_makehuman()
+    source, pear = root / "bodies" / "female_average.obj", root / "bodies" / "female_pear.obj"
+    garment = root / "garments" / "female_casualsuit01" / "female_average.obj"
+    surface = catmull_clark(read_obj(pear))
+    write_obj(tmp_path / "pear_subdivided.obj", surface)
+    out = tmp_path / "suit.obj"
+    code, text, err = run_cli(capsys, "transfer", "--source-body", source, "--target-body",
+                              tmp_path / "pear_subdivided.obj", "--target-cage", pear, "--garment", garment,
+                              "--out", out, "--json")
+    assert code == 0, err
+    info = json.loads(text)
+    assert info["registered"] is False and info["info"]["target_cage"] is True
+    written = read_obj(out)
+    c = crossings(written.V, readings_of(written), surface.V, readings_of(surface))
+    assert c["a_edge_pairs"] == info["check"]["garment_edge_body_pairs"] == 0
+    assert c["b_edge_pairs"] == info["check"]["body_edge_garment_pairs"] == 0
+    # A cage of the source's mesh in another shape (the average body's), and one of another mesh: refused, naming
+    # it, nothing written.
+    for cage, said in ((source, "lies up to .* from its cage .*female_average.obj, more than 1%"),
+                       (tmp_path / "sphere.obj", "sphere.obj: is not the source body's mesh")):
+        if cage.name == "sphere.obj":
+            write_obj(cage, mesh_from_triangles(*icosphere(2)))
+        refused = tmp_path / "refused.obj"
+        code, _, err = run_cli(capsys, "transfer", "--source-body", source, "--target-body",
+                               tmp_path / "pear_subdivided.obj", "--target-cage", cage, "--garment", garment,
+                               "--out", refused)
+        assert code == 1 and re.search(said, err), err
+        assert not refused.exists()
 
 
 def test_a_mirror_image_by_vertex_order_is_not_the_same_mesh(scene, monkeypatch):

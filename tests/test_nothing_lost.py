@@ -79,6 +79,7 @@ def world(tmp_path_factory):
     (w / "DS" / "manifest.json").write_text('{"source": "banana"}\n')
     write_obj(w / "source.obj", mesh_from_triangles(V, F))
     write_obj(w / "target.obj", mesh_from_triangles(V * 1.1, F))
+    write_obj(w / "cage.obj", mesh_from_triangles(V * 1.1, F))
     write_obj(w / "basis.obj", mesh_from_triangles(V * [1.0, 1.2, 1.0], F))
     (w / "clothes").mkdir()
     write_obj(w / "clothes" / "garment.obj", mesh_from_triangles(GV, GF))
@@ -124,8 +125,9 @@ class Command:
 
 
 def _transfer(w, out):
-    return ["transfer", "--source-body", w / "source.obj", "--target-body", w / "target.obj", "--garment",
-            w / "clothes" / "garment.obj", "--model", w / "model.npz", "--target", "pear", "--shape-basis",
+    return ["transfer", "--source-body", w / "source.obj", "--target-body", w / "target.obj", "--target-cage",
+            w / "cage.obj", "--garment", w / "clothes" / "garment.obj", "--model", w / "model.npz", "--target", "pear",
+            "--shape-basis",
             w / "basis.obj", "--body-model", w / "targets.npz", "--skeleton", w / "skeleton.json", "--source-joints",
             w / "joints.json", "--source-weights", w / "weights.json", "--target-joints", w / "target_joints.json",
             "--out", out["--out"]]
@@ -143,6 +145,7 @@ TRANSFER_SETTINGS = {"--method", "--target", "--field-share", "--no-placement", 
 
 COMMANDS = {
     "transfer": Command(_transfer, {"--source-body": "source.obj", "--target-body": "target.obj",
+                                    "--target-cage": "cage.obj",
                                     "--garment": "clothes/garment.obj", "--model": "model.npz",
                                     "--shape-basis": "basis.obj", "--body-model": "targets.npz",
                                     "--skeleton": "skeleton.json", "--source-joints": "joints.json",

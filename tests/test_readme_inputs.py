@@ -34,6 +34,7 @@ ROWS = {
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body"],
     "a target body whose modifiers end in a Subdivision Surface": [
         "test_careless_inputs.py::test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage",
+        "test_careless_inputs.py::test_the_command_line_takes_the_cage_of_a_subdivided_target",
         "blender/test_registration_operator.py::"
         "test_a_target_under_a_subdivision_surface_is_dressed_on_the_mesh_it_subdivides",
         "blender/test_outfit_operator.py::test_an_outfit_onto_a_target_under_a_subdivision_surface"],

@@ -18,12 +18,13 @@ import os
 import sys
 import time
 
-from ..errors import GarmentTransferError
+from ..errors import GarmentTransferError, MeshError
 from ..files import atomic_path
 from ..fitting.body_model import makehuman_shape_basis
 from ..fitting.registration import register
 from ..fitting.shape_basis import shape_basis_from_bodies
 from ..geometry.obj import obj_text, read_obj, write_obj
+from ..geometry.proximity import one_mesh
 from ..geometry.readings import readings_of
 from ..learning.garment_training import (
     FIELD_EPOCHS,
@@ -64,13 +65,14 @@ def cmd_transfer(args):
         raise GarmentTransferError(f"one garment needs one --out, got {len(args.out)}")
 
     args.garment, args.out = args.garment[0], args.out[0]
-    inputs = [args.source_body, args.target_body, args.garment, args.model]
+    inputs = [args.source_body, args.target_body, args.garment, args.model, args.target_cage]
     t = time.perf_counter()
     source_body = read_obj(args.source_body)
     target_body = read_obj(args.target_body)
     garment = read_obj(args.garment)
     model = _model_for(args)
     rig = _rest_pose_rig(args, source_body)
+    cage = _target_cage(args, source_body, rig)
     load = time.perf_counter() - t
     shape = _shape_basis_for(args, source_body)
     options = dict(cache=not args.no_cache, **{k: v for k, v in shape.items() if not k.startswith("_")},
@@ -81,7 +83,7 @@ def cmd_transfer(args):
         result, registration = transfer_across_rest_poses(source_body, target_body, garment, *rig,
                                                           untangle=args.untangle, **options)
     else:
-        result, registration = transfer_to_any_body(source_body, target_body, garment, **options)
+        result, registration = transfer_to_any_body(source_body, target_body, garment, target_cage=cage, **options)
     t = time.perf_counter()
     write_obj(args.out, garment, result.V, inputs=inputs,
               header=f"Garment Transfer: {os.path.basename(args.garment)} on "
@@ -129,6 +131,21 @@ def cmd_transfer(args):
 
 
 REST_POSE_OPTIONS = ("skeleton", "source_joints", "source_weights", "target_joints")
+
+
+def _target_cage(args, source_body, rig):
+    """The target's cage given (``--target-cage``), checked to be the source body's mesh; None when not given."""
+    if not args.target_cage:
+        return None
+    if rig is not None:
+        raise GarmentTransferError("--target-cage is for a target in the source's rest pose, not with --target-joints")
+    cage = read_obj(args.target_cage)
+    if not one_mesh(source_body, cage):
+        raise MeshError(args.target_cage, f"is not the source body's mesh ({cage.n_vertices} vertices, "
+                                          f"{cage.n_faces} faces; {os.path.basename(args.source_body)} has "
+                                          f"{source_body.n_vertices} and {source_body.n_faces}): a cage must be "
+                                          "the source's mesh in the target's shape")
+    return cage
 
 
 def _rest_pose_rig(args, source_body):
@@ -292,19 +309,21 @@ def cmd_transfer_outfit(args):
     garments = [read_obj(g, name=g) for g in args.garment]
     model = _model_for(args)
     rig = _rest_pose_rig(args, source_body)
+    cage = _target_cage(args, source_body, rig)
     load = time.perf_counter() - t
     options = dict(offsets=args.offset, method=args.method, **(model.transfer_arguments() if model else {}),
                    target=args.target, interpolate=not args.no_interpolate, cache=not args.no_cache)
     if rig is not None:
         result = outfit_across_rest_poses(source_body, target_body, garments, *rig, **options)
     else:
-        result = transfer_outfit(source_body, target_body, garments, **options)
+        result = transfer_outfit(source_body, target_body, garments, target_cage=cage, **options)
     t = time.perf_counter()
     on = f"{os.path.basename(args.target_body)} ({args.method})"
     texts = [obj_text(g, V, header=f"Garment Transfer: {os.path.basename(f)} (layer {k + 1} of "
                                    f"{len(garments)}) on {on}", path=p)
              for k, (g, V, f, p) in enumerate(zip(garments, result.V, args.garment, paths))]
-    write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model])
+    write_all_or_nothing(paths, texts, inputs=[args.source_body, args.target_body, *args.garment, args.model,
+                                               args.target_cage])
     write = time.perf_counter() - t
     t = time.perf_counter()
     checks, below = [], []
@@ -441,6 +460,10 @@ def build_parser():
     t.add_argument("--target-body", required=True,
                    help="OBJ: the target body; the same mesh in another shape, or any body mesh of a "
                         "person in a similar pose (registered automatically, any units and axes)")
+    t.add_argument("--target-cage", metavar="CAGE.obj",
+                   help="OBJ: the mesh the target body subdivides (a character written with its Subdivision "
+                        "Surface applied, and its base mesh): where it is the source body's mesh, the garment is "
+                        "solved on it without a registration, and fitted to and checked against --target-body")
     t.add_argument("--garment", required=True, action="append",
                    help="OBJ: the garment on the source body; repeat it for an outfit of several layers, "
                         "from the body out (each stays outside the ones before it)")

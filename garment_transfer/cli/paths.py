@@ -45,7 +45,7 @@ def transfer_out_paths(args):
 
 def _transfer(args):
     return dict(files=transfer_out_paths(args),
-                inputs=[args.source_body, args.target_body, *args.garment, args.model,
+                inputs=[args.source_body, args.target_body, args.target_cage, *args.garment, args.model,
                         *(args.shape_basis or []), args.body_model, args.skeleton, args.source_joints,
                         args.source_weights, args.target_joints])
 
