@@ -233,7 +233,7 @@ def test_a_target_under_a_subdivision_surface_is_dressed_on_the_mesh_it_subdivid
     assert shown["garment_edges_through_body"] == c["a_edges_through_b"] == 0
     assert shown["body_edges_through_garment"] == c["b_edges_through_a"] == 0
     assert shown["inside_vertices"] == int((gt.TriangleSurface(body.V, body.F).signed_distance(cloth.V)[0] < 0).sum())
-    # A modifier after the subdivision that moves the surface (a Displace): no cage to take; registered.
+    # A modifier after the subdivision that moves the surface (a Displace): no cage to take (registered).
+    assert convert.cage_mesh_from_object(dressed.target, bpy.context, "target body") is not None
     dressed.target.modifiers.new("Displace", 'DISPLACE').strength = 0.001
-    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
-    assert dressed.settings.last_registration.startswith("Registered")
+    assert convert.cage_mesh_from_object(dressed.target, bpy.context, "target body") is None
