@@ -401,7 +401,7 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
         # The surface the Shrinkwraps keep the cloth outside of, at rest (a Subdivision Surface's, where the body
         # has one).
-        seen = evaluated_shrinkwrap_surface(body, depsgraph)
+        surface = evaluated_shrinkwrap_surface(body, depsgraph)
     weights, info = inpainted_weights(body_mesh.V, body_mesh.F, body_weights, cloth.V, cloth.F,
                                       max_influences=max_influences, name=obj.name)
     if info["unweighted"] == len(cloth.V):
@@ -430,7 +430,6 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
         from ..garment_transfer import HANGING_BANDS, KEEP_OUTSIDE_BANDS, hanging_bands, held_bands
 
         offset = OFFSET_SHARE * body_scale(body_mesh.V)
-        surface = seen
         bands = held_bands([(surface, cloth.V)], offset, [outside * b for b in KEEP_OUTSIDE_BANDS])
         if hanging:
             # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
