@@ -281,11 +281,15 @@ def shrinkwrap_surface(body, V_world):
     faces (its loop triangles): what a Shrinkwrap on it sees."""
     from ..garment_transfer import TriangleSurface
 
-    me = body.data
+    return TriangleSurface(V_world, _loop_triangles(body.data))
+
+
+def _loop_triangles(me):
+    """(m,3) int64: a mesh's faces split into triangles as Blender splits them (its loop triangles)."""
     me.calc_loop_triangles()
     tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
     me.loop_triangles.foreach_get("vertices", tris)
-    return TriangleSurface(V_world, tris.reshape(-1, 3))
+    return tris.reshape(-1, 3)
 
 
 def evaluated_shrinkwrap_surface(body, depsgraph):
@@ -298,13 +302,11 @@ def evaluated_shrinkwrap_surface(body, depsgraph):
     try:
         co = np.empty(3 * len(me.vertices), dtype=np.float32)
         me.vertices.foreach_get("co", co)
-        me.calc_loop_triangles()
-        tris = np.empty(3 * len(me.loop_triangles), dtype=np.int64)
-        me.loop_triangles.foreach_get("vertices", tris)
+        tris = _loop_triangles(me)
     finally:
         ev.to_mesh_clear()
     M = convert.matrix_array(ev.matrix_world)
-    return TriangleSurface(co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3], tris.reshape(-1, 3))
+    return TriangleSurface(co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3], tris)
 
 
 def add_keep_outside_bands(obj, body, bands):

@@ -507,8 +507,7 @@ def faces_split(a: Mesh, b: Mesh) -> bool:
     if np.any(np.diff(local)[inner] <= 0):
         return False
     # Sides: each piece's directed sides (as places in its polygon) must add up to its polygon's sides.
-    nxt = np.arange(local.shape[0]) + 1
-    nxt[start[1:] - 1] = start[:-1]
+    nxt = _next_corner(start)
     side_v = (corner_place + 1) % np.repeat(a_size, a_size)
     u, v = np.concatenate([place, corner_place]), np.concatenate([place[nxt], side_v])
     keys, inverse = np.unique((np.concatenate([poly, corner_poly]) * k + np.minimum(u, v)) * k + np.maximum(u, v),
@@ -555,12 +554,8 @@ def common_polygons(a: Mesh, b: Mesh):
 
 def _side_keys(mesh: Mesh):
     """(k,) int64: each corner's side to the next corner of its polygon, as one key of its two vertices."""
-    fv, start = mesh.face_vertices, mesh.face_start
-    return _side_key(fv, fv[_next_corner(start)], mesh.n_vertices)
-
-
-def _side_key(u, v, n):
-    return np.minimum(u, v) * n + np.maximum(u, v)
+    u, v = mesh.face_vertices, mesh.face_vertices[_next_corner(mesh.face_start)]
+    return np.minimum(u, v) * mesh.n_vertices + np.maximum(u, v)
 
 
 def _next_corner(start):

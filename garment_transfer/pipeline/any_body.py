@@ -11,7 +11,7 @@ from ..fitting.registration import Registration, register
 from ..fitting.shape_basis import SHAPE_BOUNDS
 from ..geometry.embedding import body_scale
 from ..geometry.mesh import Mesh, faces_turned
-from ..geometry.proximity import TriangleSurface, as_same_mesh, one_mesh, orientation
+from ..geometry.proximity import TriangleSurface, as_same_mesh, common_mesh, one_mesh, orientation
 from .transfer import (OFFSET_SHARE, check_offset, fit_to_body, pass_inputs_ahead, pose_check, prepare_garment,
                        transfer_garment)
 
@@ -102,14 +102,15 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
                 result.info["target_faces_turned"] = True
         return result, None
 
-    if one_mesh(source_body, target_body):
+    common = common_mesh(source_body, target_body)
+    if common is not None:
         # The source written triangulated and the target with its polygons, or the two triangulated along other
         # diagonals (either winding): solved on the source's faces in the target's shape, then fixed and cleared
         # on the target's own faces (every split of its polygons read).
         result = _solve_then_fit(source_body, source_body.with_vertices(target_body.V), target_body, garment,
                                  None, progress, options)
         result.info["source_faces_split"] = True
-        if as_same_mesh(target_body, source_body) is None:
+        if common.n_faces != target_body.n_faces:
             result.info["target_faces_split"] = True
         if orientation(target_body.V, target_body.F) != orientation(target_body.V, source_body.F):
             result.info["target_faces_turned"] = True

@@ -133,9 +133,11 @@ def evaluate(source: Mesh, result: Mesh, target_body: Mesh, reference: Mesh | No
     elif source_body is not None:
         # A target of the source's mesh written with the other winding or triangulated (or a source so written)
         # is that mesh: only the vertices are carried (one_mesh).
-        fit_on = target_cage if target_cage is not None and not one_mesh(source_body, target_body) else target_body
-        if not one_mesh(source_body, fit_on):
-            require_same_topology(source_body, fit_on)
+        fit_on = target_body
+        if not one_mesh(source_body, target_body):
+            if target_cage is None or not one_mesh(source_body, target_cage):
+                require_same_topology(source_body, target_body if target_cage is None else target_cage)
+            fit_on = target_cage
         ref_V = carry(bind(source.V, source_body.V, source_body.F), fit_on.V, source_body.F)
         ref_F, kind = F, "body_fit"
     out["drape_reference"] = kind
