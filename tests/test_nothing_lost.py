@@ -29,6 +29,7 @@ from garment_transfer.cli import weights as cli_weights
 from garment_transfer.cli.commands import build_parser
 from garment_transfer.geometry.mesh import mesh_from_triangles
 from garment_transfer.geometry.obj import write_obj
+from garment_transfer.geometry.pc2 import write_pc2
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -80,6 +81,7 @@ def world(tmp_path_factory):
     write_obj(w / "source.obj", mesh_from_triangles(V, F))
     write_obj(w / "target.obj", mesh_from_triangles(V * 1.1, F))
     write_obj(w / "cage.obj", mesh_from_triangles(V * 1.1, F))
+    write_pc2(w / "walk.pc2", np.stack([V, V * 1.01]))
     write_obj(w / "basis.obj", mesh_from_triangles(V * [1.0, 1.2, 1.0], F))
     (w / "clothes").mkdir()
     write_obj(w / "clothes" / "garment.obj", mesh_from_triangles(GV, GF))
@@ -160,6 +162,13 @@ COMMANDS = {
                        "--garment": "clothes/garment.obj"},
                       {"--out": "folder", "--cache": "file"},
                       {"--offset", "--margin", "--no-fix", "--poses", "--workers", "--untangle", "--json"}),
+    # A body's animation as a point cache in, the garment's out.
+    "shapes --target-cache": Command(lambda w, out: ["shapes", "--source-body", w / "source.obj", "--target-cache",
+                                                     w / "walk.pc2", "--garment", w / "clothes" / "garment.obj",
+                                                     "--out", out["--out"], "--cache", out["--cache"]],
+                                     {"--source-body": "source.obj", "--target-cache": "walk.pc2",
+                                      "--garment": "clothes/garment.obj"},
+                                     {"--out": "folder", "--cache": "file"}, set()),
     "weights": Command(lambda w, out: ["weights", "--body", w / "source.obj", "--weights", w / "weights.json",
                                        "--garment", w / "clothes" / "garment.obj", "--out", out["--out"]],
                        {"--body": "source.obj", "--weights": "weights.json", "--garment": "clothes/garment.obj"},
@@ -208,12 +217,14 @@ def subcommands():
 
 def test_every_command_and_every_option_is_known_here_and_declared():
     subs = subcommands()
-    assert set(subs) == set(COMMANDS), "a command this test does not walk: add it to COMMANDS"
+    # A key of COMMANDS is a command, or a command and the option that gives another way of running it.
+    assert set(subs) == {key.split()[0] for key in COMMANDS}, "a command this test does not walk: add it to COMMANDS"
     assert set(paths.DECLARED) == set(subs), "a command without a declaration of what it reads and writes"
     for name, sub in subs.items():
         options = {a.option_strings[0] if a.option_strings else a.dest for a in sub._actions
                    if a.dest != "help"}
-        known = set(COMMANDS[name].inputs) | set(COMMANDS[name].outputs) | COMMANDS[name].settings
+        known = set().union(*(set(c.inputs) | set(c.outputs) | c.settings
+                              for key, c in COMMANDS.items() if key.split()[0] == name))
         assert options == known, (name, options ^ known)
 
 

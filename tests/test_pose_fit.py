@@ -12,7 +12,9 @@ from meshes import grid, icosphere, random_rotation, require_makehuman
 
 from garment_transfer import (Rig, bvh_rotations, every_split, fit_poses, fit_to_pose, inpainted_weights, mdc,
                               mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
-                              read_obj, read_pc2, read_skeleton, read_weights, transfer_garment, write_obj)
+                              read_obj, read_pc2, read_skeleton, read_weights, transfer_garment, write_obj,
+                              write_pc2)
+from garment_transfer.geometry.pc2 import pc2_bytes
 from garment_transfer.pipeline import self_contact
 from garment_transfer.geometry.proximity import TriangleSurface
 from garment_transfer.geometry import clearance
@@ -331,3 +333,90 @@ def test_shapes_with_poses_writes_every_pose_and_its_counts(tmp_path):
                         paths["rest"], "--target-body", paths["pose"], "--garment", paths["garment"], "--out",
                         tmp_path / "never"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 2 and "--untangle is for --poses" in p.stderr and not (tmp_path / "never").exists()
+
+
+def test_shapes_fits_a_body_animation_given_as_a_point_cache(tmp_path):
+    # A character's animation as a pipeline exports it: a PC2 point cache of the body's mesh, here a pose and the
+    # rest position, from frame 10 every second frame.
+    body, rest, rig, T = makehuman_suit()
+    paths = {"rest": tmp_path / "rest.obj", "garment": tmp_path / "suit.obj"}
+    write_obj(paths["rest"], body)
+    write_obj(paths["garment"], rest)
+    samples = np.stack([rig.pose(body.V, T), body.V])
+    write_pc2(tmp_path / "walk.pc2", samples, start_frame=10.0, sample_rate=2.0)
+    out, cache = tmp_path / "out", tmp_path / "suit.pc2"
+    p = subprocess.run([sys.executable, "-m", "garment_transfer", "shapes", "--source-body", paths["rest"],
+                        "--target-cache", tmp_path / "walk.pc2", "--garment", paths["garment"], "--out", out,
+                        "--cache", cache, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert [(r["target"], r["sample"], r["frame"], r["out"]) for r in data["shapes"]] == \
+        [("frame 10", 0, 10.0, str(cache)), ("frame 12", 1, 12.0, str(cache))]
+    assert (data["body_cache"], data["start_frame"], data["sample_rate"]) == (str(tmp_path / "walk.pc2"), 10.0, 2.0)
+    assert sorted(q.name for q in out.iterdir()) == ["poses.json"]      # no file a frame beside the cache
+    # The garment's cache plays in step with the body's (its start and rate), and holds each sample's fit.
+    written, start, rate = read_pc2(cache)
+    assert (written.shape, start, rate) == ((2, rest.n_vertices, 3), 10.0, 2.0)
+    rest_body, garment = read_obj(paths["rest"]), read_obj(paths["garment"])
+    read_samples = read_pc2(tmp_path / "walk.pc2")[0].astype(np.float64)
+    prepared = prepare_garment(rest_body, garment)
+    for k, V in enumerate(read_samples):
+        fit = fit_to_pose(rest_body, V, garment, prepared=prepared, name=f"sample {k}")
+        assert np.array_equal(written[k], fit.V.astype(np.float32))
+    # The figures are the cache's as written, against the body's cache as given, under every split.
+    posed = rest_body.with_vertices(read_samples[0])
+    W = written[0].astype(np.float64)
+    row = data["shapes"][0]
+    contact, own = self_contact(posed.V, posed.F, CONTACT_RINGS, rest_body.V, CONTACT_GAP * row["offset"])
+    B = every_split(posed)
+    free = B[~contact[B].any(axis=1)]
+    assert row["crossings_outside_contact"] == sum(crossing_counts(W, every_split(garment), posed.V, free)) == 0
+    assert row["body_self_crossings"] == own > 0
+    assert row["penetrating_vertices"] == int((TriangleSurface(posed.V, posed.F).signed_distance(W)[0] < 0).sum())
+
+
+def test_a_body_cache_that_is_not_the_bodys_animation_is_refused_naming_it(tmp_path, capsys):
+    from test_careless_inputs import one_clean_line, run_cli
+
+    body = mesh_from_triangles(*icosphere(3))
+    cloth = mesh_from_triangles(*icosphere(2, radius=1.05))
+    write_obj(tmp_path / "rest.obj", body)
+    write_obj(tmp_path / "cloth.obj", cloth)
+    bad = {"other_mesh.pc2": (body.V[None, :-1], "holds 641 points a sample, but the rest body"),
+           "centimetres.pc2": (100 * body.V[None], "at 100 times its size"),
+           "nan.pc2": (np.stack([body.V, np.where(np.arange(642)[:, None] == 5, np.nan, body.V)]),
+                       "sample 1 (frame 1) has coordinates that are not numbers")}
+    for name, (P, message) in bad.items():
+        if np.isfinite(P).all():
+            write_pc2(tmp_path / name, P)
+        else:   # written as a tool that does not check would write it
+            data = bytearray(pc2_bytes(np.nan_to_num(P)))
+            data[32 + 12 * (642 + 5):32 + 12 * (642 + 6)] = np.full(3, np.nan, "<f4").tobytes()
+            (tmp_path / name).write_bytes(bytes(data))
+        code, _, err = run_cli(capsys, "shapes", "--source-body", tmp_path / "rest.obj", "--target-cache",
+                               tmp_path / name, "--garment", tmp_path / "cloth.obj", "--out", tmp_path / "out",
+                               "--cache", tmp_path / "cloth.pc2")
+        assert code == 1, err
+        one_clean_line(err, str(tmp_path / name), message)
+        assert not (tmp_path / "out").exists() and not (tmp_path / "cloth.pc2").exists()
+    # Usage: a cache and pose files at once, a cache without one to write, a pose fit with the shapes' options.
+    write_pc2(tmp_path / "walk.pc2", body.V[None])
+    common = ["shapes", "--source-body", tmp_path / "rest.obj", "--garment", tmp_path / "cloth.obj",
+              "--out", tmp_path / "out"]
+    for extra, message in (
+            (["--target-cache", tmp_path / "walk.pc2", "--target-body", tmp_path / "rest.obj", "--cache",
+              tmp_path / "c.pc2"], "--target-cache gives every pose: no --target-body files beside it"),
+            (["--target-cache", tmp_path / "walk.pc2"], "--target-cache needs --cache FILE.pc2"),
+            (["--target-cache", tmp_path / "walk.pc2", "--cache", tmp_path / "c.pc2", "--no-fix"],
+             "--margin and --no-fix are for target shapes"),
+            (["--poses", "--target-body", tmp_path / "rest.obj", "--margin", "0.1"],
+             "--margin and --no-fix are for target shapes"),
+            ([], "give the target shapes as --target-body files")):
+        code, _, err = run_cli(capsys, *common, *extra)
+        assert code == 2 and message in err, err
+        assert not (tmp_path / "out").exists() and not (tmp_path / "c.pc2").exists()
+    # A pose file in other units than the rest body is refused the same way.
+    write_obj(tmp_path / "pose_cm.obj", body, 100 * body.V)
+    code, _, err = run_cli(capsys, *common, "--poses", "--target-body", tmp_path / "pose_cm.obj")
+    assert code == 1
+    one_clean_line(err, str(tmp_path / "pose_cm.obj"), "at 100 times its size")

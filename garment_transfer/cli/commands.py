@@ -246,10 +246,12 @@ def cmd_register(args):
 
 def cmd_shapes(args):
     if args.poses:
-        summary = poses_to_files(args.source_body, args.target_body, args.garment, args.out, offset=args.offset,
+        summary = poses_to_files(args.source_body, args.target_body or [], args.garment, args.out,
+                                 body_cache=args.target_cache, offset=args.offset,
                                  progress=stderr_progress("poses") if args.verbose else None, workers=args.workers,
                                  cache=args.cache, untangle=args.untangle)
-        emit(args, summary, [f"wrote {s['out']}: {s['crossings_outside_contact']} crossings, "
+        emit(args, summary, [f"wrote {s['out']}" + (f" ({s['target']})" if args.target_cache else "")
+                             + f": {s['crossings_outside_contact']} crossings, "
                              f"{s['crossings_at_contact']} where the body crosses itself, "
                              f"{s['self_intersections_new']} of the garment with itself beyond its rest shape's"
                              for s in summary["shapes"]] + [f"warning: {w}" for w in summary["warnings"]])
@@ -263,6 +265,20 @@ def cmd_shapes(args):
           + [f"{len(summary['shapes'])} shapes, one preparation: {summary['seconds']['total']:.2f} s "
              f"(prepare {summary['seconds']['prepare']:.2f} s); summary in {summary['summary']}"]
           + [f"warning: {w}" for w in summary["warnings"]])
+
+
+def _check_shapes_options(parser, args):
+    """Where the shapes come from: --target-body files, or one --target-cache (poses, fitted into --cache)."""
+    if args.target_cache is None and not args.target_body:
+        parser.error("give the target shapes as --target-body files (or a body's animation as --target-cache)")
+    if args.target_cache is not None:
+        if args.target_body:
+            parser.error("--target-cache gives every pose: no --target-body files beside it")
+        if args.cache is None:
+            parser.error("--target-cache needs --cache FILE.pc2: the garment's animation at the body cache's frames")
+        args.poses = True
+    if args.poses and (args.margin is not None or args.no_fix):
+        parser.error("--margin and --no-fix are for target shapes; a pose fit keeps the garment outside the posed body")
 
 
 def _model_for(args):
@@ -536,8 +552,12 @@ def build_parser():
                                    "file). Writes DIR/<garment>_on_<target>.obj for each and "
                                    "DIR/shapes.json; nothing is written unless every shape succeeds.")
     h.add_argument("--source-body", required=True, help="OBJ: the body the garment is dressed on (the basis)")
-    h.add_argument("--target-body", required=True, action="append",
+    h.add_argument("--target-body", action="append",
                    help="OBJ: the same body mesh in another shape; repeat for each shape")
+    h.add_argument("--target-cache", metavar="BODY.pc2",
+                   help="PC2 point cache of the source body's mesh animated (exported from Blender, Maya, Houdini or "
+                        "3ds Max), instead of --target-body files: every sample is a pose to fit (implies --poses); "
+                        "the fits go to --cache at the same frames, nothing else but the summary")
     h.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
     h.add_argument("--out", required=True, help="folder to write into (made if missing)")
     h.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
@@ -688,6 +708,8 @@ def main(argv=None):
                              "--source-joints, --source-weights and --target-joints)")
         if args.command == "train":
             _check_train_options(parser, args)
+        if args.command == "shapes":
+            _check_shapes_options(parser, args)
         if args.command == "shapes" and args.workers is not None and not args.poses:
             parser.error("--workers is for --poses (the poses fitted at once)")
         if args.command == "shapes" and args.cache is not None and not args.poses:

@@ -56,12 +56,13 @@ def _register(args):
 
 
 def _shapes(args):
-    outs, summary = shapes_outputs(args.target_body, args.garment, args.out)
+    outs, summary = shapes_outputs(args.target_body or [], args.garment, args.out)
     if getattr(args, "poses", False):
         summary = summary.with_name("poses.json")
     return dict(files=[*outs.values(), summary, *([args.cache] if getattr(args, "cache", None) else [])],
                 folders=[args.out],
-                inputs=[args.source_body, *args.target_body, args.garment])
+                inputs=[args.source_body, *(args.target_body or []), getattr(args, "target_cache", None),
+                        args.garment])
 
 
 def _weights(args):

@@ -28,13 +28,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..errors import GarmentTransferError, MeshError
 from ..files import check_outputs, write_json_atomic
 from ..geometry import clearance
 from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.pc2 import write_pc2
+from ..geometry.pc2 import read_pc2, write_pc2
 from ..geometry.penetration import vertex_adjacency
 from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.self_check import beyond_source, pairs_in_full
@@ -80,6 +81,9 @@ UNTANGLE_TRIES = 3
 #: which runs outside Python's lock, so two poses at once on 2 cores take about 0.6 of the time of one after the
 #: other (``python -m lab.motion --speed``).
 POSE_WORKERS = WORKERS
+#: A pose keeps the body's size: a posed body whose triangles' sides are, in the median, more than this many times
+#: (or less than one over it) those of the rest body is in other units or scaled (``require_same_size``).
+POSE_SIZE_RATIO = 1.5
 
 
 def every_split(mesh: Mesh):
@@ -649,29 +653,79 @@ def posed_counts(V, garment: Mesh, body: Mesh, offset, *, rest_V=None, contact_r
     return counts
 
 
-def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, offset=None, progress=None,
-                   workers=None, cache=None, untangle=False):
-    """OBJ files in, OBJ files out: the garment fitted to every pose of its body, prepared once.
+def require_same_size(rest: Mesh, V, name):
+    """Raise MeshError (naming ``name``) unless positions ``V`` of the rest body's mesh keep its size: the median
+    length of their triangles' sides within ``POSE_SIZE_RATIO`` of the rest body's (a pose bends and turns the
+    body; a file in other units, centimetres for metres, or scaled, is another body)."""
+    F = rest.F
+    sides = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
 
-    Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``.
+    def median(P):
+        return float(np.median(np.linalg.norm(P[sides[:, 0]] - P[sides[:, 1]], axis=1)))
+
+    ratio = median(np.asarray(V, dtype=np.float64)) / max(median(rest.V), 1e-300)
+    if not 1.0 / POSE_SIZE_RATIO <= ratio <= POSE_SIZE_RATIO:
+        raise MeshError(name, f"is the rest body {rest.name} at {ratio:.3g} times its size (the median of its "
+                              "triangles' sides): another unit or a scaled body, not a pose of it; export both in "
+                              "the same units and scale")
+
+
+def cache_poses(rest: Mesh, body_cache):
+    """The poses of a PC2 point cache of the rest body's mesh: ``(names, positions, start frame, sample rate)``,
+    a pose per sample named by its frame (``frame 12``), each checked (finite, the body's size).
+
+    Raises
+    ------
+    MeshError
+        Naming the file: not a PC2 file, another mesh's points, a sample not finite or of another size."""
+    samples, start, rate = read_pc2(body_cache)
+    name = str(body_cache)
+    if samples.shape[1] != rest.n_vertices:
+        raise MeshError(name, f"holds {samples.shape[1]} points a sample, but the rest body {rest.name} has "
+                              f"{rest.n_vertices} vertices: the point cache of another mesh")
+    names, positions = [], []
+    for i, P in enumerate(samples):
+        pose = f"frame {start + i * rate:.6g}"
+        if pose in names:
+            pose = f"{pose} (sample {i})"
+        if not np.isfinite(P).all():
+            raise MeshError(name, f"sample {i} ({pose}) has coordinates that are not numbers (NaN or infinite)")
+        V = P.astype(np.float64)
+        require_same_size(rest, V, f"{name}, sample {i} ({pose}),")
+        names.append(pose)
+        positions.append(V)
+    return names, positions, start, rate
+
+
+def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, body_cache=None, offset=None,
+                   progress=None, workers=None, cache=None, untangle=False):
+    """OBJ files or a point cache in, OBJ files or a point cache out: the garment fitted to every pose of its
+    body, prepared once.
+
+    Every pose is fitted before anything is written; each file is written atomically, then ``poses.json``. The
+    figures are counted on the files as written, read back, against each pose as given.
 
     Parameters
     ----------
     rest_body_path : path
     posed_body_paths : list of path
-        The rest body's mesh posed (same vertices and faces).
+        The rest body's mesh posed (same vertices and faces); empty with ``body_cache``.
     garment_path : path
         The garment on the rest body.
     out_dir : path
-        Made if missing; receives ``<garment>_on_<pose>.obj`` and ``poses.json``.
+        Made if missing; receives ``<garment>_on_<pose>.obj`` (not with ``body_cache``) and ``poses.json``.
+    body_cache : path, optional
+        A PC2 point cache of the rest body's mesh animated (Blender's, Maya's, Houdini's exports): every sample is
+        a pose. The fits then go to ``cache`` alone (which it needs), with the body cache's start frame and sample
+        rate, so that the two play in step.
     offset : float, optional
     progress : callable, optional
         ``progress(fraction, pose)``, as each pose is fitted.
     workers : int, optional
         Poses fitted at once (``fit_poses``).
     cache : path, optional
-        Also every pose's file as written, in the order given, as one PC2 point cache (its samples frames 1, 2,
-        ...; ``pc2.write_pc2``): an animation of the garment for a tool that plays point caches.
+        Every pose's fit as one PC2 point cache (``pc2.write_pc2``), in the order given: from OBJ files, the files
+        as written at frames 1, 2, ...; from ``body_cache``, at its frames.
     untangle : bool
         Untangle each fit (``fit_to_pose``): seconds more a pose where the fit crosses itself.
 
@@ -680,18 +734,31 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     dict
         The summary written to ``poses.json`` (with ``warnings``).
     """
-    outs, summary_path = shapes_outputs(posed_body_paths, garment_path, out_dir)
-    summary_path = summary_path.with_name("poses.json")
-    inputs = [rest_body_path, *posed_body_paths, garment_path]
+    if body_cache is not None and (posed_body_paths or cache is None):
+        raise GarmentTransferError("a body's point cache gives every pose, and the fits go to a point cache: no "
+                                   "posed OBJ files beside it, and a cache to write")
+    if body_cache is None:
+        outs, summary_path = shapes_outputs(posed_body_paths, garment_path, out_dir)
+        summary_path = summary_path.with_name("poses.json")
+    else:
+        outs, summary_path = {}, Path(out_dir) / "poses.json"
+    inputs = [rest_body_path, *posed_body_paths, *([body_cache] if body_cache is not None else []), garment_path]
     check_outputs([*outs.values(), summary_path, *([cache] if cache is not None else [])], [out_dir], inputs=inputs)
     rest = read_obj(rest_body_path)
     garment = read_obj(garment_path)
-    poses, paths = {}, {}
-    for path in posed_body_paths:
-        name = Path(path).stem
-        body = read_obj(path)
-        require_same_topology(rest, body)
-        poses[name], paths[name] = body.V, str(path)
+    poses, paths, frames = {}, {}, {}
+    if body_cache is None:
+        start = rate = 1.0
+        for path in posed_body_paths:
+            name = Path(path).stem
+            body = read_obj(path)
+            require_same_topology(rest, body)
+            require_same_size(rest, body.V, str(path))
+            poses[name], paths[name] = body.V, str(path)
+    else:
+        names, positions, start, rate = cache_poses(rest, body_cache)
+        for i, (name, V) in enumerate(zip(names, positions)):
+            poses[name], paths[name], frames[name] = V, str(body_cache), {"sample": i, "frame": start + i * rate}
     t = time.perf_counter()
     prepared = prepare_garment(rest, garment)
     seconds = {"prepare": time.perf_counter() - t}
@@ -703,12 +770,20 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
         results[name] = result
     seconds["poses"] = time.perf_counter() - t - seconds["prepare"]
     Path(out_dir).mkdir(parents=True, exist_ok=True)
-    for name, result in results.items():
-        write_obj(outs[name], garment, result.V, inputs=[rest_body_path, *posed_body_paths],
-                  header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
-
-    # The files as written, read back: their figures against each pose as given, and the point cache.
-    written = {name: read_obj(outs[name]).V for name in results}
+    if body_cache is None:
+        for name, result in results.items():
+            write_obj(outs[name], garment, result.V, inputs=inputs,
+                      header=f"Garment Transfer: {Path(garment_path).name} fitted to the pose {Path(paths[name]).name}")
+        # The files as written, read back: their figures against each pose as given, and the point cache.
+        written = {name: read_obj(outs[name]).V for name in results}
+        if cache is not None:
+            write_pc2(cache, np.stack(list(written.values())), start_frame=1.0, inputs=inputs, what="--cache")
+    else:
+        # The point cache as written, read back (32-bit coordinates): its figures against each sample of the body's.
+        write_pc2(cache, np.stack([result.V for result in results.values()]), start_frame=start, sample_rate=rate,
+                  inputs=inputs, what="--cache")
+        written = dict(zip(results, read_pc2(cache)[0].astype(np.float64)))
+        outs = {name: f"{cache}, sample {frames[name]['sample']}" for name in results}
     rest_pairs = kept_rest_pairs(garment)
 
     def written_counts(name):
@@ -717,14 +792,12 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
                             float(result.info["offset"]), rest_V=rest.V, name=str(outs[name]),
                             contact=result.contact, rest_pairs=rest_pairs)
 
-    if cache is not None:
-        write_pc2(cache, np.stack(list(written.values())), start_frame=1.0, inputs=inputs,
-                  what="--cache")
     rows, warnings = [], []
     for name, counts in zip(results, in_threads(written_counts, list(results), workers)):
         warnings += counts.pop("warnings")
         result = results[name]
-        rows.append({"target": name, "target_body": paths[name], "out": str(outs[name]), **counts,
+        rows.append({"target": name, "target_body": paths[name], **frames.get(name, {}),
+                     "out": str(cache) if body_cache is not None else str(outs[name]), **counts,
                      "offset": result.info["offset"], "seconds": result.seconds,
                      **({"untangle": result.info["untangle"]} if "untangle" in result.info else {})})
     folded = [row["target"] for row in rows if row["self_intersections_new"]]
@@ -734,6 +807,8 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, o
     seconds["total"] = time.perf_counter() - t
     summary = {"source_body": str(rest_body_path), "garment": str(garment_path), "vertices": garment.n_vertices,
                "faces": garment.n_faces, "poses": True, "untangle": bool(untangle), "shapes": rows, "seconds": seconds,
-               "summary": str(summary_path), "cache": None if cache is None else str(cache), "warnings": warnings}
+               "summary": str(summary_path), "cache": None if cache is None else str(cache),
+               "body_cache": None if body_cache is None else str(body_cache),
+               **({"start_frame": start, "sample_rate": rate} if cache is not None else {}), "warnings": warnings}
     write_json_atomic(summary_path, summary)
     return summary
