@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
+from .rigging import body_armature, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
 from .transfer import chosen_model, fit_text, model_text, result_name
 
 
@@ -188,8 +188,8 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
         start = time.perf_counter()
         armature = body_armature(settings.target_body) if settings.rig_result else None
         try:
-            # Rigged layers are made on the body's rest pose, so that their Armature modifiers pose them.
-            with window_progress(context) as progress, rest_position(armature):
+            # Layers that follow the body's motion are made on the body at rest (``made_at_rest``).
+            with window_progress(context) as progress, made_at_rest(settings.target_body, settings.rig_result):
                 results, outcome, design = transfer_outfit_objects(
                     context, settings.source_body, settings.target_body, outfit_garments(settings),
                     offsets=outfit_offsets(settings), method=settings.method, model_path=settings.model_path,

@@ -48,6 +48,51 @@ def body_armature(body):
     return None
 
 
+#: Modifiers that play a body's animation without an armature: a point cache (Mesh Cache: PC2, MDD) or an
+#: Alembic or USD file (Mesh Sequence Cache), as an animation handed on from another tool arrives.
+CACHE_MODIFIERS = frozenset({"MESH_CACHE", "MESH_SEQUENCE_CACHE"})
+
+
+def body_caches(body):
+    """The body's modifiers shown in the viewport that play an animation from a file (``CACHE_MODIFIERS``)."""
+    return [mod for mod in body.modifiers if mod.type in CACHE_MODIFIERS and mod.show_viewport]
+
+
+def require_motion(body, what):
+    """Raise MeshError unless something moves the body: an Armature modifier with its armature, or a cache
+    modifier (``body_caches``); ``what``: "pose to fit to", "motion to bake"."""
+    from ..garment_transfer import MeshError
+
+    if body_armature(body) is None and not body_caches(body):
+        raise MeshError(body.name, f"has no Armature, Mesh Cache or Mesh Sequence Cache modifier: there is no "
+                                   f"{what}")
+
+
+@contextlib.contextmanager
+def at_rest(body):
+    """The body at rest for the block: its armature in its rest position (``rest_position``) and the modifiers
+    that play its animation from a file (``body_caches``) hidden; then all as they were."""
+    caches = body_caches(body)
+    with rest_position(body_armature(body)):
+        try:
+            for mod in caches:
+                mod.show_viewport = False
+            if caches:
+                bpy.context.view_layer.update()
+            yield
+        finally:
+            for mod in caches:
+                mod.show_viewport = True
+            if caches:
+                bpy.context.view_layer.update()
+
+
+def made_at_rest(body, rig_result):
+    """Where a transfer onto ``body`` is made: with ``rig_result`` (the result follows the body's motion: rigged,
+    fitted to a pose, baked) on the body at rest (``at_rest``), else as the viewport shows it."""
+    return at_rest(body) if rig_result else contextlib.nullcontext()
+
+
 @contextlib.contextmanager
 def rest_position(*armatures):
     """The armatures in their rest position for the block (``pose_position`` REST), then as they were."""
@@ -445,11 +490,11 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
 
 
 def rest_and_posed(context, obj, body):
-    """The garment's and the body's rest meshes and the body's posed positions at the current frame (world)."""
-    armature = body_armature(body)
+    """The garment's and the body's rest meshes and the body's posed positions at the current frame (world): at rest,
+    the body's armature in its rest position and its cache modifiers hidden (``at_rest``)."""
     depsgraph = context.evaluated_depsgraph_get()
     posed = convert.core_mesh_from_object(body, depsgraph, True, "body")
-    with rest_position(armature):
+    with at_rest(body):
         depsgraph = context.evaluated_depsgraph_get()
         rest = convert.core_mesh_from_object(body, depsgraph, True, "body")
     cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
@@ -469,10 +514,9 @@ def fit_current_pose(context, obj, body, untangle=False):
     result : bpy.types.Object
     outcome : TransferResult
     """
-    from ..garment_transfer import MeshError, fit_to_pose, require_same_topology
+    from ..garment_transfer import fit_to_pose, require_same_topology
 
-    if body_armature(body) is None:
-        raise MeshError(body.name, "has no Armature modifier: there is no pose to fit to")
+    require_motion(body, "pose to fit to")
     rest, posed, cloth = rest_and_posed(context, obj, body)
     require_same_topology(rest, posed)
     frame = context.scene.frame_current
@@ -532,8 +576,7 @@ def bake_steps(context, obj, body, start, end, untangle=False):
     fitted and drops the others."""
     from ..garment_transfer import MeshError, fit_poses, prepare_garment
 
-    if body_armature(body) is None:
-        raise MeshError(body.name, "has no Armature modifier: there is no motion to bake")
+    require_motion(body, "motion to bake")
     if end < start:
         raise MeshError(obj.name, f"the frame range {start} to {end} is empty")
     scene = context.scene

@@ -11,7 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
-from .rigging import body_armature, pose_remedy, rest_pose_rigs, rest_position, rig_to_body, skeletons_text
+from .rigging import body_armature, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -322,8 +322,9 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
         armature = body_armature(settings.target_body) if settings.rig_result else None
         rigged = None
         try:
-            # A rigged result is made on the body's rest pose, so that its Armature modifier poses it.
-            with window_progress(context) as progress, rest_position(armature):
+            # A result that follows the body's motion is made on the body at rest: its Armature modifier poses it,
+            # Fit to Pose and Bake Pose Fit carry it from there.
+            with window_progress(context) as progress, made_at_rest(settings.target_body, settings.rig_result):
                 result, outcome, metrics = transfer_objects(
                     context, settings.source_body, settings.target_body, settings.garment,
                     method=settings.method, model_path=settings.model_path,

@@ -307,8 +307,102 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
     with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
         bpy.ops.garment_transfer.rig_garment()
     assert len(garment.vertex_groups) == groups and not garment.modifiers
-    with pytest.raises(RuntimeError, match="pear: has no Armature modifier"):
+    with pytest.raises(RuntimeError, match="pear: has no Armature, Mesh Cache or Mesh Sequence Cache modifier: "
+                                           "there is no pose to fit to"):
         bpy.ops.garment_transfer.fit_pose()
+
+
+def local_evaluated(obj):
+    """(n,3) float32: the object's evaluated vertices in its own space (what a point cache of it holds)."""
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.to_mesh()
+    try:
+        co = np.empty(3 * len(me.vertices), dtype=np.float32)
+        me.vertices.foreach_get("co", co)
+    finally:
+        ev.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
+def test_a_character_animated_by_a_point_cache_is_dressed_at_rest_and_fitted_and_baked_frame_by_frame(character,
+                                                                                                    tmp_path):
+    # An animation handed on as a point cache: the body's frames 1-3 (rest, halfway, the kick) as its armature
+    # plays them, written to a PC2 file; then the armature taken off and a Mesh Cache modifier plays the file.
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    pose(character, "fight01")
+    for bone in armature.pose.bones:
+        bone.keyframe_insert("location", frame=3)
+        bone.keyframe_insert("rotation_quaternion", frame=3)
+        bone.matrix_basis.identity()
+        bone.keyframe_insert("location", frame=1)
+        bone.keyframe_insert("rotation_quaternion", frame=1)
+    frames = []
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        frames.append(local_evaluated(body))
+    write_pc2(tmp_path / "kick.pc2", np.stack(frames), start_frame=1.0)
+    body.modifiers.remove(body.modifiers["Armature"])
+    cache = body.modifiers.new(name="Kick", type='MESH_CACHE')
+    cache.cache_format, cache.filepath, cache.frame_start = 'PC2', str(tmp_path / "kick.pc2"), 1.0
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        assert np.array_equal(local_evaluated(body), frames[frame - 1])
+    # Transfer Garment at the kick's frame dresses the body at rest (the cache hidden meanwhile), as with the
+    # cache off; Fit to Pose and Bake Pose Fit follow the cache from there.
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    result = settings.result
+    assert cache.show_viewport and np.array_equal(local_evaluated(body), frames[2])
+    cache.show_viewport = False
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert np.array_equal(world_vertices(settings.result), world_vertices(result))
+    bpy.data.objects.remove(settings.result)
+    cache.show_viewport = True
+    settings.result = result
+    rest_body = read_obj(makehuman / "bodies" / "female_pear.obj")
+    rest_body = rest_body.with_vertices(world_vertices(body))
+    cloth = rest_body.__class__(world_vertices(result), *[getattr(read_obj(
+        makehuman / "garments" / "female_sportsuit01" / "female_average.obj"), k)
+        for k in ("F", "face_vertices", "face_start", "tri_to_face")])
+    M = np.array(body.matrix_world)
+    posed = [f.astype(np.float64) @ M[:3, :3].T + M[:3, 3] for f in frames]
+    assert bpy.ops.garment_transfer.fit_pose() == {'FINISHED'}
+    fitted = bpy.data.objects[f"{result.name}_fitted_3"]
+    expected = fit_to_pose(rest_body, posed[2], cloth)
+    assert np.linalg.norm(world_vertices(fitted) - expected.V, axis=1).mean() < 1e-3
+    assert fitted[rigging.FIGURES]["crossings_outside_contact"] == 0
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3) == {'FINISHED'}
+    baked = bpy.data.objects[f"{result.name}_baked"]
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        expected = fit_to_pose(rest_body, posed[frame - 1], cloth)
+        assert np.linalg.norm(evaluated_world(baked) - expected.V, axis=1).mean() < 1e-3
+    figures = baked[rigging.FIGURES].to_dict()
+    assert figures["frames"] == 3 and figures["crossings_outside_contact"] == 0
+    assert cache.show_viewport and bpy.context.scene.frame_current == 3
+    # The same animation as an Alembic file, played by a Mesh Sequence Cache modifier: fitted the same way.
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj == body)
+    assert bpy.ops.wm.alembic_export(filepath=str(tmp_path / "kick.abc"), start=1, end=3,
+                                     selected=True) == {'FINISHED'}
+    body.modifiers.remove(cache)
+    before = set(bpy.data.objects)
+    assert bpy.ops.wm.alembic_import(filepath=str(tmp_path / "kick.abc")) == {'FINISHED'}
+    imported, = set(bpy.data.objects) - before
+    sequence = body.modifiers.new(name="Kick", type='MESH_SEQUENCE_CACHE')
+    sequence.cache_file, sequence.object_path = imported.modifiers[0].cache_file, imported.modifiers[0].object_path
+    bpy.data.objects.remove(imported)
+    bpy.context.scene.frame_set(2)
+    assert np.allclose(local_evaluated(body), frames[1], atol=1e-6)
+    assert bpy.ops.garment_transfer.fit_pose() == {'FINISHED'}
+    fitted = bpy.data.objects[f"{result.name}_fitted_2"]
+    expected = fit_to_pose(rest_body, posed[1], cloth)
+    assert np.linalg.norm(world_vertices(fitted) - expected.V, axis=1).mean() < 1e-3
+    assert fitted[rigging.FIGURES]["crossings_outside_contact"] == 0 and sequence.show_viewport
+    # A body with nothing that moves it: the bake says so.
+    sequence.show_viewport = False
+    with pytest.raises(RuntimeError, match="pear: has no Armature, Mesh Cache or Mesh Sequence Cache modifier: "
+                                           "there is no motion to bake"):
+        bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3)
 
 
 def test_rig_to_body_keeps_the_cloth_hanging_free_as_far_out_as_at_rest_and_moves_nothing_at_rest(character):
