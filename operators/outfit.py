@@ -14,7 +14,7 @@ from bpy.props import EnumProperty
 
 from . import convert
 from .reporting import poll_objects, report_failure, window_progress
-from .rigging import body_armature, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
+from .rigging import body_moves, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
 from .transfer import chosen_model, fit_text, model_text, result_name
 
 
@@ -186,7 +186,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
-        armature = body_armature(settings.target_body) if settings.rig_result else None
+        follows = settings.rig_result and body_moves(settings.target_body)
         try:
             # Layers that follow the body's motion are made on the body at rest (``made_at_rest``).
             with window_progress(context) as progress, made_at_rest(settings.target_body, settings.rig_result):
@@ -196,7 +196,7 @@ class GARMENT_TRANSFER_OT_transfer_outfit(bpy.types.Operator):
                     target_label=settings.target_label, field_share=settings.field_share,
                     evaluated=settings.use_evaluated, progress=progress)
             rig_warnings = []
-            if armature is not None:
+            if follows:
                 try:
                     for result in results:
                         rig_warnings += rig_to_body(context, result, settings.target_body,

@@ -58,12 +58,18 @@ def body_caches(body):
     return [mod for mod in body.modifiers if mod.type in CACHE_MODIFIERS and mod.show_viewport]
 
 
+def body_moves(body):
+    """Whether something moves the body: an Armature modifier with its armature, or a cache modifier
+    (``body_caches``)."""
+    return body_armature(body) is not None or bool(body_caches(body))
+
+
 def require_motion(body, what):
-    """Raise MeshError unless something moves the body: an Armature modifier with its armature, or a cache
-    modifier (``body_caches``); ``what``: "pose to fit to", "motion to bake"."""
+    """Raise MeshError unless something moves the body (``body_moves``); ``what``: "pose to fit to", "motion to
+    bake"."""
     from ..garment_transfer import MeshError
 
-    if body_armature(body) is None and not body_caches(body):
+    if not body_moves(body):
         raise MeshError(body.name, f"has no Armature, Mesh Cache or Mesh Sequence Cache modifier: there is no "
                                    f"{what}")
 
@@ -396,15 +402,18 @@ def write_share_group(obj, name, share):
     return group
 
 
-def add_surface_ride(context, obj, body, share):
-    """A Surface Deform on the body, after the Armature modifier, bound with the armatures at rest and limited
-    to the vertices that ride the skin (``share``, a vertex group): those follow the skinned surface itself,
-    at their distance from it, the others the bones."""
-    write_share_group(obj, RIDE_GROUP, share)
+def add_surface_ride(context, obj, body, share=None):
+    """A Surface Deform on the body, after the Armature modifier, bound as the body is now (the caller puts it at
+    rest) and limited to the vertices that ride the skin (``share``, a vertex group): those follow the skinned
+    surface itself, at their distance from it, the others the bones; without ``share``, every vertex follows the
+    body's surface."""
     mod = obj.modifiers.new(name=RIDE_MODIFIER, type='SURFACE_DEFORM')
     mod.target = body
-    mod.vertex_group = RIDE_GROUP
-    mod.use_sparse_bind = True
+    if share is not None:
+        write_share_group(obj, RIDE_GROUP, share)
+        mod.vertex_group = RIDE_GROUP
+    # Bound only where the group weighs (a sparse bind binds nothing without a group).
+    mod.use_sparse_bind = share is not None
     with context.temp_override(object=obj, active_object=obj):
         bpy.ops.object.surfacedeform_bind(modifier=mod.name)
     context.view_layer.update()
@@ -419,7 +428,8 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     ``ride_surface``, a Surface Deform that carries the cloth lying on the skin with the skinned body's surface
     (``riding_share``), and Shrinkwraps (Outside) in bands up to ``outside`` times the transfer's cloth offset (0:
     none), each holding the vertices the cloth at rest holds that far; with ``hanging``, the cloth that hangs free
-    (``riding_share`` 0) also in bands beyond it (``HANGING_BANDS``, times ``outside``).
+    (``riding_share`` 0) also in bands beyond it (``HANGING_BANDS``, times ``outside``). A body played by a cache
+    modifier instead of an armature: ``follow_surface`` (armature None).
 
     Returns
     -------
@@ -433,16 +443,19 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     RigError
         The body's weights give none of the garment's vertices a weight (nothing is changed).
     """
-    from ..garment_transfer import OFFSET_SHARE, RigError, body_scale, inpainted_weights, riding_share
+    from ..garment_transfer import RigError, inpainted_weights, riding_share
 
     armature = body_armature(body)
     if armature is None:
-        raise RigError(body.name, "has no Armature modifier with an armature to take bones from")
+        if body_caches(body):
+            return None, follow_surface(context, obj, body, outside=outside, hanging=hanging)
+        raise RigError(body.name, "has no Armature modifier with an armature to take bones from, nor a Mesh Cache or "
+                                  "Mesh Sequence Cache modifier whose surface the cloth could follow")
     bones = deform_bones(armature)
     body_weights = vertex_group_weights(body, bones)
     if not body_weights.influences().any():
         raise RigError(body.name, f"has no vertex groups named as the bones of {armature.name}")
-    with rest_position(armature):
+    with at_rest(body):
         depsgraph = context.evaluated_depsgraph_get()
         body_mesh = convert.core_mesh_from_object(body, depsgraph, False, "body")
         cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
@@ -465,28 +478,77 @@ def rig_to_body(context, obj, body, *, max_influences=8, ride_surface=False, out
     if ride_surface:
         info["riding"] = int((share > 0).sum())
         if info["riding"]:
-            with rest_position(armature):
+            with at_rest(body):
                 mod = add_surface_ride(context, obj, body, share)
             if not mod.is_bound:
                 raise RigError(obj.name, f"could not be bound to the surface of {body.name} (Surface Deform)")
     elif RIDE_GROUP in obj.vertex_groups:
         obj.vertex_groups.remove(obj.vertex_groups[RIDE_GROUP])
-    if outside > 0:
-        # Per vertex, in bands up to ``outside`` times the cloth offset, as far as the cloth at rest is held: the
-        # rig moves nothing at rest (the crossing pass leaves some vertices nearer than the offset).
-        from ..garment_transfer import HANGING_BANDS, KEEP_OUTSIDE_BANDS, hanging_bands, held_bands
-
-        offset = OFFSET_SHARE * body_scale(body_mesh.V)
-        bands = held_bands([(surface, cloth.V)], offset, [outside * b for b in KEEP_OUTSIDE_BANDS])
-        if hanging:
-            # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
-            free = hanging_bands(surface, cloth.V, offset, share <= 0, [outside * b for b in HANGING_BANDS])
-            # The bands are nested: the first holds every vertex the others hold.
-            info["hanging"] = int(free[0][1].sum()) if free else 0
-            bands += free
-        add_keep_outside_bands(obj, body, bands)
+    info["hanging"] = keep_outside(obj, body, body_mesh, cloth, surface, share, outside, hanging)
     obj.data.update()
     return armature, info
+
+
+def keep_outside(obj, body, body_mesh, cloth, surface, share, outside, hanging):
+    """The Shrinkwraps (Outside) that keep the cloth outside the moving body (none when ``outside`` is 0): per
+    vertex, in bands up to ``outside`` times the cloth offset, as far as the cloth at rest is held, so that they
+    move nothing at rest (the crossing pass leaves some vertices nearer than the offset); with ``hanging``, the
+    cloth that hangs free (``share`` 0) also in bands beyond it. Returns the number of vertices kept out beyond the
+    cloth offset."""
+    from ..garment_transfer import (HANGING_BANDS, KEEP_OUTSIDE_BANDS, OFFSET_SHARE, body_scale, hanging_bands,
+                                    held_bands)
+
+    if outside <= 0:
+        return 0
+    offset = OFFSET_SHARE * body_scale(body_mesh.V)
+    bands = held_bands([(surface, cloth.V)], offset, [outside * b for b in KEEP_OUTSIDE_BANDS])
+    kept = 0
+    if hanging:
+        # Beyond the cloth offset, only the cloth that hangs free: a skirt is pushed by the leg swung into it.
+        free = hanging_bands(surface, cloth.V, offset, share <= 0, [outside * b for b in HANGING_BANDS])
+        # The bands are nested: the first holds every vertex the others hold.
+        kept = int(free[0][1].sum()) if free else 0
+        bands += free
+    add_keep_outside_bands(obj, body, bands)
+    return kept
+
+
+def follow_surface(context, obj, body, *, outside=KEEP_OUTSIDE_SHARE, hanging=True):
+    """For a body whose animation plays from a file (``body_caches``: no bones to weight the cloth with): a Surface
+    Deform on the body, bound with it at rest, that carries the whole garment with the body's surface as it plays,
+    and the Shrinkwraps of ``keep_outside``; any Armature modifier and earlier correction of ``obj`` removed.
+
+    Returns
+    -------
+    info : dict
+        ``riding`` (every vertex), ``hanging``, and ``matched``, ``inpainted``, ``unweighted`` 0 (no weights),
+        ``warnings`` (empty).
+
+    Raises
+    ------
+    RigError
+        Blender could not bind the Surface Deform (nothing is left of it)."""
+    from ..garment_transfer import RigError, riding_share
+
+    with at_rest(body):
+        depsgraph = context.evaluated_depsgraph_get()
+        body_mesh = convert.core_mesh_from_object(body, depsgraph, False, "body")
+        cloth = convert.core_mesh_from_object(obj, depsgraph, False, "garment")
+        surface = evaluated_shrinkwrap_surface(body, depsgraph)
+        remove_keep_outside(obj)
+        for mod in [m for m in obj.modifiers if m.type == 'ARMATURE' or m.name == RIDE_MODIFIER]:
+            obj.modifiers.remove(mod)
+        if RIDE_GROUP in obj.vertex_groups:
+            obj.vertex_groups.remove(obj.vertex_groups[RIDE_GROUP])
+        mod = add_surface_ride(context, obj, body)
+        if not mod.is_bound:
+            obj.modifiers.remove(mod)
+            raise RigError(obj.name, f"could not be bound to the surface of {body.name} (Surface Deform)")
+    share = riding_share(body_mesh.V, body_mesh.F, cloth.V, cloth.F) if outside > 0 and hanging else None
+    info = {"matched": 0, "inpainted": 0, "unweighted": 0, "riding": cloth.n_vertices, "warnings": []}
+    info["hanging"] = keep_outside(obj, body, body_mesh, cloth, surface, share, outside, hanging)
+    obj.data.update()
+    return info
 
 
 def rest_and_posed(context, obj, body):
@@ -804,10 +866,15 @@ class GARMENT_TRANSFER_OT_rig_garment(bpy.types.Operator):
                                          ride_surface=settings.ride_surface)
         except Exception as exc:
             return report_failure(self, exc)
-        self.report({'INFO'}, f"{settings.result.name}: rigged to {armature.name} ({info['matched']} vertices "
-                              f"matched the body, {info['inpainted']} inpainted, at most "
-                              f"{settings.max_influences} bones each; {info['hanging']} hanging free kept as far "
-                              f"out as at rest)")
+        if armature is None:
+            self.report({'INFO'}, f"{settings.result.name}: follows the surface of {settings.target_body.name} as its "
+                                  f"cache plays it (Surface Deform; {info['hanging']} hanging free kept as far out "
+                                  f"as at rest)")
+        else:
+            self.report({'INFO'}, f"{settings.result.name}: rigged to {armature.name} ({info['matched']} vertices "
+                                  f"matched the body, {info['inpainted']} inpainted, at most "
+                                  f"{settings.max_influences} bones each; {info['hanging']} hanging free kept as far "
+                                  f"out as at rest)")
         for warning in info["warnings"]:
             self.report({'WARNING'}, warning)
         return {'FINISHED'}

@@ -11,7 +11,7 @@ import numpy as np
 from . import convert
 from .models import load_model_cached
 from .reporting import length_text, poll_objects, report_failure, window_progress
-from .rigging import body_armature, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
+from .rigging import body_moves, made_at_rest, pose_remedy, rest_pose_rigs, rig_to_body, skeletons_text
 
 # Blender's OBJ importer, with its default axes, turns a Y-up file Z-up: world = OBJ_Y_UP_TO_WORLD @ file.
 OBJ_Y_UP_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -319,7 +319,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
     def execute(self, context):
         settings = context.scene.garment_transfer
         start = time.perf_counter()
-        armature = body_armature(settings.target_body) if settings.rig_result else None
+        follows = settings.rig_result and body_moves(settings.target_body)
         rigged = None
         try:
             # A result that follows the body's motion is made on the body at rest: its Armature modifier poses it,
@@ -334,7 +334,7 @@ class GARMENT_TRANSFER_OT_transfer(bpy.types.Operator):
                     progress=progress, keep_registered=settings.keep_registered_body,
                     use_shape_keys=settings.use_shape_keys, body_model_path=settings.body_model_path,
                     untangle=settings.untangle)
-            if armature is not None:
+            if follows:
                 try:
                     rigged = rig_to_body(context, result, settings.target_body,
                                          max_influences=settings.max_influences,

@@ -58,7 +58,10 @@ LIVE_RIGS = {"shrinkwrap_to_offset": dict(ride_surface=False, outside=1.0, hangi
              "surface": dict(ride_surface=True, outside=0.0),
              "surface+shrinkwrap_half": dict(ride_surface=True, outside=0.5),
              "shrinkwrap": dict(ride_surface=False, outside=1.0),
-             "surface+shrinkwrap": dict(ride_surface=True, outside=1.0)}
+             "surface+shrinkwrap": dict(ride_surface=True, outside=1.0),
+             # No bones: the whole garment carried by the body's surface (a Surface Deform bound at rest) and kept
+             # outside by the Shrinkwraps, as a body played by a cache is followed (``follow_surface``).
+             "body_surface": dict(follow_surface=True)}
 
 
 def to_world(P):
@@ -130,7 +133,13 @@ def live_twin(result, body, rig_module, name, options):
     twin.data = result.data.copy()
     twin.name = f"{result.name}_{name}"
     bpy.context.scene.collection.objects.link(twin)
-    rig_module.rig_to_body(bpy.context, twin, body, **options)
+    options = dict(options)
+    if options.pop("follow_surface", False):
+        for group in list(twin.vertex_groups):
+            twin.vertex_groups.remove(group)
+        rig_module.follow_surface(bpy.context, twin, body, **options)
+    else:
+        rig_module.rig_to_body(bpy.context, twin, body, **options)
     return twin
 
 
