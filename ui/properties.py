@@ -221,7 +221,9 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
         name="Rig Result", default=True,
         description="When the target body has an Armature modifier, transfer on its rest pose and give the "
                     "result the body's bones as vertex groups (matched where the cloth lies on the skin, filled "
-                    "smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside")
+                    "smoothly elsewhere), an Armature modifier and a Shrinkwrap that keeps it outside; when a Mesh "
+                    "Cache or Mesh Sequence Cache modifier plays it, transfer on its mesh without them and let the "
+                    "result follow its surface (Surface Deform) and the Shrinkwrap")
     ride_surface: BoolProperty(
         name="Ride Body Surface", default=False,
         description="Rigging also adds a Surface Deform, bound to the body at rest, that carries the cloth lying "
