@@ -12,8 +12,8 @@ from meshes import grid, icosphere, random_rotation, require_makehuman
 
 from garment_transfer import (Rig, bvh_rotations, every_split, fit_poses, fit_to_pose, inpainted_weights, mdc,
                               mesh_from_polygons, mesh_from_triangles, prepare_garment, read_bvh, read_joints,
-                              read_obj, read_pc2, read_skeleton, read_weights, transfer_garment, write_obj,
-                              write_pc2)
+                              read_mdd, read_obj, read_pc2, read_skeleton, read_weights, transfer_garment,
+                              write_mdd, write_obj, write_pc2)
 from garment_transfer.geometry.pc2 import pc2_bytes
 from garment_transfer.pipeline import self_contact
 from garment_transfer.geometry.proximity import TriangleSurface
@@ -24,7 +24,8 @@ from garment_transfer.geometry.intersections import self_intersections
 from garment_transfer.geometry.readings import kept_triangle_readings, readings_of
 from garment_transfer.geometry.self_check import beyond_source, pairs_in_full
 from garment_transfer.pipeline.pose_fit import (CONTACT_GAP, CONTACT_RINGS, at_contact_and_inside, crossing_counts,
-                                                free_readings, garment_readings, kept_split, posed_counts)
+                                                free_readings, garment_readings, kept_split, posed_counts,
+                                                poses_to_files)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -373,6 +374,17 @@ def test_shapes_fits_a_body_animation_given_as_a_point_cache(tmp_path):
     assert row["crossings_outside_contact"] == sum(crossing_counts(W, every_split(garment), posed.V, free)) == 0
     assert row["body_self_crossings"] == own > 0
     assert row["penetrating_vertices"] == int((TriangleSurface(posed.V, posed.F).signed_distance(W)[0] < 0).sum())
+    # The same animation as an MDD file (its times in seconds): the same fits, written as MDD at those times.
+    write_mdd(tmp_path / "walk.mdd", samples, [10 / 24, 12 / 24])
+    summary = poses_to_files(paths["rest"], [], paths["garment"], tmp_path / "mdd", body_cache=tmp_path / "walk.mdd",
+                             cache=tmp_path / "suit.mdd")
+    positions, times = read_mdd(tmp_path / "suit.mdd")
+    assert np.array_equal(positions, written) and np.array_equal(times, np.float32([10 / 24, 12 / 24]))
+    assert [(r["target"], r["sample"], r["time"]) for r in summary["shapes"]] == \
+        [(f"time {np.float32(10 / 24):.6g} s", 0, float(np.float32(10 / 24))),
+         (f"time {np.float32(12 / 24):.6g} s", 1, float(np.float32(12 / 24)))]
+    assert [r["crossings_outside_contact"] for r in summary["shapes"]] == \
+        [r["crossings_outside_contact"] for r in data["shapes"]]
 
 
 def test_a_body_cache_that_is_not_the_bodys_animation_is_refused_naming_it(tmp_path, capsys):
@@ -415,6 +427,21 @@ def test_a_body_cache_that_is_not_the_bodys_animation_is_refused_naming_it(tmp_p
         code, _, err = run_cli(capsys, *common, *extra)
         assert code == 2 and message in err, err
         assert not (tmp_path / "out").exists() and not (tmp_path / "c.pc2").exists()
+    # The garment's cache is written in the body cache's format: a name that says otherwise is refused, as is a
+    # file of neither format.
+    write_mdd(tmp_path / "walk.mdd", body.V[None], [0.0])
+    (tmp_path / "walk.cache").write_bytes(b"not a cache")
+    for given, out, message in ((tmp_path / "walk.mdd", tmp_path / "c.pc2", "format of the body's, MDD"),
+                                (tmp_path / "walk.pc2", tmp_path / "c.mdd", "format of the body's, PC2"),
+                                (tmp_path / "walk.cache", tmp_path / "c.pc2", "is neither a PC2 point cache")):
+        code, _, err = run_cli(capsys, *common, "--target-cache", given, "--cache", out)
+        assert code == 1
+        one_clean_line(err, message)
+        assert not out.exists()
+    code, _, err = run_cli(capsys, *common, "--poses", "--target-body", tmp_path / "rest.obj", "--cache",
+                           tmp_path / "c.mdd")
+    assert code == 1
+    one_clean_line(err, "written as one PC2 point cache")
     # A pose file in other units than the rest body is refused the same way.
     write_obj(tmp_path / "pose_cm.obj", body, 100 * body.V)
     code, _, err = run_cli(capsys, *common, "--poses", "--target-body", tmp_path / "pose_cm.obj")

@@ -65,7 +65,8 @@ ROWS = {
         "test_rigging.py::test_a_garment_whose_pieces_are_not_joined_is_weighted_as_the_joined_one",
         "blender/test_transfer_operator.py::test_a_garment_in_pieces_not_joined_at_their_seams_keeps_them_closed"],
     "a body's animation given as a point cache (`shapes --target-cache BODY.pc2`) of another mesh, in other units "
-    "or scaled, or with a coordinate that is not a number; a posed `--target-body` in other units or scaled": [
+    "or scaled, or with a coordinate that is not a number; a posed `--target-body` in other units or scaled; a cache "
+    "that is neither PC2 nor MDD, or a `--cache` named for the other format": [
         "test_pose_fit.py::test_a_body_cache_that_is_not_the_bodys_animation_is_refused_naming_it"],
     "body weights (`weights`, Rig to Body) that leave part of the garment with no weight": [
         "test_rigging.py::test_cloth_left_with_no_weight_is_counted_and_said_and_none_weighted_is_said_so",

@@ -555,9 +555,10 @@ def build_parser():
     h.add_argument("--target-body", action="append",
                    help="OBJ: the same body mesh in another shape; repeat for each shape")
     h.add_argument("--target-cache", metavar="BODY.pc2",
-                   help="PC2 point cache of the source body's mesh animated (exported from Blender, Maya, Houdini or "
-                        "3ds Max), instead of --target-body files: every sample is a pose to fit (implies --poses); "
-                        "the fits go to --cache at the same frames, nothing else but the summary")
+                   help="a point cache of the source body's mesh animated, PC2 or MDD (named .mdd), as Blender's Mesh "
+                        "Cache modifier reads them, instead of --target-body files: every sample is a pose to fit "
+                        "(implies --poses); the fits go to --cache in the same format at the same frames, nothing "
+                        "else but the summary")
     h.add_argument("--garment", required=True, help="OBJ: the garment on the source body")
     h.add_argument("--out", required=True, help="folder to write into (made if missing)")
     h.add_argument("--offset", type=number_option(float, 0.0, what="a distance"), default=None,
@@ -574,7 +575,7 @@ def build_parser():
     h.add_argument("--cache", metavar="FILE.pc2",
                    help="with --poses: also every pose's result, in the order of the --target-body files, as one PC2 "
                         "point cache (frames 1, 2, ...): the garment's animation for Blender's Mesh Cache modifier "
-                        "and other tools")
+                        "and other tools; with --target-cache, the fits in its format at its frames")
     h.add_argument("--untangle", action="store_true",
                    help="with --poses: undo where a fit makes the cloth cross itself (the bends: the lap sitting, "
                         "under the arms), without crossing the body more; seconds more a pose where it does")

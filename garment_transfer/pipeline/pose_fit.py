@@ -35,7 +35,8 @@ from ..geometry.intersections import crossings, self_intersections
 from ..geometry.obstacle import Obstacle, edge_length, garment_crossings
 from ..geometry.mesh import Mesh, require_same_topology
 from ..geometry.obj import read_obj, write_obj
-from ..geometry.pc2 import read_pc2, write_pc2
+from ..geometry.mdd import is_mdd_name, read_mdd, write_mdd
+from ..geometry.pc2 import is_pc2, read_pc2, write_pc2
 from ..geometry.penetration import vertex_adjacency
 from ..geometry.proximity import TriangleSurface, made_of
 from ..geometry.self_check import beyond_source, pairs_in_full
@@ -671,21 +672,32 @@ def require_same_size(rest: Mesh, V, name):
 
 
 def cache_poses(rest: Mesh, body_cache):
-    """The poses of a PC2 point cache of the rest body's mesh: ``(names, positions, start frame, sample rate)``,
-    a pose per sample named by its frame (``frame 12``), each checked (finite, the body's size).
+    """The poses of a point cache of the rest body's mesh, a PC2 file (``POINTCACHE2``) or an MDD file (named
+    ``.mdd``): ``(names, positions, timing)``, a pose per sample named by its frame (PC2: ``frame 12``) or its
+    time (MDD: ``time 0.5 s``), each checked (finite, the body's size); ``timing`` is what a cache written in step
+    with it needs: ``{"start_frame", "sample_rate"}`` or ``{"times"}``.
 
     Raises
     ------
     MeshError
-        Naming the file: not a PC2 file, another mesh's points, a sample not finite or of another size."""
-    samples, start, rate = read_pc2(body_cache)
+        Naming the file: neither format, another mesh's points, a sample not finite or of another size."""
     name = str(body_cache)
+    if is_pc2(body_cache):
+        samples, start, rate = read_pc2(body_cache)
+        timing = {"start_frame": start, "sample_rate": rate}
+        labels = [f"frame {start + i * rate:.6g}" for i in range(samples.shape[0])]
+    elif is_mdd_name(body_cache):
+        samples, times = read_mdd(body_cache)
+        timing = {"times": [float(t) for t in times]}
+        labels = [f"time {t:.6g} s" for t in times]
+    else:
+        raise MeshError(name, "is neither a PC2 point cache (it does not start with POINTCACHE2) nor an MDD file "
+                              "(named .mdd)")
     if samples.shape[1] != rest.n_vertices:
         raise MeshError(name, f"holds {samples.shape[1]} points a sample, but the rest body {rest.name} has "
                               f"{rest.n_vertices} vertices: the point cache of another mesh")
     names, positions = [], []
-    for i, P in enumerate(samples):
-        pose = f"frame {start + i * rate:.6g}"
+    for i, (pose, P) in enumerate(zip(labels, samples)):
         if pose in names:
             pose = f"{pose} (sample {i})"
         if not np.isfinite(P).all():
@@ -694,7 +706,18 @@ def cache_poses(rest: Mesh, body_cache):
         require_same_size(rest, V, f"{name}, sample {i} ({pose}),")
         names.append(pose)
         positions.append(V)
-    return names, positions, start, rate
+    return names, positions, timing
+
+
+def write_cache_like(path, positions, timing, inputs):
+    """Write ``positions`` (k,n,3) as a point cache in step with a body's (``cache_poses``'s ``timing``): PC2 at
+    its start frame and sample rate, or MDD at its times. Returns the positions as written, read back."""
+    if "times" in timing:
+        write_mdd(path, positions, timing["times"], inputs=inputs, what="--cache")
+        return read_mdd(path)[0]
+    write_pc2(path, positions, start_frame=timing["start_frame"], sample_rate=timing["sample_rate"], inputs=inputs,
+              what="--cache")
+    return read_pc2(path)[0]
 
 
 def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, body_cache=None, offset=None,
@@ -715,17 +738,17 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, b
     out_dir : path
         Made if missing; receives ``<garment>_on_<pose>.obj`` (not with ``body_cache``) and ``poses.json``.
     body_cache : path, optional
-        A PC2 point cache of the rest body's mesh animated (Blender's, Maya's, Houdini's exports): every sample is
-        a pose. The fits then go to ``cache`` alone (which it needs), with the body cache's start frame and sample
-        rate, so that the two play in step.
+        A point cache of the rest body's mesh animated, PC2 or MDD (``cache_poses``): every sample is a pose. The
+        fits then go to ``cache`` alone (which it needs), in the body cache's format at its frames (PC2: its start
+        frame and sample rate; MDD: its times), so that the two play in step.
     offset : float, optional
     progress : callable, optional
         ``progress(fraction, pose)``, as each pose is fitted.
     workers : int, optional
         Poses fitted at once (``fit_poses``).
     cache : path, optional
-        Every pose's fit as one PC2 point cache (``pc2.write_pc2``), in the order given: from OBJ files, the files
-        as written at frames 1, 2, ...; from ``body_cache``, at its frames.
+        Every pose's fit as one point cache, in the order given: from OBJ files, the files as written as PC2 at frames
+        1, 2, ... (``pc2.write_pc2``); from ``body_cache``, as it is written (``write_cache_like``).
     untangle : bool
         Untangle each fit (``fit_to_pose``): seconds more a pose where the fit crosses itself.
 
@@ -748,7 +771,10 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, b
     garment = read_obj(garment_path)
     poses, paths, frames = {}, {}, {}
     if body_cache is None:
-        start = rate = 1.0
+        if cache is not None and is_mdd_name(cache):
+            raise GarmentTransferError(f"--cache {cache}: the poses of OBJ files are written as one PC2 point cache "
+                                       "(frames 1, 2, ...): give it a name that does not end in .mdd")
+        timing = {"start_frame": 1.0, "sample_rate": 1.0}
         for path in posed_body_paths:
             name = Path(path).stem
             body = read_obj(path)
@@ -756,9 +782,15 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, b
             require_same_size(rest, body.V, str(path))
             poses[name], paths[name] = body.V, str(path)
     else:
-        names, positions, start, rate = cache_poses(rest, body_cache)
+        names, positions, timing = cache_poses(rest, body_cache)
+        if is_mdd_name(cache) != ("times" in timing):
+            raise GarmentTransferError(f"--cache {cache}: the garment's cache is written in the format of the body's, "
+                                       f"{'MDD' if 'times' in timing else 'PC2'}: give it a name that "
+                                       f"{'ends' if 'times' in timing else 'does not end'} in .mdd")
         for i, (name, V) in enumerate(zip(names, positions)):
-            poses[name], paths[name], frames[name] = V, str(body_cache), {"sample": i, "frame": start + i * rate}
+            poses[name], paths[name] = V, str(body_cache)
+            frames[name] = {"sample": i, **({"time": timing["times"][i]} if "times" in timing else
+                                            {"frame": timing["start_frame"] + i * timing["sample_rate"]})}
     t = time.perf_counter()
     prepared = prepare_garment(rest, garment)
     seconds = {"prepare": time.perf_counter() - t}
@@ -777,12 +809,11 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, b
         # The files as written, read back: their figures against each pose as given, and the point cache.
         written = {name: read_obj(outs[name]).V for name in results}
         if cache is not None:
-            write_pc2(cache, np.stack(list(written.values())), start_frame=1.0, inputs=inputs, what="--cache")
+            write_cache_like(cache, np.stack(list(written.values())), timing, inputs)
     else:
         # The point cache as written, read back (32-bit coordinates): its figures against each sample of the body's.
-        write_pc2(cache, np.stack([result.V for result in results.values()]), start_frame=start, sample_rate=rate,
-                  inputs=inputs, what="--cache")
-        written = dict(zip(results, read_pc2(cache)[0].astype(np.float64)))
+        stack = np.stack([result.V for result in results.values()])
+        written = dict(zip(results, write_cache_like(cache, stack, timing, inputs).astype(np.float64)))
         outs = {name: f"{cache}, sample {frames[name]['sample']}" for name in results}
     rest_pairs = kept_rest_pairs(garment)
 
@@ -809,6 +840,6 @@ def poses_to_files(rest_body_path, posed_body_paths, garment_path, out_dir, *, b
                "faces": garment.n_faces, "poses": True, "untangle": bool(untangle), "shapes": rows, "seconds": seconds,
                "summary": str(summary_path), "cache": None if cache is None else str(cache),
                "body_cache": None if body_cache is None else str(body_cache),
-               **({"start_frame": start, "sample_rate": rate} if cache is not None else {}), "warnings": warnings}
+               **(timing if cache is not None else {}), "warnings": warnings}
     write_json_atomic(summary_path, summary)
     return summary
