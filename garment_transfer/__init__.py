@@ -56,6 +56,7 @@ LAYERS = {
                 "landmarks_of", "naming_of", "pose_to_landmarks", "read_target_skeleton", "read_target_frames",
                 "bones_from_dict", "bone_key", "NAMINGS"),
     "pipeline": ("prepare_garment", "transfer_garment", "PreparedGarment", "TransferResult", "transfer_to_any_body",
+                 "lies_on_cage",
                  "OFFSET_SHARE", "POSE_LIMITS", "pose_check", "check_result", "result_warnings",
                  "transfer_outfit", "OutfitResult", "OutfitError", "fit_shape_keys", "transfer_to_shapes",
                  "shapes_to_files", "ShapeKeyFit", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS",

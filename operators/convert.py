@@ -150,20 +150,29 @@ def core_mesh_from_object(obj, depsgraph, evaluated=True, role="mesh"):
     return mesh_from_polygons(V, polygons, name=obj.name)
 
 
-#: Modifiers that add faces to smooth a surface: an object whose stack ends in them has a cage, its mesh before them
-#: (a Multiresolution's sculpted detail may lie far from its base mesh: not one of them).
-SUBDIVIDING_MODIFIERS = frozenset({"SUBSURF"})
+#: Modifiers that add faces to smooth a surface: an object with them, followed only by those of
+#: ``AFTER_SUBDIVIDING``, has a cage, its mesh without them.
+SUBDIVIDING_MODIFIERS = frozenset({"SUBSURF", "MULTIRES"})
+#: What may follow a subdividing modifier and leave the mesh it subdivides the cage: the refining modifiers (hidden
+#: with it) and an Armature (kept: it poses the cage's vertices by the same weights; a Multiresolution is first in
+#: the stack of a sculpted character, before its Armature).
+AFTER_SUBDIVIDING = REFINING_MODIFIERS | {"ARMATURE"}
 
 
-def cage_mesh_from_object(obj, context, role="mesh"):
-    """The object as the viewport shows it without the Subdivision Surface that ends its stack (followed by nothing
-    but refining modifiers: the mesh it subdivides, posed and shaped by everything before it), or None when its
-    stack does not end so. Those modifiers are hidden while it is read and shown again."""
+def cage_mesh_from_object(obj, context, role="mesh", surface=None):
+    """The object as the viewport shows it without its Subdivision Surface and Multiresolution modifiers, where
+    nothing but refining modifiers and an Armature follows them (the mesh they subdivide, posed and shaped by
+    everything else), or None where its stack is not so. Those modifiers and the refining ones among them are
+    hidden while it is read and shown again. A Multiresolution's sculpted detail may take the surface far from the
+    mesh it subdivides: with one, the cage is given only where ``surface`` (the object as shown, a core Mesh) lies
+    on it (the core's ``lies_on_cage``); else None, another surface (registered)."""
+    from ..garment_transfer import lies_on_cage
+
     hidden = []
     for mod in reversed(obj.modifiers):
-        if not mod.show_viewport:
+        if not mod.show_viewport or mod.type == 'ARMATURE':
             continue
-        if mod.type not in REFINING_MODIFIERS:
+        if mod.type not in AFTER_SUBDIVIDING | SUBDIVIDING_MODIFIERS:
             break
         hidden.append(mod)
     if not any(mod.type in SUBDIVIDING_MODIFIERS for mod in hidden):
@@ -172,11 +181,14 @@ def cage_mesh_from_object(obj, context, role="mesh"):
         for mod in hidden:
             mod.show_viewport = False
         context.view_layer.update()
-        return core_mesh_from_object(obj, context.evaluated_depsgraph_get(), True, role)
+        cage = core_mesh_from_object(obj, context.evaluated_depsgraph_get(), True, role)
     finally:
         for mod in hidden:
             mod.show_viewport = True
         context.view_layer.update()
+    if surface is not None and any(mod.type == 'MULTIRES' for mod in hidden) and not lies_on_cage(surface, cage):
+        return None
+    return cage
 
 
 def local_from_world(V_world, matrix_world, name):

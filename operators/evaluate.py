@@ -60,9 +60,9 @@ def evaluate_objects(context, result_obj, garment, target_body, reference=None, 
                 if source_body is not None and reference is None else None)
     cage = None
     if src_body is not None and not one_mesh(src_body, body):
-        # The body fit needs the target's vertices to be the source's: a target subdivided by its last modifiers
+        # The body fit needs the target's vertices to be the source's: a target subdivided by its modifiers
         # has them in the mesh it subdivides; a target of another mesh has no body fit to measure against.
-        cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+        cage = convert.cage_mesh_from_object(target_body, context, "target body", body) if evaluated else None
         if cage is None or not one_mesh(src_body, cage):
             src_body, cage = None, None
     metrics = evaluate(source, result, body, reference=ref, source_body=src_body, target_cage=cage)

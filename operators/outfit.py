@@ -81,8 +81,8 @@ def transfer_outfit_objects(context, source_body, target_body, garments, *, offs
     source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloths = [convert.core_mesh_from_object(g, depsgraph, evaluated, "garment") for g in garments]
-    # A target subdivided by its last modifiers: the mesh they subdivide may be the source's (not registered).
-    cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+    # A target subdivided by its modifiers: the mesh they subdivide may be the source's (not registered).
+    cage = convert.cage_mesh_from_object(target_body, context, "target body", target) if evaluated else None
     depsgraph = context.evaluated_depsgraph_get()
     model, frame = chosen_model(method, model_path, source, field_share)
 

@@ -136,8 +136,8 @@ def transfer_objects(context, source_body, target_body, garment, *, method="DIRE
     source = convert.core_mesh_from_object(source_body, depsgraph, evaluated, "source body")
     target = convert.core_mesh_from_object(target_body, depsgraph, evaluated, "target body")
     cloth = convert.core_mesh_from_object(garment, depsgraph, evaluated, "garment")
-    # A target subdivided by its last modifiers: the mesh they subdivide may be the source's (not registered).
-    cage = convert.cage_mesh_from_object(target_body, context, "target body") if evaluated else None
+    # A target subdivided by its modifiers: the mesh they subdivide may be the source's (not registered).
+    cage = convert.cage_mesh_from_object(target_body, context, "target body", target) if evaluated else None
     depsgraph = context.evaluated_depsgraph_get()
 
     model, frame = chosen_model(method, model_path, source, field_share)

@@ -32,11 +32,15 @@ ROWS = {
     "a target body that is the source's mesh written triangulated": [
         "test_careless_inputs.py::test_faces_split_tells_a_tiling_of_the_polygons_from_other_faces",
         "test_careless_inputs.py::test_a_body_written_triangulated_is_the_same_body"],
-    "a target body whose modifiers end in a Subdivision Surface": [
+    "a target body subdivided over the source's mesh": [
         "test_careless_inputs.py::test_a_target_given_with_the_cage_it_subdivides_is_solved_on_the_cage",
         "test_careless_inputs.py::test_the_command_line_takes_the_cage_of_a_subdivided_target",
         "blender/test_registration_operator.py::"
         "test_a_target_under_a_subdivision_surface_is_dressed_on_the_mesh_it_subdivides",
+        "blender/test_registration_operator.py::"
+        "test_a_target_sculpted_with_a_multiresolution_is_dressed_on_its_base_mesh_unless_the_sculpt_is_another_body",
+        "blender/test_motion.py::"
+        "test_a_sculpted_character_its_multiresolution_before_its_armature_is_dressed_on_its_base_mesh",
         "blender/test_outfit_operator.py::test_an_outfit_onto_a_target_under_a_subdivision_surface"],
     "a source body written triangulated and a target body of its mesh": [
         "test_careless_inputs.py::test_common_polygons_of_two_splits_of_one_mesh",

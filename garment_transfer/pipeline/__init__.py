@@ -9,7 +9,7 @@ triangulation, against the body given), ``model_check`` (a trained model on held
 process pool or Dask). Built on ``geometry``, ``fitting``, ``learning`` and ``rigging``.
 """
 
-from .any_body import transfer_to_any_body
+from .any_body import lies_on_cage, transfer_to_any_body
 from .batch import BatchSummary, run_batch
 from .catalogue import Catalogue, read_catalogue
 from .metrics import drape_error, evaluate, mdc, per_vertex_change, vertex_error
@@ -27,7 +27,8 @@ from .transfer import (OFFSET_SHARE, POSE_LIMITS, PreparedGarment, TransferResul
 
 __all__ = ["OFFSET_SHARE", "PreparedGarment", "TransferResult", "prepare_garment", "transfer_garment", "pose_check",
            "POSE_LIMITS", "check_result", "result_warnings",
-           "transfer_to_any_body", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS", "keep_outside_bands",
+           "transfer_to_any_body", "lies_on_cage", "KEEP_OUTSIDE_SHARE", "KEEP_OUTSIDE_BANDS", "SHAPE_KEY_BANDS",
+           "keep_outside_bands",
            "held_bands", "HANGING_BANDS", "hanging_bands",
            "OutfitError", "OutfitResult", "transfer_outfit",
            "ShapeKeyFit", "fit_shape_keys", "transfer_to_shapes", "shapes_to_files", "all_pairs", "fit_steps",

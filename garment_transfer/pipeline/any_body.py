@@ -133,11 +133,22 @@ def transfer_to_any_body(source_body: Mesh, target_body: Mesh, garment: Mesh, *,
     return result, reg
 
 
-def require_cage(target_body: Mesh, cage: Mesh):
-    """Raise MeshError unless ``target_body`` lies within ``CAGE_DISTANCE_SHARE`` of the body's scale from ``cage``
-    everywhere (the surface a subdivision makes of it does)."""
+def cage_gap(target_body: Mesh, cage: Mesh):
+    """How far ``target_body`` lies from ``cage`` at most, and the body's scale: ``(far, scale)``."""
     far = float(np.abs(TriangleSurface(cage.V, cage.F).signed_distance(target_body.V)[0]).max())
-    scale = body_scale(cage.V)
+    return far, body_scale(cage.V)
+
+
+def lies_on_cage(target_body: Mesh, cage: Mesh) -> bool:
+    """Whether ``target_body`` lies within ``CAGE_DISTANCE_SHARE`` of the body's scale from ``cage`` everywhere, as
+    the surface a subdivision makes of it does (a sculpt on the subdivision may take it farther)."""
+    far, scale = cage_gap(target_body, cage)
+    return far <= CAGE_DISTANCE_SHARE * scale
+
+
+def require_cage(target_body: Mesh, cage: Mesh):
+    """Raise MeshError unless ``target_body`` lies on ``cage`` (``lies_on_cage``)."""
+    far, scale = cage_gap(target_body, cage)
     if not far <= CAGE_DISTANCE_SHARE * scale:
         raise MeshError(target_body.name, f"lies up to {far:.4g} from its cage {cage.name}, more than "
                                           f"{CAGE_DISTANCE_SHARE:.0%} of the body's size ({scale:.4g}): the cage is "

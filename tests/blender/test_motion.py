@@ -741,3 +741,21 @@ def test_rig_to_body_on_a_subdivided_body_moves_nothing_at_rest(character):
     # The Shrinkwraps keep the cloth outside the surface they see, the subdivided one: their bands are measured on
     # it (measured on the mesh it subdivides, 21 vertices moved at rest, by up to 0.08 mm).
     assert np.abs(evaluated_world(result) - world_vertices(result)).max() < 1e-5
+
+
+def test_a_sculpted_character_its_multiresolution_before_its_armature_is_dressed_on_its_base_mesh(character):
+    # A sculpted character's stack: the Multiresolution first, the Armature after it.
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    plain = world_vertices(settings.result)
+    mod = body.modifiers.new("Multires", 'MULTIRES')
+    with bpy.context.temp_override(object=body, active_object=body):
+        assert bpy.ops.object.multires_subdivide(modifier=mod.name, mode='CATMULL_CLARK') == {'FINISHED'}
+    body.modifiers.move(len(body.modifiers) - 1, 0)
+    assert [m.type for m in body.modifiers] == ['MULTIRES', 'ARMATURE']
+    pose(character, "fight01")
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert settings.last_registration == "Same mesh as the source body under its subdivision: no registration"
+    result = settings.result
+    assert np.linalg.norm(world_vertices(result) - plain, axis=1).mean() < 0.0015
+    assert kinds(result)[0] == 'ARMATURE' and mod.show_viewport and armature.data.pose_position == 'POSE'

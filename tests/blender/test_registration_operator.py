@@ -237,3 +237,76 @@ def test_a_target_under_a_subdivision_surface_is_dressed_on_the_mesh_it_subdivid
     assert convert.cage_mesh_from_object(dressed.target, bpy.context, "target body") is not None
     dressed.target.modifiers.new("Displace", 'DISPLACE').strength = 0.001
     assert convert.cage_mesh_from_object(dressed.target, bpy.context, "target body") is None
+
+
+def multires_subdivide(obj, times=1):
+    mod = obj.modifiers.new("Multires", 'MULTIRES')
+    with bpy.context.temp_override(object=obj, active_object=obj):
+        for _ in range(times):
+            assert bpy.ops.object.multires_subdivide(modifier=mod.name, mode='CATMULL_CLARK') == {'FINISHED'}
+    return mod
+
+
+def sculpt(obj, mod, move):
+    """The Multiresolution's surface reshaped to ``move(V)`` (world positions of the surface shown -> new ones), as
+    a sculpt would leave it (Blender's Reshape from another object)."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    shown = bpy.data.meshes.new_from_object(obj.evaluated_get(depsgraph), depsgraph=depsgraph)
+    other = bpy.data.objects.new("sculpted", shown)
+    other.matrix_world = obj.matrix_world
+    bpy.context.scene.collection.objects.link(other)
+    M = np.array(obj.matrix_world)
+    co = np.empty(3 * len(shown.vertices), dtype=np.float32)
+    shown.vertices.foreach_get("co", co)
+    V = co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+    local = (move(V) - M[:3, 3]) @ np.linalg.inv(M[:3, :3]).T
+    shown.vertices.foreach_set("co", local.astype(np.float32).ravel())
+    shown.update()
+    with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj, other],
+                                   selected_editable_objects=[obj, other]):
+        assert bpy.ops.object.multires_reshape(modifier=mod.name) == {'FINISHED'}
+    bpy.data.objects.remove(other)
+    bpy.data.meshes.remove(shown)
+
+
+def test_a_target_sculpted_with_a_multiresolution_is_dressed_on_its_base_mesh_unless_the_sculpt_is_another_body(
+        dressed, extension, monkeypatch):
+    import json
+
+    gt, convert = extension.garment_transfer, extension.operators.convert
+    monkeypatch.setenv("GARMENT_TRANSFER_CACHE", "off")
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    plain = world_vertices(dressed.settings.result)
+    mod = multires_subdivide(dressed.target)
+    # A sculpted detail of 3 mm on the belly and the back (well within 1% of the body's size): the mesh it
+    # subdivides is the source's, and the garment is fitted to the sculpted surface.
+    centre = world_vertices(dressed.target).mean(axis=0)
+
+    def bump(depth):
+        def move(V):
+            d = V - centre
+            around = np.exp(-((d[:, 2] - 0.1) / 0.08) ** 2) * (np.abs(d[:, 0]) < 0.12)
+            return V + depth * around[:, None] * np.c_[np.zeros(len(V)), np.sign(d[:, 1]), np.zeros(len(V))]
+        return move
+
+    sculpt(dressed.target, mod, bump(0.003))
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert dressed.settings.last_registration == "Same mesh as the source body under its subdivision: no registration"
+    assert mod.show_viewport
+    result = dressed.settings.result
+    assert np.linalg.norm(world_vertices(result) - plain, axis=1).mean() < 0.0015
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    body = convert.core_mesh_from_object(dressed.target, depsgraph)
+    cloth = convert.core_mesh_from_object(result, depsgraph)
+    c = gt.crossings(cloth.V, gt.readings_of(cloth), body.V, gt.readings_of(body))
+    shown = json.loads(dressed.settings.last_metrics)
+    assert shown["garment_edges_through_body"] == c["a_edges_through_b"] == 0
+    assert shown["body_edges_through_garment"] == c["b_edges_through_a"] == 0
+    # Sculpted 4 cm out (beyond 1% of the body's size): another body than the mesh it subdivides, registered.
+    sculpt(dressed.target, mod, bump(0.04))
+    body = convert.core_mesh_from_object(dressed.target, bpy.context.evaluated_depsgraph_get())
+    cage = convert.cage_mesh_from_object(dressed.target, bpy.context, "target body")
+    assert not gt.lies_on_cage(body, cage)
+    assert convert.cage_mesh_from_object(dressed.target, bpy.context, "target body", body) is None
+    assert bpy.ops.garment_transfer.transfer() == {'FINISHED'}
+    assert dressed.settings.last_registration.startswith("Registered") and mod.show_viewport
