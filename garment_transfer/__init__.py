@@ -39,7 +39,7 @@ from .version import __version__
 #: The public names of each layer, by subpackage (imported on first use).
 LAYERS = {
     "geometry": ("Mesh", "read_obj", "write_obj", "obj_text", "read_pc2", "write_pc2", "is_pc2", "read_mdd",
-                 "write_mdd", "mesh_from_polygons", "mesh_from_triangles",
+                 "write_mdd", "is_mdd", "is_mdd_name", "mesh_from_polygons", "mesh_from_triangles",
                  "require_same_topology", "same_mesh", "as_same_mesh", "one_mesh", "TriangleSurface", "body_scale",
                  "fix_penetration", "follow_nearest_vertex", "crossings", "self_intersections", "intersection_report",
                  "readings_of", "Readings"),

@@ -728,23 +728,26 @@ def files_in_use():
 
 
 def bake_cache_path(path):
-    """The absolute path of a bake's point cache, checked before the bake: a new file, or a PC2 file of an
-    earlier bake to replace; never another kind of file, a file the .blend file reads (``files_in_use``: a
-    character's point cache included), a folder or a link; its folder must exist and be writable."""
-    from ..garment_transfer import OutputError, check_output, is_pc2
+    """The absolute path of a bake's point cache, checked before the bake: a new file, or a point cache of an
+    earlier bake to replace (PC2; MDD where it is named .mdd); never another kind of file, a file the .blend file
+    reads (``files_in_use``: a character's point cache included), a folder or a link; its folder must exist and be
+    writable."""
+    from ..garment_transfer import OutputError, check_output, is_mdd, is_mdd_name, is_pc2
 
     full = bpy.path.abspath(path)
-    if os.path.isfile(full) and not os.path.islink(full) and not is_pc2(full):
-        raise OutputError(full, "is not a PC2 point cache; refusing to replace it (choose a new .pc2 file)")
+    if os.path.isfile(full) and not os.path.islink(full) and not (is_mdd(full) if is_mdd_name(full) else is_pc2(full)):
+        kind = "an MDD" if is_mdd_name(full) else "a PC2"
+        raise OutputError(full, f"is not {kind} point cache; refusing to replace it (choose a new .pc2 or .mdd file)")
     return check_output(full, files_in_use(), "Point Cache")
 
 
 def baked_object(context, obj, frames, positions, cache=None):
     """A new object ``<garment>_baked``: a shape key per frame, each at 1 on its frame and 0 on the frames
     beside it (constant interpolation between keys is not needed: neighbours blend linearly); or, with ``cache``
-    (a path), the frames written there as a PC2 file (the object's own coordinates) and a Mesh Cache modifier that
-    plays it, its first sample at the first frame."""
-    from ..garment_transfer import write_pc2
+    (a path), the frames written there as a PC2 file, or an MDD file where it is named .mdd (its times the frames'
+    at the scene's frame rate), in the object's own coordinates, and a Mesh Cache modifier that plays it, its first
+    sample at the first frame."""
+    from ..garment_transfer import is_mdd_name, write_mdd, write_pc2
 
     result = convert.new_result_object(obj, positions[0], f"{obj.name}_baked", context.evaluated_depsgraph_get(),
                                        False, scene=context.scene, view_layer=context.view_layer)
@@ -753,9 +756,14 @@ def baked_object(context, obj, frames, positions, cache=None):
             result.modifiers.remove(mod)
         if cache is not None:
             local = np.stack([convert.local_from_world(V, result.matrix_world, obj.name) for V in positions])
-            write_pc2(cache, local, start_frame=frames[0], inputs=files_in_use(), what="Point Cache")
+            render = context.scene.render
+            if is_mdd_name(cache):
+                times = (np.asarray(frames, dtype=np.float64) - frames[0]) * render.fps_base / render.fps
+                write_mdd(cache, local, times, inputs=files_in_use(), what="Point Cache")
+            else:
+                write_pc2(cache, local, start_frame=frames[0], inputs=files_in_use(), what="Point Cache")
             mod = result.modifiers.new(name=CACHE_MODIFIER, type='MESH_CACHE')
-            mod.cache_format = 'PC2'
+            mod.cache_format = 'MDD' if is_mdd_name(cache) else 'PC2'
             mod.filepath = cache
             mod.time_mode = 'FRAME'
             mod.play_mode = 'SCENE'
@@ -931,7 +939,8 @@ class GARMENT_TRANSFER_OT_bake_pose_fit(ModalSteps, bpy.types.Operator):
     frame_start: IntProperty(name="Start", default=1, description="First frame to bake")
     frame_end: IntProperty(name="End", default=0, description="Last frame to bake (0: the scene's end)")
     cache_file: StringProperty(name="Point Cache", subtype='FILE_PATH', default="",
-                               description="PC2 file to bake into (a Mesh Cache modifier plays it); empty: shape keys")
+                               description="PC2 file (or MDD, named .mdd) to bake into (a Mesh Cache modifier "
+                                           "plays it); empty: shape keys")
     untangle: BoolProperty(name="Untangle", default=False, description=UNTANGLE_TEXT)
 
     status_text = "Baking the pose fit"

@@ -5,7 +5,7 @@ import struct
 import numpy as np
 import pytest
 
-from garment_transfer import MeshError, OutputError, is_pc2, read_mdd, read_pc2, write_mdd, write_pc2
+from garment_transfer import MeshError, OutputError, is_mdd, is_pc2, read_mdd, read_pc2, write_mdd, write_pc2
 
 
 def test_a_point_cache_has_the_pc2_header_and_float32_points_and_reads_back(tmp_path):
@@ -53,6 +53,8 @@ def test_an_mdd_cache_is_big_endian_with_its_times_and_reads_back(tmp_path):
     assert np.array_equal(Q, P.astype(np.float32)) and np.array_equal(t, np.float32(times))
     cut = tmp_path / "cut.mdd"
     cut.write_bytes(data[:-4])
+    (tmp_path / "body.cache").write_bytes(data)
+    assert is_mdd(path) and not is_mdd(cut) and not is_mdd(tmp_path / "body.cache") and not is_mdd(tmp_path / "no.mdd")
     with pytest.raises(MeshError, match="cut.mdd: holds 160 bytes, but an MDD file of the 3 frames of 4 points"):
         read_mdd(cut)
     (tmp_path / "tiny.mdd").write_bytes(b"abc")

@@ -29,7 +29,7 @@ from .mesh import (
                    vertex_areas,
                    vertex_normals,
 )
-from .mdd import read_mdd, write_mdd
+from .mdd import is_mdd, is_mdd_name, read_mdd, write_mdd
 from .obj import obj_text, read_obj, write_obj
 from .pc2 import is_pc2, read_pc2, write_pc2
 from .penetration import fix_penetration, vertex_adjacency
@@ -42,7 +42,8 @@ __all__ = ["Mesh", "mesh_from_polygons", "mesh_from_triangles", "triangulate", "
            "faces_turned", "faces_split", "common_polygons", "turned_around", "as_same_mesh", "one_mesh", "common_mesh",
            "facing_outward", "connected_pieces", "triangle_normals",
            "vertex_normals", "vertex_areas", "faces_hash", "read_obj", "write_obj", "obj_text",
-           "read_pc2", "write_pc2", "is_pc2", "read_mdd", "write_mdd", "TriangleSurface", "closest_on_triangles",
+           "read_pc2", "write_pc2", "is_pc2", "read_mdd", "write_mdd", "is_mdd", "is_mdd_name", "TriangleSurface",
+           "closest_on_triangles",
            "deformation_gradients",
            "body_scale",
            "body_to_cloth", "cloth_to_body", "embed", "unembed", "Binding", "bind", "carry", "follow_nearest_vertex",

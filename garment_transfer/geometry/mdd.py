@@ -25,6 +25,22 @@ def is_mdd_name(path) -> bool:
     return os.fspath(path).lower().endswith(".mdd")
 
 
+def is_mdd(path) -> bool:
+    """Whether ``path`` is a file named as an MDD file whose size matches its header."""
+    if not is_mdd_name(path):
+        return False
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(HEADER.size)
+        size = os.path.getsize(path)
+    except OSError:
+        return False
+    if len(head) < HEADER.size:
+        return False
+    frames, points = HEADER.unpack(head)
+    return frames >= 1 and points >= 1 and size == HEADER.size + 4 * frames + 12 * points * frames
+
+
 def mdd_bytes(positions, times) -> bytes:
     """The MDD file of ``positions`` (k,n,3): k frames of n points, at ``times`` (k,) seconds."""
     P = np.asarray(positions, dtype=np.float64)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import import_obj, world_vertices
 
-from garment_transfer import (Rig, bvh_rotations, fit_to_pose, posed_counts, read_bvh, read_joints, read_obj,
+from garment_transfer import (Rig, bvh_rotations, fit_to_pose, posed_counts, read_bvh, read_joints, read_mdd, read_obj,
                               read_pc2, read_skeleton, read_weights, transfer_garment, write_pc2)
 
 # Blender's OBJ import of a Y-up file in decimetres (conftest.import_obj): world = 0.1 * C @ file.
@@ -297,6 +297,24 @@ def test_fit_to_pose_and_bake(character, tmp_path):
     # Baked again into the same cache: the PC2 file is replaced.
     assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=2, frame_end=3, cache_file=str(cache)) == {'FINISHED'}
     assert read_pc2(cache)[0].shape[0] == 2 and read_pc2(cache)[1] == 2.0
+    # Into an MDD file (named .mdd): its times the frames' at the scene's rate, played by the Mesh Cache as MDD.
+    mdd = tmp_path / "suit.mdd"
+    (tmp_path / "notes.mdd").write_text("not a cache")
+    with pytest.raises(RuntimeError, match="notes.mdd: is not an MDD point cache"):
+        bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(tmp_path / "notes.mdd"))
+    before = set(bpy.data.objects)
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=1, frame_end=3, cache_file=str(mdd)) == {'FINISHED'}
+    played, = set(bpy.data.objects) - before
+    assert played.modifiers[0].type == 'MESH_CACHE' and played.modifiers[0].cache_format == 'MDD'
+    positions, times = read_mdd(mdd)
+    render = bpy.context.scene.render
+    assert positions.shape[0] == 3 and np.array_equal(times, np.float32(np.arange(3) * render.fps_base / render.fps))
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        assert np.abs(evaluated_world(played) - evaluated_world(baked)).max() < 1e-5
+    # Baked again into it: an MDD file of an earlier bake is replaced.
+    assert bpy.ops.garment_transfer.bake_pose_fit(frame_start=2, frame_end=3, cache_file=str(mdd)) == {'FINISHED'}
+    assert read_mdd(mdd)[0].shape[0] == 2
 
 
 def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_nothing(character):
