@@ -236,8 +236,8 @@ class GarmentTransferSettings(bpy.types.PropertyGroup):
                     "does Transfer Garment onto a character in another rest pose, where posing the source folds it")
     bake_cache: StringProperty(
         name="Point Cache", subtype='FILE_PATH', default="",
-        description="Bake Pose Fit into this PC2 file, played by a Mesh Cache modifier on the baked object (one file "
-                    "for a long action); empty: a shape key per frame on the object")
+        description="Bake Pose Fit into this PC2 file (or MDD, named .mdd), played by a Mesh Cache modifier on the "
+                    "baked object (one file for a long action); empty: a shape key per frame on the object")
     max_influences: IntProperty(
         name="Bones per Vertex", default=8, min=1, max=16,
         description="The most bones that move one garment vertex (game engines take 8, or 4: fewer follow the "
