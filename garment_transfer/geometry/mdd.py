@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import MeshError
 from ..files import write_atomic
+from .pc2 import cache_bytes
 
 #: frames, points.
 HEADER = struct.Struct(">ii")
@@ -76,11 +77,7 @@ def read_mdd(path):
         Naming the file: unreadable, or a size that does not match its header (another kind of file, cut off).
     """
     name = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise MeshError(name, f"cannot be read ({exc.strerror or exc})") from None
+    data = cache_bytes(path)
     if len(data) < HEADER.size:
         raise MeshError(name, f"holds {len(data)} bytes, fewer than an MDD header: not an MDD point cache")
     frames, points = HEADER.unpack_from(data)

@@ -52,6 +52,15 @@ def is_pc2(path) -> bool:
         return False
 
 
+def cache_bytes(path) -> bytes:
+    """The bytes of a point-cache file, or MeshError naming it where it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise MeshError(os.fspath(path), f"cannot be read ({exc.strerror or exc})") from None
+
+
 def read_pc2(path):
     """Read a PC2 file.
 
@@ -66,11 +75,7 @@ def read_pc2(path):
         Naming the file: not a PC2 file, another version, or a size that does not match its header.
     """
     name = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise MeshError(name, f"cannot be read ({exc.strerror or exc})") from None
+    data = cache_bytes(path)
     if len(data) < HEADER.size or data[:len(MAGIC)] != MAGIC:
         raise MeshError(name, "is not a PC2 point cache (it does not start with POINTCACHE2)")
     _, version, points, start, rate, samples = HEADER.unpack_from(data)

@@ -54,17 +54,21 @@ def character(makehuman):
     return rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman
 
 
-def evaluated_world(obj):
-    depsgraph = bpy.context.evaluated_depsgraph_get()
-    ev = obj.evaluated_get(depsgraph)
+def local_evaluated(obj):
+    """(n,3) float32: the object's evaluated vertices in its own space (what a point cache of it holds)."""
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     me = ev.to_mesh()
     try:
         co = np.empty(3 * len(me.vertices), dtype=np.float32)
         me.vertices.foreach_get("co", co)
     finally:
         ev.to_mesh_clear()
-    M = np.array(ev.matrix_world)
-    return co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+    return co.reshape(-1, 3)
+
+
+def evaluated_world(obj):
+    M = np.array(obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).matrix_world)
+    return local_evaluated(obj).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
 
 
 def pose(character, name):
@@ -75,6 +79,16 @@ def pose(character, name):
     rigging.pose_armature(armature, skeleton, T)
     bpy.context.view_layer.update()
     return T
+
+
+def key_rest_to_pose(armature):
+    """The armature's pose keyed at frame 3 and its rest at frame 1 (frame 2 halfway)."""
+    for bone in armature.pose.bones:
+        bone.keyframe_insert("location", frame=3)
+        bone.keyframe_insert("rotation_quaternion", frame=3)
+        bone.matrix_basis.identity()
+        bone.keyframe_insert("location", frame=1)
+        bone.keyframe_insert("rotation_quaternion", frame=1)
 
 
 def test_an_armature_from_the_rig_has_its_bones_rolls_and_poses_the_body_as_the_core_does(character):
@@ -226,12 +240,7 @@ def test_fit_to_pose_and_bake(character, tmp_path):
     assert figures["crossings_at_contact"] <= plain["crossings_at_contact"]
     bpy.data.objects.remove(untangled)
     # Bake three frames: rest at 1, the kick at 3, keyed in between.
-    for bone in armature.pose.bones:
-        bone.keyframe_insert("location", frame=3)
-        bone.keyframe_insert("rotation_quaternion", frame=3)
-        bone.matrix_basis.identity()
-        bone.keyframe_insert("location", frame=1)
-        bone.keyframe_insert("rotation_quaternion", frame=1)
+    key_rest_to_pose(armature)
     bpy.context.scene.frame_set(5)
     before = set(bpy.data.objects)
     steps = rigging.bake_steps(bpy.context, result, body, 1, 3)
@@ -330,30 +339,13 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
         bpy.ops.garment_transfer.fit_pose()
 
 
-def local_evaluated(obj):
-    """(n,3) float32: the object's evaluated vertices in its own space (what a point cache of it holds)."""
-    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    me = ev.to_mesh()
-    try:
-        co = np.empty(3 * len(me.vertices), dtype=np.float32)
-        me.vertices.foreach_get("co", co)
-    finally:
-        ev.to_mesh_clear()
-    return co.reshape(-1, 3)
-
-
 def test_a_character_animated_by_a_point_cache_is_dressed_at_rest_and_fitted_and_baked_frame_by_frame(character,
                                                                                                     tmp_path):
     # An animation handed on as a point cache: the body's frames 1-3 (rest, halfway, the kick) as its armature
     # plays them, written to a PC2 file; then the armature taken off and a Mesh Cache modifier plays the file.
     rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
     pose(character, "fight01")
-    for bone in armature.pose.bones:
-        bone.keyframe_insert("location", frame=3)
-        bone.keyframe_insert("rotation_quaternion", frame=3)
-        bone.matrix_basis.identity()
-        bone.keyframe_insert("location", frame=1)
-        bone.keyframe_insert("rotation_quaternion", frame=1)
+    key_rest_to_pose(armature)
     frames = []
     for frame in (1, 2, 3):
         bpy.context.scene.frame_set(frame)
