@@ -769,3 +769,42 @@ def test_a_sculpted_character_its_multiresolution_before_its_armature_is_dressed
     result = settings.result
     assert np.linalg.norm(world_vertices(result) - plain, axis=1).mean() < 0.0015
     assert kinds(result)[0] == 'ARMATURE' and mod.show_viewport and armature.data.pose_position == 'POSE'
+
+
+def test_an_outfit_onto_a_character_played_by_a_point_cache_is_dressed_at_rest_and_follows_its_surface(character,
+                                                                                                      tmp_path):
+    from test_outfit_operator import mesh_object, set_layers
+
+    from lab.makehuman_procedural import MANNEQUIN, fit
+    from lab.paths import DEMO_DATA
+
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    src = read_obj(makehuman / "bodies" / "female_average.obj")
+    mannequin = read_obj(DEMO_DATA / "bodies" / f"{MANNEQUIN}.obj")
+    inner, _, _, registration = fit("tshirt", mannequin, src)
+    outer, _, _, _ = fit("shift_dress", mannequin, src, registration)
+    set_layers(settings, [mesh_object(m.with_vertices(to_world(m.V)), name)
+                          for m, name in zip((inner, outer), ("tshirt", "dress"))])
+    # The kick written to a PC2 file from the armature, then played by a Mesh Cache in its place.
+    pose(character, "fight01")
+    key_rest_to_pose(armature)
+    frames = []
+    for frame in (1, 2, 3):
+        bpy.context.scene.frame_set(frame)
+        frames.append(local_evaluated(body))
+    write_pc2(tmp_path / "kick.pc2", np.stack(frames), start_frame=1.0)
+    body.modifiers.remove(body.modifiers["Armature"])
+    cache = body.modifiers.new(name="Kick", type='MESH_CACHE')
+    cache.cache_format, cache.filepath, cache.frame_start = 'PC2', str(tmp_path / "kick.pc2"), 1.0
+    # At the kick's frame, each layer is made on the body at rest (as with the cache off) and follows its surface.
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    results = [bpy.data.objects[f"{name}_on_pear"] for name in ("tshirt", "dress")]
+    assert all(kinds(r) == ['SURFACE_DEFORM', 'SHRINKWRAP'] and r.modifiers[0].is_bound for r in results)
+    assert cache.show_viewport and np.array_equal(local_evaluated(body), frames[2])
+    made = [world_vertices(r) for r in results]
+    for r in results:
+        bpy.data.objects.remove(r)
+    cache.show_viewport = False
+    assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
+    again = [bpy.data.objects[f"{name}_on_pear"] for name in ("tshirt", "dress")]
+    assert all(np.array_equal(world_vertices(r), m) for r, m in zip(again, made))
