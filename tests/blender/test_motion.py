@@ -339,21 +339,30 @@ def test_rigging_a_result_to_a_body_without_an_armature_says_so_and_changes_noth
         bpy.ops.garment_transfer.fit_pose()
 
 
-def test_a_character_animated_by_a_point_cache_is_dressed_at_rest_and_fitted_and_baked_frame_by_frame(character,
-                                                                                                    tmp_path):
-    # An animation handed on as a point cache: the body's frames 1-3 (rest, halfway, the kick) as its armature
-    # plays them, written to a PC2 file; then the armature taken off and a Mesh Cache modifier plays the file.
-    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+def kick_played_by_a_cache(character, path):
+    """The body's frames 1-3 (rest, halfway, the kick) as its armature plays them, written to the PC2 file ``path``;
+    then the armature taken off and a Mesh Cache modifier playing the file in its place. Returns the frames (local
+    float32 positions) and the modifier."""
+    _, _, _, body, _, _, armature, _, _ = character
     pose(character, "fight01")
     key_rest_to_pose(armature)
     frames = []
     for frame in (1, 2, 3):
         bpy.context.scene.frame_set(frame)
         frames.append(local_evaluated(body))
-    write_pc2(tmp_path / "kick.pc2", np.stack(frames), start_frame=1.0)
+    write_pc2(path, np.stack(frames), start_frame=1.0)
     body.modifiers.remove(body.modifiers["Armature"])
     cache = body.modifiers.new(name="Kick", type='MESH_CACHE')
-    cache.cache_format, cache.filepath, cache.frame_start = 'PC2', str(tmp_path / "kick.pc2"), 1.0
+    cache.cache_format, cache.filepath, cache.frame_start = 'PC2', str(path), 1.0
+    return frames, cache
+
+
+def test_a_character_animated_by_a_point_cache_is_dressed_at_rest_and_fitted_and_baked_frame_by_frame(character,
+                                                                                                    tmp_path):
+    # An animation handed on as a point cache: the body's frames 1-3 (rest, halfway, the kick) as its armature
+    # plays them, written to a PC2 file; then the armature taken off and a Mesh Cache modifier plays the file.
+    rigging, skeleton, core_rig, body, source, garment, armature, settings, makehuman = character
+    frames, cache = kick_played_by_a_cache(character, tmp_path / "kick.pc2")
     for frame in (1, 2, 3):
         bpy.context.scene.frame_set(frame)
         assert np.array_equal(local_evaluated(body), frames[frame - 1])
@@ -786,16 +795,7 @@ def test_an_outfit_onto_a_character_played_by_a_point_cache_is_dressed_at_rest_a
     set_layers(settings, [mesh_object(m.with_vertices(to_world(m.V)), name)
                           for m, name in zip((inner, outer), ("tshirt", "dress"))])
     # The kick written to a PC2 file from the armature, then played by a Mesh Cache in its place.
-    pose(character, "fight01")
-    key_rest_to_pose(armature)
-    frames = []
-    for frame in (1, 2, 3):
-        bpy.context.scene.frame_set(frame)
-        frames.append(local_evaluated(body))
-    write_pc2(tmp_path / "kick.pc2", np.stack(frames), start_frame=1.0)
-    body.modifiers.remove(body.modifiers["Armature"])
-    cache = body.modifiers.new(name="Kick", type='MESH_CACHE')
-    cache.cache_format, cache.filepath, cache.frame_start = 'PC2', str(tmp_path / "kick.pc2"), 1.0
+    frames, cache = kick_played_by_a_cache(character, tmp_path / "kick.pc2")
     # At the kick's frame, each layer is made on the body at rest (as with the cache off) and follows its surface.
     assert bpy.ops.garment_transfer.transfer_outfit() == {'FINISHED'}
     results = [bpy.data.objects[f"{name}_on_pear"] for name in ("tshirt", "dress")]
